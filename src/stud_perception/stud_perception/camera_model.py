@@ -1,0 +1,172 @@
+"""Pinhole camera model and the paper's Eq. 1 (pixel + depth -> world), vectorised.
+
+Frames (REP 103/105): the optical frame `camera_color_optical_frame` has z forward,
+x right, y down; `world` is the RM-65 base frame with z up. Depth is registered to
+colour, so one K serves both images. All lengths are metres; depth is the optical-frame
+z coordinate (not the ray length), as RGB-D drivers publish it (REP 118).
+
+This is the only place Eq. 1 lives: every matcher, the registration and the scene
+renderer call :meth:`CameraModel.pixel_to_world` / :meth:`CameraModel.world_to_pixel`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+class CameraModelError(ValueError):
+    """Camera intrinsics or pose that cannot be used (with the offending value)."""
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """Intrinsics K (3x3, pixels) and the optical frame's pose in `world`.
+
+    ``R_wc`` (3x3, orthonormal) and ``t_wc`` (3,, metres) map optical-frame points to
+    world: ``P_w = R_wc @ P_c + t_wc``. ``width``/``height`` are the image size in pixels.
+    """
+
+    K: np.ndarray
+    width: int
+    height: int
+    R_wc: np.ndarray
+    t_wc: np.ndarray
+
+    def __post_init__(self) -> None:
+        K = np.asarray(self.K, dtype=np.float64).reshape(3, 3)
+        R = np.asarray(self.R_wc, dtype=np.float64).reshape(3, 3)
+        t = np.asarray(self.t_wc, dtype=np.float64).reshape(3)
+        if not (K[0, 0] > 0 and K[1, 1] > 0):
+            raise CameraModelError(f"camera K has non-positive focal length fx={K[0, 0]}, fy={K[1, 1]}")
+        if self.width <= 0 or self.height <= 0:
+            raise CameraModelError(f"camera image size {self.width}x{self.height} must be positive")
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+            raise CameraModelError("camera rotation R_wc is not a proper rotation matrix")
+        object.__setattr__(self, "K", K)
+        object.__setattr__(self, "R_wc", R)
+        object.__setattr__(self, "t_wc", t)
+        object.__setattr__(self, "width", int(self.width))
+        object.__setattr__(self, "height", int(self.height))
+
+    # -- construction ---------------------------------------------------------------
+    @classmethod
+    def from_fov(
+        cls,
+        width: int,
+        height: int,
+        fov_width_m: float,
+        distance_m: float,
+        R_wc: np.ndarray | None = None,
+        t_wc: np.ndarray | None = None,
+    ) -> "CameraModel":
+        """Square-pixel camera whose image spans ``fov_width_m`` at ``distance_m``.
+
+        Default pose: looking straight down (nadir) from ``distance_m`` above the world
+        origin, optical x along world +X, optical y along world -Y, optical z along world -Z.
+        """
+        f = width * distance_m / fov_width_m
+        K = np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+        if R_wc is None:
+            R_wc = nadir_rotation()
+        if t_wc is None:
+            t_wc = np.array([0.0, 0.0, distance_m])
+        return cls(K=K, width=width, height=height, R_wc=R_wc, t_wc=t_wc)
+
+    def with_pose(self, R_wc: np.ndarray, t_wc: np.ndarray) -> "CameraModel":
+        return CameraModel(K=self.K, width=self.width, height=self.height, R_wc=R_wc, t_wc=t_wc)
+
+    # -- properties -----------------------------------------------------------------
+    @property
+    def fx(self) -> float:
+        return float(self.K[0, 0])
+
+    @property
+    def fy(self) -> float:
+        return float(self.K[1, 1])
+
+    @property
+    def cx(self) -> float:
+        return float(self.K[0, 2])
+
+    @property
+    def cy(self) -> float:
+        return float(self.K[1, 2])
+
+    @property
+    def K_inv(self) -> np.ndarray:
+        return np.linalg.inv(self.K)
+
+    @property
+    def position_w(self) -> np.ndarray:
+        """Optical centre in world (metres)."""
+        return self.t_wc
+
+    # -- Eq. 1 --------------------------------------------------------------------------
+    def pixel_to_camera(self, u, v, depth_m) -> np.ndarray:
+        """Pixel (u, v) with depth z (metres) -> optical-frame point, shape (..., 3)."""
+        u = np.asarray(u, dtype=np.float64)
+        v = np.asarray(v, dtype=np.float64)
+        z = np.asarray(depth_m, dtype=np.float64)
+        x = (u - self.cx) / self.fx * z
+        y = (v - self.cy) / self.fy * z
+        return np.stack(np.broadcast_arrays(x, y, z), axis=-1)
+
+    def pixel_to_world(self, u, v, depth_m) -> np.ndarray:
+        """Paper Eq. 1: ``P_w = R_wc (z K^-1 [u v 1]^T) + t_wc``; shape (..., 3), metres.
+
+        Invalid depth (NaN) propagates as NaN.
+        """
+        P_c = self.pixel_to_camera(u, v, depth_m)
+        return P_c @ self.R_wc.T + self.t_wc
+
+    def world_to_camera(self, P_w) -> np.ndarray:
+        P_w = np.asarray(P_w, dtype=np.float64)
+        return (P_w - self.t_wc) @ self.R_wc
+
+    def world_to_pixel(self, P_w) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """World points (..., 3) -> (u, v, z_cam). Points behind the camera give NaN u, v."""
+        P_c = self.world_to_camera(P_w)
+        z = P_c[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            safe = np.where(z > 0, z, np.nan)
+            u = self.fx * P_c[..., 0] / safe + self.cx
+            v = self.fy * P_c[..., 1] / safe + self.cy
+        return u, v, z
+
+    def ray_directions_world(self, u, v) -> np.ndarray:
+        """World direction of the ray through pixel (u, v) per metre of depth (not unit)."""
+        return self.pixel_to_camera(u, v, 1.0) @ self.R_wc.T
+
+    def in_image(self, u, v, margin: float = 0.0) -> np.ndarray:
+        u = np.asarray(u)
+        v = np.asarray(v)
+        return (
+            np.isfinite(u) & np.isfinite(v)
+            & (u >= margin) & (v >= margin)
+            & (u <= self.width - 1 - margin) & (v <= self.height - 1 - margin)
+        )
+
+
+def nadir_rotation(yaw_rad: float = 0.0) -> np.ndarray:
+    """R_wc of a camera looking straight down (optical z = world -Z), rotated by yaw about world Z.
+
+    With yaw 0, optical x is world +X and optical y is world -Y.
+    """
+    base = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
+    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
+    Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return Rz @ base
+
+
+def look_at_rotation(eye_w: np.ndarray, target_w: np.ndarray, up_hint_w=(0.0, 1.0, 0.0)) -> np.ndarray:
+    """R_wc for an optical frame at ``eye_w`` looking at ``target_w`` (optical y ~ -up_hint)."""
+    z = np.asarray(target_w, float) - np.asarray(eye_w, float)
+    z /= np.linalg.norm(z)
+    up = np.asarray(up_hint_w, float)
+    x = np.cross(-up, z)
+    if np.linalg.norm(x) < 1e-9:
+        x = np.cross([1.0, 0.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return np.column_stack([x, y, z])

@@ -1,0 +1,24 @@
+"""Test-wide set-up: import our packages from the source tree, isolate DDS.
+
+Pure-Python core modules are tested straight from ``src/<package>`` so a change is
+tested without a rebuild; the generated message package comes from the built
+workspace (``source ros2_ws/setup.bash``).
+"""
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+for pkg in ("stud_perception", "stud_planner", "rm65_driver"):
+    path = str(REPO / "src" / pkg)
+    if path not in sys.path:
+        sys.path.insert(0, path)
+
+SHARED_DATA = (REPO.parent / "shared" / "data").resolve()
+
+# Keep DDS traffic of this test run on loopback and in a domain of its own, so two
+# runs on one machine (or a developer's running cell) do not see each other.
+os.environ.setdefault("ROS_DOMAIN_ID", str(10 + os.getpid() % 90))  # 0..101 are safe on Linux
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
