@@ -8,6 +8,9 @@ if [ ! -f "$_stud_venv/bin/activate" ] || [ ! -f "$_stud_ws/install/setup.bash" 
   unset _stud_ws _stud_venv
   return 1 2>/dev/null || exit 1
 fi
+# colcon's and venv's scripts read unset variables: allow that while sourcing them, even
+# when the caller runs under `set -u`, and restore the caller's setting afterwards.
+case $- in *u*) _stud_nounset=1; set +u;; *) _stud_nounset=0;; esac
 # shellcheck disable=SC1091
 source "$_stud_venv/bin/activate"
 case ":${AMENT_PREFIX_PATH:-}:" in *":$_stud_venv:"*) ;; *) export AMENT_PREFIX_PATH="$_stud_venv${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}";; esac
@@ -18,4 +21,5 @@ source "$_stud_ws/install/setup.bash"
 # are on the cell network: set ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET there).
 export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
 export PYTHONUNBUFFERED=1
-unset _stud_ws _stud_venv
+[ "$_stud_nounset" = 1 ] && set -u
+unset _stud_ws _stud_venv _stud_nounset
