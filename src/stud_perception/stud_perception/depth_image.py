@@ -1,0 +1,338 @@
+"""Depth images: unit conversion at the edge, the paper's hole rule, safe sub-pixel sampling.
+
+Conventions (REP 118): a 16UC1 depth image holds millimetres with 0 = no depth; a 32FC1
+image holds metres with NaN = no depth. The core works on float metres with NaN; the
+conversions below are the only place millimetres appear. Depth is the optical-frame z
+(not the ray length). Pixel (u, v) means column u, row v, with integer values at pixel
+centres (the convention of K in :mod:`stud_perception.camera_model`), so ``depth_m[v, u]``.
+
+Missing depth (paper): the depth of a pixel without a measurement is the mean of the valid
+depths in the 7x7 window around it. Structured-light cameras also lose larger areas (dark
+paint, specular steel), where a 7x7 window holds nothing; :func:`fill_depth_at` then grows
+the window and, by default, fits a plane to the valid neighbours, and says per pixel which
+rule produced the value (:class:`FillRule`) so callers can report it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Literal
+
+import numpy as np
+
+MM_PER_M = 1000.0
+# Largest depth a 16UC1 image can hold (65.535 m); beyond it the pixel is written as invalid.
+_MAX_DEPTH_MM = np.iinfo(np.uint16).max
+
+
+class DepthImageError(ValueError):
+    """A depth image or query that cannot be used (wrong encoding, shape, parameter)."""
+
+
+class FillRule(IntEnum):
+    """Which rule produced a depth value in :func:`fill_depth_at`."""
+
+    DIRECT = 0        # the pixel itself has a measurement
+    MEAN_WINDOW = 1   # paper rule: mean of the valid depths in the (default 7x7) window
+    GROWN_WINDOW = 2  # mean of the valid depths in a larger window (large hole)
+    PLANE_FIT = 3     # plane fitted to the valid depths of a larger window, evaluated at (u, v)
+    NONE = 4          # no valid depth within the largest window: value is NaN
+
+
+class SampleStatus(IntEnum):
+    """Outcome of :func:`sample_depth_bilinear` per query."""
+
+    OK = 0
+    OUT_OF_IMAGE = 1
+    INVALID_DEPTH = 2   # a neighbour that carries weight has no depth
+    DISCONTINUITY = 3   # the neighbours differ by more than the step threshold
+
+
+# -- unit conversion at the edge -------------------------------------------------------------
+def depth_mm_to_m(depth_mm: np.ndarray) -> np.ndarray:
+    """16UC1 depth (uint16 millimetres, 0 = invalid) -> float32 metres with NaN = invalid."""
+    depth_mm = np.asarray(depth_mm)
+    if depth_mm.dtype != np.uint16:
+        raise DepthImageError(f"16UC1 depth must be uint16 millimetres, got dtype {depth_mm.dtype}")
+    depth_m = depth_mm.astype(np.float32) / np.float32(MM_PER_M)
+    depth_m[depth_mm == 0] = np.nan
+    return depth_m
+
+
+def depth_m_to_mm(depth_m: np.ndarray) -> np.ndarray:
+    """Float metres (NaN/inf/<= 0 = invalid) -> 16UC1 uint16 millimetres (0 = invalid).
+
+    Values are rounded to the nearest millimetre; depths beyond 65.535 m, and depths that
+    round to 0 mm, become 0 (invalid) rather than wrapping or aliasing to "no depth".
+    """
+    depth_mm = np.asarray(depth_m, dtype=np.float64) * MM_PER_M
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(depth_mm) & (depth_mm >= 0.5) & (depth_mm < _MAX_DEPTH_MM + 0.5)
+    out = np.zeros(depth_mm.shape, dtype=np.uint16)
+    out[valid] = np.rint(depth_mm[valid]).astype(np.uint16)
+    return out
+
+
+def depth_image_to_m(data: np.ndarray, encoding: str) -> np.ndarray:
+    """A depth image as published (``16UC1``/``mono16`` mm, or ``32FC1`` m) -> float32 metres, NaN invalid."""
+    enc = encoding.upper()
+    if enc in ("16UC1", "MONO16"):
+        return depth_mm_to_m(np.asarray(data, dtype=np.uint16))
+    if enc == "32FC1":
+        depth_m = np.array(data, dtype=np.float32, copy=True)
+        with np.errstate(invalid="ignore"):
+            depth_m[~(np.isfinite(depth_m) & (depth_m > 0))] = np.nan
+        return depth_m
+    raise DepthImageError(f"depth encoding {encoding!r} is not supported: use 16UC1 (mm) or 32FC1 (m)")
+
+
+# -- hole filling -------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class FilledDepth:
+    """Per-query result of :func:`fill_depth_at`; every array has the shape of the query.
+
+    ``depth_m``: float64 metres (NaN when ``rule == NONE``); ``rule``: int8 :class:`FillRule`
+    codes; ``n_used``: valid samples behind the value (1 for DIRECT); ``window_px``: side of the
+    window that produced it (1 for DIRECT, 0 for NONE); ``spread_m``: standard deviation of the
+    averaged samples, or the RMS residual of the plane fit (0 for DIRECT, NaN for NONE), so a
+    caller can refuse values drawn from a window that straddles a depth edge.
+    """
+
+    depth_m: np.ndarray
+    rule: np.ndarray
+    n_used: np.ndarray
+    window_px: np.ndarray
+    spread_m: np.ndarray
+
+
+def _window_samples(depth_m: np.ndarray, ui: np.ndarray, vi: np.ndarray, window: int):
+    """Depths of the ``window`` x ``window`` neighbourhoods of integer pixels (ui, vi).
+
+    Returns (values (N, w*w) float64 with NaN for invalid or outside, du (w*w,), dv (w*w,)).
+    """
+    h, w = depth_m.shape
+    half = window // 2
+    offs = np.arange(-half, half + 1)
+    dv, du = np.meshgrid(offs, offs, indexing="ij")
+    du = du.ravel()
+    dv = dv.ravel()
+    cols = ui[:, None] + du[None, :]
+    rows = vi[:, None] + dv[None, :]
+    inside = (cols >= 0) & (cols < w) & (rows >= 0) & (rows < h)
+    vals = depth_m[np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1)].astype(np.float64)
+    vals[~inside] = np.nan
+    return vals, du.astype(np.float64), dv.astype(np.float64)
+
+
+def _mean_of_valid(vals: np.ndarray):
+    valid = np.isfinite(vals)
+    n = valid.sum(axis=1)
+    filled = np.where(valid, vals, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = filled.sum(axis=1) / n
+        var = np.where(valid, (vals - mean[:, None]) ** 2, 0.0).sum(axis=1) / n
+    return mean, n, np.sqrt(var)
+
+
+def _plane_fit(vals, du, dv, frac_u, frac_v, min_points: int, min_spread_px: float):
+    """Fit inverse depth as an affine function of (du, dv) per row; evaluate at (frac_u, frac_v).
+
+    Inverse depth, not depth, because a plane imaged by a pinhole camera has 1/z exactly affine
+    in (u, v): the fit is then exact on planar patches at any tilt, and nearly so on the gently
+    curved parts this project welds on. Returns (depth (N,), ok (N,), n (N,), rms_m (N,)).
+    """
+    valid = np.isfinite(vals) & (vals > 0)
+    n = valid.sum(axis=1)
+    wgt = valid.astype(np.float64)
+    inv = np.where(valid, 1.0 / np.where(valid, vals, 1.0), 0.0)
+    # Normal equations of [1, du, dv] . p = 1/z, batched over queries.
+    A = np.stack([np.ones_like(du), du, dv], axis=1)                       # (k, 3)
+    AtA = np.einsum("nk,ki,kj->nij", wgt, A, A)                            # (N, 3, 3)
+    Atb = np.einsum("nk,ki->ni", wgt * inv, A)                             # (N, 3)
+    # Refuse fits whose samples do not spread in both image directions (a line of samples
+    # cannot fix a plane): smallest eigenvalue of the (du, dv) scatter, in pixels^2.
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_uv = AtA[:, 0, 1:] / n[:, None]
+        cov = AtA[:, 1:, 1:] / n[:, None, None] - mean_uv[:, :, None] * mean_uv[:, None, :]
+    cov = np.nan_to_num(cov)
+    min_eig = np.linalg.eigvalsh(cov)[:, 0]
+    ok = (n >= min_points) & (min_eig >= min_spread_px**2)
+    depth = np.full(vals.shape[0], np.nan)
+    rms = np.full(vals.shape[0], np.nan)
+    if ok.any():
+        p = np.linalg.solve(AtA[ok], Atb[ok][:, :, None])[:, :, 0]       # (M, 3)
+        inv_at = p[:, 0] + p[:, 1] * frac_u[ok] + p[:, 2] * frac_v[ok]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z_fit = 1.0 / (p[:, 0][:, None] + p[:, 1][:, None] * du + p[:, 2][:, None] * dv)
+            res = np.where(valid[ok], vals[ok] - z_fit, 0.0)
+        good = inv_at > 0  # an extrapolated plane may pass behind the camera: not a depth
+        idx = np.flatnonzero(ok)
+        depth[idx[good]] = 1.0 / inv_at[good]
+        rms[idx] = np.sqrt((res**2).sum(axis=1) / n[ok])
+        ok[idx[~good]] = False
+    return depth, ok, n, rms
+
+
+def fill_depth_at(
+    depth_m: np.ndarray,
+    u,
+    v,
+    window: int = 7,
+    max_window: int = 31,
+    fallback: Literal["plane", "grow", "none"] = "plane",
+    min_valid: int = 1,
+    min_plane_points: int = 8,
+    chunk: int = 4096,
+) -> FilledDepth:
+    """Depth at pixels (u, v) (any matching shapes, pixels) of a float-metre image, holes filled.
+
+    Rules, in order, per query (the pixel is the nearest integer pixel to (u, v); a query
+    outside the image, or non-finite, gets ``NONE``):
+
+    1. ``DIRECT``: the pixel has a depth.
+    2. ``MEAN_WINDOW`` (paper): mean of the valid depths in the ``window`` x ``window``
+       neighbourhood, when it holds at least ``min_valid``.
+    3. For larger holes, unless ``fallback == "none"``, the window grows by 4 px per step up to
+       ``max_window``: with ``"plane"`` (default) the first window holding ``min_plane_points``
+       valid depths spread in both directions gives a ``PLANE_FIT`` (inverse depth affine in
+       (u, v), evaluated at the sub-pixel (u, v)); a hole too large even for that, but with some
+       valid neighbours in ``max_window``, gets their mean (``GROWN_WINDOW``). With ``"grow"`` the
+       first grown window with ``min_valid`` depths gives their mean (``GROWN_WINDOW``).
+    4. ``NONE``: nothing usable; depth NaN.
+    """
+    depth_m = np.asarray(depth_m)
+    if depth_m.ndim != 2:
+        raise DepthImageError(f"depth image must be 2-D (H, W), got shape {depth_m.shape}")
+    if window < 1 or window % 2 == 0 or max_window < window or max_window % 2 == 0:
+        raise DepthImageError(
+            f"windows must be odd with window <= max_window, got window={window}, max_window={max_window}"
+        )
+    if fallback not in ("plane", "grow", "none"):
+        raise DepthImageError(f"fallback must be 'plane', 'grow' or 'none', got {fallback!r}")
+    u_arr, v_arr = np.broadcast_arrays(np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64))
+    shape = u_arr.shape
+    uf = u_arr.ravel()
+    vf = v_arr.ravel()
+    n_q = uf.size
+    h, w = depth_m.shape
+
+    out_depth = np.full(n_q, np.nan)
+    out_rule = np.full(n_q, FillRule.NONE, dtype=np.int8)
+    out_n = np.zeros(n_q, dtype=np.int32)
+    out_win = np.zeros(n_q, dtype=np.int32)
+    out_spread = np.full(n_q, np.nan)
+
+    finite = np.isfinite(uf) & np.isfinite(vf)
+    ui = np.where(finite, np.rint(np.where(finite, uf, 0.0)), -(10**9)).astype(np.int64)
+    vi = np.where(finite, np.rint(np.where(finite, vf, 0.0)), -(10**9)).astype(np.int64)
+    in_img = (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
+
+    # 1. direct measurement
+    centre = np.full(n_q, np.nan)
+    centre[in_img] = depth_m[vi[in_img], ui[in_img]]
+    direct = np.isfinite(centre) & (centre > 0)
+    out_depth[direct] = centre[direct]
+    out_rule[direct] = FillRule.DIRECT
+    out_n[direct] = 1
+    out_win[direct] = 1
+    out_spread[direct] = 0.0
+
+    def store(sel, depth, rule, n, size, spread):
+        out_depth[sel] = depth
+        out_rule[sel] = rule
+        out_n[sel] = n
+        out_win[sel] = size
+        out_spread[sel] = spread
+
+    sizes = [window]
+    if fallback != "none":
+        sizes += list(range(window + 4, max_window, 4)) + ([max_window] if max_window > window else [])
+    todo = np.flatnonzero(~direct & in_img)
+    for start in range(0, todo.size, chunk):  # chunks bound the (N, w*w) temporaries
+        pending = todo[start:start + chunk]
+        for k, size in enumerate(sizes):
+            if pending.size == 0:
+                break
+            vals, du, dv = _window_samples(depth_m, ui[pending], vi[pending], size)
+            mean, n, std = _mean_of_valid(vals)
+            fit_ok = np.zeros(pending.size, dtype=bool)
+            if k == 0:
+                take_mean, rule = n >= min_valid, FillRule.MEAN_WINDOW
+            elif fallback == "grow":
+                take_mean, rule = n >= min_valid, FillRule.GROWN_WINDOW
+            else:
+                frac_u = uf[pending] - ui[pending]
+                frac_v = vf[pending] - vi[pending]
+                z_fit, fit_ok, n_fit, rms = _plane_fit(vals, du, dv, frac_u, frac_v, min_plane_points, 1.0)
+                store(pending[fit_ok], z_fit[fit_ok], FillRule.PLANE_FIT, n_fit[fit_ok], size, rms[fit_ok])
+                # A plane needs more samples than a mean: only the largest window falls back to the mean.
+                take_mean = ~fit_ok & (n >= min_valid) & (k == len(sizes) - 1)
+                rule = FillRule.GROWN_WINDOW
+            store(pending[take_mean], mean[take_mean], rule, n[take_mean], size, std[take_mean])
+            pending = pending[~(fit_ok | take_mean)]
+
+    return FilledDepth(
+        depth_m=out_depth.reshape(shape),
+        rule=out_rule.reshape(shape),
+        n_used=out_n.reshape(shape),
+        window_px=out_win.reshape(shape),
+        spread_m=out_spread.reshape(shape),
+    )
+
+
+# -- sub-pixel sampling ------------------------------------------------------------------------
+@dataclass(frozen=True)
+class DepthSample:
+    """Result of :func:`sample_depth_bilinear`: ``depth_m`` (float64, NaN unless OK) and
+    ``status`` (int8 :class:`SampleStatus`), both shaped like the query."""
+
+    depth_m: np.ndarray
+    status: np.ndarray
+
+
+def sample_depth_bilinear(depth_m: np.ndarray, u, v, max_step_m: float = 0.005) -> DepthSample:
+    """Bilinear depth at sub-pixel (u, v), refusing to blend what should not be blended.
+
+    Interpolating between a valid and an invalid pixel, or across a depth edge (the four
+    neighbours with non-zero weight differ by more than ``max_step_m``), would invent a surface
+    that is not there; such queries return NaN with status INVALID_DEPTH / DISCONTINUITY.
+    """
+    depth_m = np.asarray(depth_m)
+    h, w = depth_m.shape
+    u_arr, v_arr = np.broadcast_arrays(np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64))
+    shape = u_arr.shape
+    uf = u_arr.ravel()
+    vf = v_arr.ravel()
+    status = np.full(uf.size, SampleStatus.OK, dtype=np.int8)
+    out = np.full(uf.size, np.nan)
+    with np.errstate(invalid="ignore"):
+        inside = np.isfinite(uf) & np.isfinite(vf) & (uf >= 0) & (uf <= w - 1) & (vf >= 0) & (vf <= h - 1)
+    status[~inside] = SampleStatus.OUT_OF_IMAGE
+    idx = np.flatnonzero(inside)
+    if idx.size:
+        # Clamp the base pixel so a query on the last row/column still has a 2x2 cell.
+        u0 = np.minimum(np.floor(uf[idx]).astype(np.int64), max(w - 2, 0))
+        v0 = np.minimum(np.floor(vf[idx]).astype(np.int64), max(h - 2, 0))
+        fu = uf[idx] - u0
+        fv = vf[idx] - v0
+        u1 = np.minimum(u0 + 1, w - 1)
+        v1 = np.minimum(v0 + 1, h - 1)
+        z = np.stack(
+            [depth_m[v0, u0], depth_m[v0, u1], depth_m[v1, u0], depth_m[v1, u1]], axis=1
+        ).astype(np.float64)
+        wt = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], axis=1)
+        used = wt > 0
+        with np.errstate(invalid="ignore"):
+            bad = (used & ~(np.isfinite(z) & (z > 0))).any(axis=1)
+        zu = np.where(used, z, np.nan)
+        with np.errstate(invalid="ignore"):
+            step = np.nanmax(np.where(bad[:, None], 0.0, zu), axis=1) - np.nanmin(
+                np.where(bad[:, None], 0.0, zu), axis=1
+            )
+        jump = ~bad & (step > max_step_m)
+        good = ~bad & ~jump
+        val = (np.where(used, z, 0.0) * wt).sum(axis=1)
+        out[idx[good]] = val[good]
+        status[idx[bad]] = SampleStatus.INVALID_DEPTH
+        status[idx[jump]] = SampleStatus.DISCONTINUITY
+    return DepthSample(depth_m=out.reshape(shape), status=status.reshape(shape))
