@@ -1,0 +1,261 @@
+"""Drawing -> world registration from the marks O, A, B (paper Eq. 2-3) and least squares.
+
+Frames: the drawing frame has its origin at mark O, x toward A, y toward B (metres); `world`
+is the robot base frame, z up, with the working plane at z = 0. Registration is planar: the
+3x3 homogeneous ``M_local2world`` maps drawing (x, y, 1) to world (x, y, 1) (Eq. 2); its
+rotation block is orthonormal and its last column is the translation in metres.
+
+Eq. 3 builds M from the unit vectors OA and OB in world (the cosines of OA and OB with world
+X and Y) and O. Measured OA and OB are never exactly perpendicular, so the 2x2 block
+[OA/|OA|, OB/|OB|] is replaced by its closest rotation (polar decomposition): the angular error
+is shared between the two axes instead of all being put into one. When the drawing's own
+marks are given, the same construction on them makes any drawing placement of O, A, B work.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+
+class RegistrationError(ValueError):
+    """Marks or point sets from which no trustworthy drawing -> world transform follows."""
+
+
+_PAIR_NAMES = ("|OA|", "|OB|", "|AB|")
+
+
+@dataclass(frozen=True, eq=False)
+class Registration:
+    """A drawing -> world registration with its quality figures.
+
+    ``M_local2world`` (3, 3): drawing metres -> world metres (Eq. 2). ``marks_world_m`` (3, 3):
+    measured O, A, B in world. ``marks_drawing_m`` (3, 2): O, A, B in the drawing (the ideal
+    right-angle layout with the measured lengths when no drawing was given). ``residual_m``: RMS
+    distance between the transformed drawing marks and the measured ones (world XY).
+    ``angle_AOB_deg``: measured angle at O. ``distance_errors_m`` (3,): measured minus drawing
+    |OA|, |OB|, |AB| (NaN without a drawing); ``scale_error``: the largest relative length error.
+    ``method``: ``eq3`` (paper) or ``least_squares``.
+    """
+
+    M_local2world: np.ndarray
+    marks_world_m: np.ndarray
+    marks_drawing_m: np.ndarray
+    residual_m: float
+    angle_AOB_deg: float
+    distance_errors_m: np.ndarray
+    scale_error: float
+    method: str
+
+    @property
+    def yaw_rad(self) -> float:
+        """Rotation of the drawing frame about world z."""
+        return math.atan2(self.M_local2world[1, 0], self.M_local2world[0, 0])
+
+    @property
+    def translation_m(self) -> np.ndarray:
+        """World XY of the drawing origin, shape (2,)."""
+        return self.M_local2world[:2, 2].copy()
+
+    def to_world(self, xy_m) -> np.ndarray:
+        return local_to_world(self.M_local2world, xy_m)
+
+    def to_local(self, xy_m) -> np.ndarray:
+        return world_to_local(self.M_local2world, xy_m)
+
+
+@dataclass(frozen=True, eq=False)
+class RigidFit2D:
+    """Least-squares rigid 2D fit: ``M_local2world`` (3, 3), RMS residual ``rms_m`` and the
+    per-point residual distances ``residuals_m`` (N,), metres."""
+
+    M_local2world: np.ndarray
+    rms_m: float
+    residuals_m: np.ndarray
+
+
+# -- applying a transform ------------------------------------------------------------------------
+def local_to_world(M_local2world: np.ndarray, xy_m) -> np.ndarray:
+    """Drawing points (..., 2) -> world XY (..., 2) with a 3x3 homogeneous M (Eq. 2)."""
+    M = np.asarray(M_local2world, dtype=np.float64)
+    xy = np.asarray(xy_m, dtype=np.float64)
+    return xy @ M[:2, :2].T + M[:2, 2]
+
+
+def world_to_local(M_local2world: np.ndarray, xy_m) -> np.ndarray:
+    """World XY (..., 2) -> drawing points (..., 2); M must be rigid (orthonormal rotation)."""
+    M = np.asarray(M_local2world, dtype=np.float64)
+    xy = np.asarray(xy_m, dtype=np.float64)
+    return (xy - M[:2, 2]) @ M[:2, :2]
+
+
+def _homogeneous(angle_rad: float, origin_xy) -> np.ndarray:
+    c, s = math.cos(angle_rad), math.sin(angle_rad)
+    return np.array([[c, -s, origin_xy[0]], [s, c, origin_xy[1]], [0.0, 0.0, 1.0]])
+
+
+# -- least squares ---------------------------------------------------------------------------------
+def fit_rigid_2d(local_pts, world_pts, max_rms_m: float | None = None) -> RigidFit2D:
+    """Rigid (rotation + translation, no scale) least-squares fit world ~ M @ local.
+
+    ``local_pts``, ``world_pts``: (N, 2) corresponding points, N >= 2, metres. This is the 2D
+    Kabsch/Umeyama solution in closed form (the rotation angle is the atan2 of the summed cross
+    and dot products of the centred points), which is always a proper rotation: a mirrored set
+    of correspondences cannot be fitted by a reflection and shows as a large residual. With
+    ``max_rms_m`` a fit worse than that raises :class:`RegistrationError`.
+    """
+    L = np.asarray(local_pts, dtype=np.float64)
+    W = np.asarray(world_pts, dtype=np.float64)
+    if L.ndim != 2 or L.shape[1] != 2 or L.shape != W.shape:
+        raise RegistrationError(f"need two (N, 2) point arrays of equal shape, got {L.shape} and {W.shape}")
+    if not (np.isfinite(L).all() and np.isfinite(W).all()):
+        raise RegistrationError("point arrays contain NaN or inf (a point without depth?)")
+    if len(L) < 2:
+        raise RegistrationError(f"a rigid 2D fit needs at least 2 points, got {len(L)}")
+    lc, wc = L.mean(axis=0), W.mean(axis=0)
+    l0, w0 = L - lc, W - wc
+    if np.max(np.linalg.norm(l0, axis=1)) < 1e-9:
+        raise RegistrationError("all local points coincide: the rotation is undetermined")
+    cross = np.sum(l0[:, 0] * w0[:, 1] - l0[:, 1] * w0[:, 0])
+    dot = np.sum(l0[:, 0] * w0[:, 0] + l0[:, 1] * w0[:, 1])
+    theta = math.atan2(cross, dot)
+    c, s = math.cos(theta), math.sin(theta)
+    R = np.array([[c, -s], [s, c]])
+    M = _homogeneous(theta, wc - R @ lc)
+    res = np.linalg.norm(local_to_world(M, L) - W, axis=1)
+    rms = float(np.sqrt(np.mean(res**2)))
+    if max_rms_m is not None and rms > max_rms_m:
+        worst = int(np.argmax(res))
+        raise RegistrationError(
+            f"rigid fit residual {rms * 1000:.2f} mm RMS exceeds {max_rms_m * 1000:.2f} mm "
+            f"(worst: point {worst}, {res[worst] * 1000:.2f} mm); check the correspondences"
+        )
+    return RigidFit2D(M_local2world=M, rms_m=rms, residuals_m=res)
+
+
+# -- Eq. 3 ----------------------------------------------------------------------------------------
+def _check_triangle(P: np.ndarray, what: str, min_separation_m: float, min_angle_deg: float) -> None:
+    names = ("O", "A", "B")
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        dist = float(np.linalg.norm(P[j] - P[i]))
+        if dist < min_separation_m:
+            raise RegistrationError(
+                f"{what} marks {names[i]} and {names[j]} coincide ({dist * 1000:.2f} mm apart, need >= "
+                f"{min_separation_m * 1000:.1f} mm): one circle was taken for two marks"
+            )
+    angle = _angle_deg(P[1] - P[0], P[2] - P[0])
+    if not (min_angle_deg < angle < 180.0 - min_angle_deg):
+        raise RegistrationError(
+            f"{what} marks O, A, B are nearly collinear (angle AOB = {angle:.1f} deg, need between "
+            f"{min_angle_deg:.0f} and {180 - min_angle_deg:.0f} deg): their frame is undetermined"
+        )
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle between two 2D or 3D vectors, degrees in [0, 180]."""
+    a3, b3 = np.r_[a, 0.0][:3], np.r_[b, 0.0][:3]
+    return math.degrees(math.atan2(np.linalg.norm(np.cross(a3, b3)), float(a3 @ b3)))
+
+
+def _turn(a: np.ndarray, b: np.ndarray) -> float:
+    """z of the 2D cross product a x b: > 0 when b lies counter-clockwise of a (seen from +z)."""
+    return float(a[0] * b[1] - a[1] * b[0])
+
+
+def _mark_frame(O: np.ndarray, A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Eq. 3, orthonormalised: 3x3 frame at O whose rotation is closest to [OA/|OA|, OB/|OB|]."""
+    ex = (A - O) / np.linalg.norm(A - O)
+    ey = (B - O) / np.linalg.norm(B - O)
+    # Closest rotation to the 2x2 [[ex0, ey0], [ex1, ey1]] (polar decomposition, closed form in 2D).
+    theta = math.atan2(ex[1] - ey[0], ex[0] + ey[1])
+    return _homogeneous(theta, O)
+
+
+def registration_from_marks(
+    O_w,
+    A_w,
+    B_w,
+    drawing_marks=None,
+    tol_m: float = 0.003,
+    method: Literal["eq3", "least_squares"] = "eq3",
+    min_separation_m: float = 0.005,
+    min_angle_deg: float = 10.0,
+) -> Registration:
+    """Registration from the world positions of marks O, A, B (each (2,) or (3,), metres).
+
+    ``drawing_marks``: (3, 2) O, A, B in the drawing (metres); then |OA|, |OB|, |AB| measured in
+    world (3D when z is given, so a mark lifted with a wrong depth is caught) must agree with the
+    drawing within ``tol_m``, and the triangle must have the drawing's handedness. Without it,
+    the drawing frame is the paper's: origin O, x toward A, y toward B. ``method``: ``eq3``
+    (paper Eq. 3, orthonormalised) or ``least_squares`` (:func:`fit_rigid_2d` on the three marks).
+
+    Raises :class:`RegistrationError` for coincident or collinear marks, a mirrored triangle,
+    or distances that disagree with the drawing (measured and expected values in mm).
+    """
+    marks = []
+    for name, p in zip("OAB", (O_w, A_w, B_w)):
+        p = np.asarray(p, dtype=np.float64).ravel()
+        if p.shape not in ((2,), (3,)) or not np.isfinite(p).all():
+            raise RegistrationError(f"mark {name} must be a finite (x, y) or (x, y, z) in metres, got {p.tolist()}")
+        marks.append(np.r_[p, 0.0] if p.size == 2 else p)
+    Pw = np.array(marks)
+    if method not in ("eq3", "least_squares"):
+        raise RegistrationError(f"method must be 'eq3' or 'least_squares', got {method!r}")
+    _check_triangle(Pw, "measured", min_separation_m, min_angle_deg)
+    xy = Pw[:, :2]
+    measured = np.array([np.linalg.norm(Pw[1] - Pw[0]), np.linalg.norm(Pw[2] - Pw[0]), np.linalg.norm(Pw[2] - Pw[1])])
+    turn_w = _turn(xy[1] - xy[0], xy[2] - xy[0])
+
+    if drawing_marks is None:
+        D = np.array([[0.0, 0.0], [measured[0], 0.0], [0.0, measured[1]]])
+        dist_err = np.full(3, np.nan)
+        scale_error = float("nan")
+        if turn_w < 0:
+            raise RegistrationError(
+                "marks are mirrored: seen from above, B lies clockwise of A around O, but the drawing frame "
+                "(x toward A, y toward B) needs it counter-clockwise; is the board upside down, or A and B swapped?"
+            )
+    else:
+        D = np.asarray(drawing_marks, dtype=np.float64)
+        if D.shape != (3, 2) or not np.isfinite(D).all():
+            raise RegistrationError(f"drawing_marks must be a finite (3, 2) array O, A, B, got shape {D.shape}")
+        _check_triangle(D, "drawing", min_separation_m, min_angle_deg)
+        turn_d = _turn(D[1] - D[0], D[2] - D[0])
+        if np.sign(turn_w) != np.sign(turn_d):
+            raise RegistrationError(
+                "marks are mirrored relative to the drawing (the sign of OA x OB differs): "
+                "is the board upside down, or are A and B swapped?"
+            )
+        expected = np.array([np.linalg.norm(D[1] - D[0]), np.linalg.norm(D[2] - D[0]), np.linalg.norm(D[2] - D[1])])
+        dist_err = measured - expected
+        scale_error = float(np.max(np.abs(dist_err) / expected))
+        bad = np.abs(dist_err) > tol_m
+        if bad.any():
+            detail = ", ".join(
+                f"{n} measured {m * 1000:.1f} mm vs {e * 1000:.1f} mm in the drawing"
+                for n, m, e, b in zip(_PAIR_NAMES, measured, expected, bad) if b
+            )
+            raise RegistrationError(
+                f"mark distances disagree with the drawing beyond {tol_m * 1000:.1f} mm: {detail}; "
+                "wrong board, a mis-detected mark, or a mark lifted with a wrong depth"
+            )
+
+    if method == "eq3":
+        M = _mark_frame(*xy) @ np.linalg.inv(_mark_frame(*D))
+        res = np.linalg.norm(local_to_world(M, D) - xy, axis=1)
+        residual = float(np.sqrt(np.mean(res**2)))
+    else:
+        fit = fit_rigid_2d(D, xy)
+        M, residual = fit.M_local2world, fit.rms_m
+    return Registration(
+        M_local2world=M,
+        marks_world_m=Pw,
+        marks_drawing_m=D,
+        residual_m=residual,
+        angle_AOB_deg=_angle_deg(xy[1] - xy[0], xy[2] - xy[0]),
+        distance_errors_m=dist_err,
+        scale_error=scale_error,
+        method=method,
+    )
