@@ -115,6 +115,27 @@ def test_dome_normals_are_unit_and_match_the_height_gradient():
     np.testing.assert_allclose(n, (p - scene.component.sphere_centre_w) / scene.component.sphere_radius_m, atol=1e-12)
 
 
+@pytest.mark.parametrize(
+    "component",
+    [
+        Cylinder(centre_xy_m=(0.05, 0.0), radius_m=0.3, axis_yaw_rad=0.5, length_m=0.2, height_m=0.06),
+        Plate(centre_xy_m=(0.05, 0.0), size_m=(0.2, 0.16), yaw_rad=-0.4, height_m=0.05, tilt_rad=0.2),
+    ],
+    ids=["cylinder", "tilted_plane"],
+)
+def test_normals_of_other_components_match_the_height_gradient(component):
+    scene = SceneSpec(component=component, drawing_to_world=Pose2D(-0.4, 0.0, 0.0))
+    rng = np.random.default_rng(1)
+    x, y = rng.uniform(0.0, 0.1, 100), rng.uniform(-0.05, 0.05, 100)
+    assert component.top_height(x, y)[1].all()
+    h = 1e-6
+    gx = (surface_height(scene, x + h, y) - surface_height(scene, x - h, y)) / (2 * h)
+    gy = (surface_height(scene, x, y + h) - surface_height(scene, x, y - h)) / (2 * h)
+    expect = np.column_stack([-gx, -gy, np.ones_like(gx)])
+    expect /= np.linalg.norm(expect, axis=1, keepdims=True)
+    np.testing.assert_allclose(surface_normal(scene, x, y), expect, atol=1e-6)
+
+
 def test_surface_queries_are_vectorised_over_any_shape():
     scene = demo_dome_scene()
     x = np.linspace(-0.3, 0.3, 12).reshape(3, 4)

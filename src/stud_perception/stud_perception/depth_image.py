@@ -182,6 +182,7 @@ def fill_depth_at(
     fallback: Literal["plane", "grow", "none"] = "plane",
     min_valid: int = 1,
     min_plane_points: int = 8,
+    grow_step_px: int = 4,
     chunk: int = 4096,
 ) -> FilledDepth:
     """Depth at pixels (u, v) (any matching shapes, pixels) of a float-metre image, holes filled.
@@ -192,8 +193,8 @@ def fill_depth_at(
     1. ``DIRECT``: the pixel has a depth.
     2. ``MEAN_WINDOW`` (paper): mean of the valid depths in the ``window`` x ``window``
        neighbourhood, when it holds at least ``min_valid``.
-    3. For larger holes, unless ``fallback == "none"``, the window grows by 4 px per step up to
-       ``max_window``: with ``"plane"`` (default) the first window holding ``min_plane_points``
+    3. For larger holes, unless ``fallback == "none"``, the window grows by ``grow_step_px``
+       (even) per step up to ``max_window``: with ``"plane"`` (default) the first window holding ``min_plane_points``
        valid depths spread in both directions gives a ``PLANE_FIT`` (inverse depth affine in
        (u, v), evaluated at the sub-pixel (u, v)); a hole too large even for that, but with some
        valid neighbours in ``max_window``, gets their mean (``GROWN_WINDOW``). With ``"grow"`` the
@@ -207,6 +208,8 @@ def fill_depth_at(
         raise DepthImageError(
             f"windows must be odd with window <= max_window, got window={window}, max_window={max_window}"
         )
+    if grow_step_px < 2 or grow_step_px % 2:
+        raise DepthImageError(f"grow_step_px must be even and >= 2 (windows stay odd), got {grow_step_px}")
     if fallback not in ("plane", "grow", "none"):
         raise DepthImageError(f"fallback must be 'plane', 'grow' or 'none', got {fallback!r}")
     u_arr, v_arr = np.broadcast_arrays(np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64))
@@ -246,7 +249,9 @@ def fill_depth_at(
 
     sizes = [window]
     if fallback != "none":
-        sizes += list(range(window + 4, max_window, 4)) + ([max_window] if max_window > window else [])
+        sizes += list(range(window + grow_step_px, max_window, grow_step_px))
+        if max_window > window:
+            sizes.append(max_window)
     todo = np.flatnonzero(~direct & in_img)
     for start in range(0, todo.size, chunk):  # chunks bound the (N, w*w) temporaries
         pending = todo[start:start + chunk]

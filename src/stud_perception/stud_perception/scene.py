@@ -27,7 +27,7 @@ from typing import Any, ClassVar, Union
 import cv2
 import numpy as np
 
-from stud_perception.camera_model import CameraModel
+from stud_perception.camera_model import CameraModel, nadir_rotation
 from stud_perception.depth_image import depth_m_to_mm, depth_mm_to_m
 
 
@@ -282,7 +282,9 @@ class Plate:
         object.__setattr__(self, "centre_xy_m", _pair(self.centre_xy_m, "plate centre_xy_m"))
         object.__setattr__(self, "size_m", _pair(self.size_m, "plate size_m"))
         if min(self.size_m) <= 0 or self.height_m <= 0:
-            raise SceneError(f"plate needs a positive size and height, got size_m={self.size_m}, height_m={self.height_m}")
+            raise SceneError(
+                f"plate needs a positive size and height, got size_m={self.size_m}, height_m={self.height_m}"
+            )
         if not abs(self.tilt_rad) < math.radians(80):
             raise SceneError(f"plate tilt {math.degrees(self.tilt_rad):.1f} deg is beyond 80 deg")
         low = self.height_m - abs(math.tan(self.tilt_rad)) * self.size_m[1] / 2
@@ -293,7 +295,7 @@ class Plate:
             )
 
     @property
-    def kind(self) -> str:  # type: ignore[override]
+    def kind(self) -> str:
         return "tilted_plane" if self.tilt_rad != 0 else "plane"
 
     def _local(self, x, y):
@@ -753,8 +755,6 @@ def view_camera(
     toward azimuth ``tilt_azimuth_rad`` (world, from +X); ``yaw_rad`` turns the image about
     the optical axis (0: a nadir camera has optical x along world +X).
     """
-    from stud_perception.camera_model import nadir_rotation
-
     up = np.array([
         math.sin(tilt_rad) * math.cos(tilt_azimuth_rad),
         math.sin(tilt_rad) * math.sin(tilt_azimuth_rad),
@@ -860,13 +860,16 @@ def _component_from_dict(d: dict | None) -> Component | None:
             _take(d, "component (dome)", {"kind", "centre_xy_m", "base_radius_m", "height_m"})
             return Dome(d["centre_xy_m"], float(d["base_radius_m"]), float(d["height_m"]))
         if kind == "cylinder":
-            _take(d, "component (cylinder)", {"kind", "centre_xy_m", "radius_m", "axis_yaw_deg", "length_m", "height_m"})
+            _take(d, "component (cylinder)",
+                  {"kind", "centre_xy_m", "radius_m", "axis_yaw_deg", "length_m", "height_m"})
             return Cylinder(
                 d["centre_xy_m"], float(d["radius_m"]), math.radians(float(d.get("axis_yaw_deg", 0.0))),
                 float(d["length_m"]), float(d["height_m"]),
             )
         if kind in ("tilted_plane", "plane"):
-            keys = {"kind", "centre_xy_m", "size_m", "yaw_deg", "height_m"} | ({"tilt_deg"} if kind == "tilted_plane" else set())
+            keys = {"kind", "centre_xy_m", "size_m", "yaw_deg", "height_m"}
+            if kind == "tilted_plane":
+                keys.add("tilt_deg")
             _take(d, f"component ({kind})", keys)
             return Plate(
                 d["centre_xy_m"], d["size_m"], math.radians(float(d.get("yaw_deg", 0.0))), float(d["height_m"]),
@@ -881,7 +884,8 @@ def _component_to_dict(c: Component | None) -> dict | None:
     if c is None:
         return None
     if isinstance(c, Dome):
-        return {"kind": "dome", "centre_xy_m": list(c.centre_xy_m), "base_radius_m": c.base_radius_m, "height_m": c.height_m}
+        return {"kind": "dome", "centre_xy_m": list(c.centre_xy_m), "base_radius_m": c.base_radius_m,
+                "height_m": c.height_m}
     if isinstance(c, Cylinder):
         return {
             "kind": "cylinder", "centre_xy_m": list(c.centre_xy_m), "radius_m": c.radius_m,
@@ -904,9 +908,12 @@ def scene_from_dict(d: dict[str, Any]) -> SceneSpec:
          "studs": {"xy_m": [[0.1, 0.2]], "ids": ["S1"], "mark_diameter_m": 0.008, "mark_style": "circle"}}
     """
     _take(d, "", {"component", "board", "drawing_to_world", "studs"})
-    board = MarkingBoard(**_take(d.get("board", {}), "board", {"marks_drawing_m", "mark_diameter_m", "thickness_m", "margin_m"}))
+    board_keys = {"marks_drawing_m", "mark_diameter_m", "thickness_m", "margin_m"}
+    board = MarkingBoard(**_take(d.get("board", {}), "board", board_keys))
     pose_d = _take(d.get("drawing_to_world", {}), "drawing_to_world", {"x_m", "y_m", "yaw_deg"})
-    pose = Pose2D(float(pose_d.get("x_m", 0.0)), float(pose_d.get("y_m", 0.0)), math.radians(float(pose_d.get("yaw_deg", 0.0))))
+    pose = Pose2D(
+        float(pose_d.get("x_m", 0.0)), float(pose_d.get("y_m", 0.0)), math.radians(float(pose_d.get("yaw_deg", 0.0)))
+    )
     studs = _take(d.get("studs", {}), "studs", {"xy_m", "ids", "mark_diameter_m", "mark_style"})
     return SceneSpec(
         component=_component_from_dict(d.get("component")),

@@ -1,0 +1,371 @@
+"""Detection of the marking board's marks O, A, B in an RGB-D frame, lifted to world (Eq. 1).
+
+Pipeline (paper Sec. on registration, made robust):
+
+1. Hough circles (``HOUGH_GRADIENT_ALT``, falling back to ``HOUGH_GRADIENT``) with a radius
+   range derived from the mark diameter, the working depth range and the focal length.
+2. Sub-pixel centre per candidate: the darkness-weighted centroid of the dark blob (weights
+   are the pixel's fraction of mark paint, from the blob's own dark and surround levels). A
+   tilted circle images as an ellipse; the centroid is its centre, unlike the integer-edge
+   Hough centre (~0.5 px bias). The blob's size must match the size its depth predicts.
+3. Depth from the board around the mark, not the mark: dark paint often returns no
+   structured-light depth, so the mark discs are masked and
+   :func:`~stud_perception.depth_image.fill_depth_at` grows its window into the board and fits
+   the board plane; the rule used is reported per mark.
+4. The triple whose pairwise 3D distances match the drawing's |OA|, |OB|, |AB|, labelled by
+   the distances and checked for handedness (sign of OA x OB seen from above). Stud marks on
+   the part are dark circles too; the distances reject them.
+
+A bad frame is not an exception: :class:`MarkDetection` carries a status and a message.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import Enum
+
+import cv2
+import numpy as np
+
+from stud_perception.camera_model import CameraModel
+from stud_perception.depth_image import FillRule, fill_depth_at
+
+
+class MarkStatus(str, Enum):
+    """Outcome of :func:`detect_marks` (lower-case values, as in reports)."""
+
+    OK = "ok"
+    NO_CANDIDATES = "no_candidates"          # fewer than three mark-like circles
+    NO_DEPTH = "no_depth"                    # candidates without board depth around them
+    NO_MATCHING_TRIPLE = "no_matching_triple"  # no three candidates at the drawing's distances
+    MIRRORED = "mirrored"                    # distances match, handedness does not
+    AMBIGUOUS = "ambiguous"                  # more than one triple matches
+
+
+@dataclass(frozen=True)
+class MarkDetectorConfig:
+    """Tunables of :func:`detect_marks` (metres, pixels, 8-bit grey levels).
+
+    ``depth_range_m``: camera-to-board depths to search (sets the Hough radius range).
+    ``distance_tol_m``: allowed |measured - drawing| for |OA|, |OB|, |AB|.
+    ``radius_tol``: allowed relative difference between a blob's radius and the radius its
+    depth predicts (tilt shrinks the mean radius by sqrt(cos tilt): 0.97 at 15 deg).
+    ``min_contrast``: least grey-level difference between a mark and its surround.
+    ``max_candidates``: candidates kept for the triple search (strongest first).
+    """
+
+    mark_diameter_m: float = 0.02
+    depth_range_m: tuple[float, float] = (0.25, 1.2)
+    distance_tol_m: float = 0.004
+    radius_tol: float = 0.3
+    min_contrast: float = 40.0
+    max_candidates: int = 40
+
+    def __post_init__(self) -> None:
+        lo, hi = self.depth_range_m
+        if not (0 < lo < hi):
+            raise ValueError(f"depth_range_m must be 0 < near < far, got {self.depth_range_m}")
+        if self.mark_diameter_m <= 0 or self.distance_tol_m <= 0 or not (0 < self.radius_tol < 1):
+            raise ValueError(
+                f"mark_diameter_m and distance_tol_m must be > 0 and radius_tol in (0, 1), got "
+                f"{self.mark_diameter_m}, {self.distance_tol_m}, {self.radius_tol}"
+            )
+
+
+@dataclass(frozen=True, eq=False)
+class MarkDetection:
+    """Result of :func:`detect_marks`.
+
+    ``marks_world_m`` (3, 3) and ``marks_pixels_uv`` (3, 2): O, A, B (NaN unless OK).
+    ``depth_rules`` (3,): :class:`~stud_perception.depth_image.FillRule` codes of the depth
+    behind each mark. ``distance_error_m``: largest |measured - drawing| of the best triple
+    (NaN when no triple could be formed). ``candidates_uv`` (K, 2), ``candidates_radius_px``
+    (K,), ``candidates_world_m`` (K, 3) (NaN without depth): every mark-like circle seen.
+    """
+
+    status: MarkStatus
+    message: str
+    marks_world_m: np.ndarray
+    marks_pixels_uv: np.ndarray
+    depth_rules: np.ndarray
+    distance_error_m: float
+    candidates_uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    candidates_radius_px: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    candidates_world_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+    @property
+    def ok(self) -> bool:
+        return self.status is MarkStatus.OK
+
+
+# -- stage 1: Hough ---------------------------------------------------------------------------------
+def _hough_candidates(gray: np.ndarray, r_min: int, r_max: int) -> np.ndarray:
+    """(K, 3) circles (u, v, r) in pixels, ALT first; the classic method when ALT finds < 3."""
+    blurred = cv2.GaussianBlur(gray, (5, 5), 1.0)
+    min_dist = max(2.0 * r_min, 4.0)
+    found = cv2.HoughCircles(
+        blurred, cv2.HOUGH_GRADIENT_ALT, dp=1.5, minDist=min_dist, param1=300, param2=0.8,
+        minRadius=r_min, maxRadius=r_max,
+    )
+    if found is None or found.shape[1] < 3:
+        # Classic gradient Hough: accumulator threshold a quarter of the smallest circumference.
+        found = cv2.HoughCircles(
+            blurred, cv2.HOUGH_GRADIENT, dp=1.0, minDist=min_dist, param1=100,
+            param2=max(10.0, 0.25 * 2 * math.pi * r_min), minRadius=r_min, maxRadius=r_max,
+        )
+    return np.zeros((0, 3)) if found is None else found[0].astype(np.float64)
+
+
+# -- stage 2: sub-pixel centre ------------------------------------------------------------------------
+def _refine_centre(gray: np.ndarray, u0: float, v0: float, r: float, min_contrast: float):
+    """Darkness-weighted centroid of the dark blob near (u0, v0).
+
+    Returns (u, v, r_eq_px, r_major_px, contrast) or None when the blob is not a closed dark
+    disc fully inside the image (a partial mark would give a biased centre).
+    """
+    h, w = gray.shape
+    half = int(math.ceil(1.8 * r)) + 2
+    c0, r0 = int(round(u0)) - half, int(round(v0)) - half
+    c1, r1 = c0 + 2 * half + 1, r0 + 2 * half + 1
+    if c0 < 0 or r0 < 0 or c1 > w or r1 > h:
+        return None
+    patch = gray[r0:r1, c0:c1].astype(np.float64)
+    yy, xx = np.mgrid[r0:r1, c0:c1].astype(np.float64)
+    dist = np.hypot(xx - u0, yy - v0)
+    bg = float(np.median(patch[(dist > 1.35 * r) & (dist < 1.75 * r)]))
+    fg = float(np.median(patch[dist < 0.5 * r]))
+    contrast = bg - fg
+    if contrast < min_contrast:
+        return None
+    # The connected dark region at the centre must be closed within the patch.
+    dark = (patch < 0.5 * (bg + fg)).astype(np.uint8)
+    n_lab, labels = cv2.connectedComponents(dark, connectivity=8)
+    core = labels[dist < 0.5 * r]
+    core = core[core > 0]
+    if core.size == 0:
+        return None
+    blob = labels == np.bincount(core).argmax()
+    if blob[0, :].any() or blob[-1, :].any() or blob[:, 0].any() or blob[:, -1].any():
+        return None
+    # Weights: fraction of paint per pixel, over the blob grown by two pixels (its anti-aliased rim).
+    support = cv2.dilate(blob.astype(np.uint8), np.ones((3, 3), np.uint8), iterations=2).astype(bool)
+    wgt = np.where(support, np.clip((bg - patch) / contrast, 0.0, 1.0), 0.0)
+    m0 = wgt.sum()
+    uc = float((wgt * xx).sum() / m0)
+    vc = float((wgt * yy).sum() / m0)
+    cu, cv_ = xx - uc, yy - vc
+    cuv = (wgt * cu * cv_).sum()
+    cov = np.array([[(wgt * cu * cu).sum(), cuv], [cuv, (wgt * cv_ * cv_).sum()]]) / m0
+    # A uniform ellipse with semi-axes a, b has variances a^2/4 and b^2/4 along its axes.
+    r_major = 2.0 * math.sqrt(max(np.linalg.eigvalsh(cov)[1], 0.0))
+    return uc, vc, math.sqrt(m0 / math.pi), r_major, contrast
+
+
+def _perspective_bias_px(camera: CameraModel, centres_w: np.ndarray, normal_w: np.ndarray, radius_m: float):
+    """(K, 2) offset of the imaged disc's centroid from the projected disc centre.
+
+    Perspective images a circle as an ellipse whose centre is not the image of the circle's
+    centre (the near half is magnified more): ~0.1 px for our marks at 15 deg tilt. Computed
+    from the disc's exact projection, a polygon of 128 circle points (shoelace centroid).
+    """
+    e1 = np.cross(normal_w, [1.0, 0.0, 0.0] if abs(normal_w[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(normal_w, e1)
+    phi = np.linspace(0.0, 2 * np.pi, 128, endpoint=False)
+    ring = centres_w[:, None, :] + radius_m * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
+    u, v, _ = camera.world_to_pixel(ring)
+    un, vn = np.roll(u, -1, axis=1), np.roll(v, -1, axis=1)
+    cross = u * vn - un * v
+    area = cross.sum(axis=1) / 2
+    cu = ((u + un) * cross).sum(axis=1) / (6 * area)
+    cv_ = ((v + vn) * cross).sum(axis=1) / (6 * area)
+    pu, pv, _ = camera.world_to_pixel(centres_w)
+    return np.column_stack([cu - pu, cv_ - pv])
+
+
+# -- stage 4: the triple ---------------------------------------------------------------------------
+def _best_triples(P: np.ndarray, expected: np.ndarray, turn_sign: float):
+    """Score every ordered triple (i, j, k) as (O, A, B).
+
+    Returns (err (T,), idx (T, 3), handed_ok (T,)) with err the largest |distance - drawing|.
+    """
+    k = len(P)
+    i, j, m = np.meshgrid(np.arange(k), np.arange(k), np.arange(k), indexing="ij")
+    sel = (i != j) & (i != m) & (j != m)
+    idx = np.column_stack([i[sel], j[sel], m[sel]])
+    D = np.linalg.norm(P[:, None, :] - P[None, :, :], axis=2)
+    err = np.max(
+        np.abs(np.column_stack([D[idx[:, 0], idx[:, 1]], D[idx[:, 0], idx[:, 2]], D[idx[:, 1], idx[:, 2]]]) - expected),
+        axis=1,
+    )
+    oa = P[idx[:, 1], :2] - P[idx[:, 0], :2]
+    ob = P[idx[:, 2], :2] - P[idx[:, 0], :2]
+    turn = oa[:, 0] * ob[:, 1] - oa[:, 1] * ob[:, 0]
+    return err, idx, np.sign(turn) == turn_sign
+
+
+def _failure(status: MarkStatus, message: str, cand_uv, cand_r, cand_w, distance_error_m=float("nan")):
+    return MarkDetection(
+        status=status,
+        message=message,
+        marks_world_m=np.full((3, 3), np.nan),
+        marks_pixels_uv=np.full((3, 2), np.nan),
+        depth_rules=np.full(3, FillRule.NONE, dtype=np.int8),
+        distance_error_m=float(distance_error_m),
+        candidates_uv=cand_uv,
+        candidates_radius_px=cand_r,
+        candidates_world_m=cand_w,
+    )
+
+
+def detect_marks(
+    color_bgr: np.ndarray,
+    depth_m: np.ndarray,
+    camera: CameraModel,
+    drawing_marks_m,
+    config: MarkDetectorConfig = MarkDetectorConfig(),
+) -> MarkDetection:
+    """Find marks O, A, B in a colour image (H, W, 3 BGR, or H, W grey) with registered depth.
+
+    ``depth_m``: float metres, NaN = no depth (convert 16UC1 with
+    :func:`~stud_perception.depth_image.depth_mm_to_m` first). ``drawing_marks_m``: (3, 2) O, A, B
+    in the drawing frame, metres. World points follow Eq. 1 through ``camera``.
+    """
+    depth_m = np.asarray(depth_m)
+    if not np.issubdtype(depth_m.dtype, np.floating):
+        raise ValueError(f"depth must be float metres with NaN = no depth, got dtype {depth_m.dtype}; "
+                         "convert 16UC1 images with depth_mm_to_m")
+    gray = color_bgr if color_bgr.ndim == 2 else cv2.cvtColor(color_bgr, cv2.COLOR_BGR2GRAY)
+    if gray.shape != depth_m.shape or gray.shape != (camera.height, camera.width):
+        raise ValueError(
+            f"colour {gray.shape}, depth {depth_m.shape} and camera ({camera.height}, {camera.width}) sizes differ"
+        )
+    D = np.asarray(drawing_marks_m, dtype=np.float64)
+    expected = np.array([np.linalg.norm(D[1] - D[0]), np.linalg.norm(D[2] - D[0]), np.linalg.norm(D[2] - D[1])])
+    oa, ob = D[1] - D[0], D[2] - D[0]
+    turn_sign = float(np.sign(oa[0] * ob[1] - oa[1] * ob[0]))
+
+    # 1. Hough over the radius range the depth range allows (tilted marks image smaller).
+    r_m = config.mark_diameter_m / 2
+    near, far = config.depth_range_m
+    r_min = max(3, int(math.floor(0.7 * camera.fx * r_m / far)))
+    r_max = int(math.ceil(1.2 * camera.fx * r_m / near))
+    circles = _hough_candidates(gray, r_min, r_max)
+    empty = (np.zeros((0, 2)), np.zeros(0), np.zeros((0, 3)))
+
+    # 2. Sub-pixel centres, duplicates merged (strongest Hough response first).
+    refined = []
+    for u0, v0, r in circles:
+        res = _refine_centre(gray, u0, v0, r, config.min_contrast)
+        if res is None:
+            continue
+        if any(math.hypot(res[0] - q[0], res[1] - q[1]) < 0.5 * q[2] for q in refined):
+            continue
+        refined.append(res)
+        if len(refined) >= config.max_candidates:
+            break
+    if not refined:
+        return _failure(
+            MarkStatus.NO_CANDIDATES, f"no dark circular marks found (Hough radius {r_min}-{r_max} px)", *empty
+        )
+    cand = np.array(refined)
+    uv, r_eq, r_major = cand[:, :2], cand[:, 2], cand[:, 3]
+
+    # 3. Depth of the board around each mark: mask the mark discs, let the window grow into the board.
+    masked = np.array(depth_m, dtype=np.float32, copy=True)
+    disc = np.zeros(masked.shape, dtype=np.uint8)
+    for (u, v), rr in zip(uv, r_major):
+        cv2.circle(disc, (int(round(u)), int(round(v))), int(math.ceil(1.2 * rr + 2)), 1, -1)
+    masked[disc.astype(bool)] = np.nan
+    reach = int(math.ceil(1.2 * r_major.max() + 2))
+    max_window = 2 * int(math.ceil(1.5 * reach)) + 1
+    filled = fill_depth_at(
+        masked, uv[:, 0], uv[:, 1], window=7, max_window=max_window, fallback="plane",
+        grow_step_px=max(2, 2 * (reach // 8)),
+    )
+    z = filled.depth_m
+    world = camera.pixel_to_world(uv[:, 0], uv[:, 1], z)
+    # The blob must be as large as a mark at that depth: drops stud marks and other dark dots early.
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r_expected = camera.fx * r_m / z
+        size_ok = np.abs(r_eq / r_expected - 1.0) <= config.radius_tol
+    has_depth = np.isfinite(z)
+    keep = size_ok | ~has_depth
+    uv, r_eq, world, z, rules = uv[keep], r_eq[keep], world[keep], z[keep], filled.rule[keep]
+    has_depth = has_depth[keep]
+    cand_info = (uv, r_eq, world)
+    n_nodepth = int((~has_depth).sum())
+    if len(uv) < 3:
+        return _failure(
+            MarkStatus.NO_CANDIDATES,
+            f"{len(uv)} mark-sized circle(s) found, need 3 (mark diameter {config.mark_diameter_m * 1000:.0f} mm)",
+            *cand_info,
+        )
+    idx_depth = np.flatnonzero(has_depth)
+    if idx_depth.size < 3:
+        return _failure(
+            MarkStatus.NO_DEPTH,
+            f"{n_nodepth} of {len(uv)} mark candidates have no depth on the board around them",
+            *cand_info,
+        )
+
+    # 4. The triple at the drawing's distances with the drawing's handedness.
+    err, trip, handed = _best_triples(world[idx_depth], expected, turn_sign)
+    tol = config.distance_tol_m
+    best = int(np.argmin(np.where(handed, err, np.inf))) if handed.any() else -1
+    if best < 0 or err[best] > tol:
+        mirrored = ~handed & (err <= tol)
+        if mirrored.any():
+            return _failure(
+                MarkStatus.MIRRORED,
+                "three marks match the drawing's distances but are mirrored (OA x OB has the wrong sign): "
+                "is the board upside down or mirrored?",
+                *cand_info, distance_error_m=float(err[mirrored].min()),
+            )
+        best_any = float(err.min())
+        status = MarkStatus.NO_DEPTH if n_nodepth else MarkStatus.NO_MATCHING_TRIPLE
+        extra = f"; {n_nodepth} candidate(s) without depth were left out" if n_nodepth else ""
+        return _failure(
+            status,
+            f"no three of {idx_depth.size} candidates match |OA|, |OB|, |AB| = "
+            f"{', '.join(f'{e * 1000:.1f}' for e in expected)} mm within {tol * 1000:.1f} mm "
+            f"(best error {best_any * 1000:.1f} mm){extra}",
+            *cand_info, distance_error_m=best_any,
+        )
+    same_marks = (np.sort(trip, axis=1) == np.sort(trip[best])).all(axis=1)
+    rivals = handed & (err <= tol) & ~same_marks
+    if rivals.any():
+        return _failure(
+            MarkStatus.AMBIGUOUS,
+            f"{int(rivals.sum()) + 1} different triples match the drawing's distances within {tol * 1000:.1f} mm: "
+            "reduce distance_tol_m or clear dark circles of the mark size from the view",
+            *cand_info, distance_error_m=float(err[best]),
+        )
+    sel = idx_depth[trip[best]]
+
+    # 5. Remove the perspective offset of the imaged centres, using the board plane the three
+    # marks span, and lift again (Eq. 1) with the board depth at the corrected pixels.
+    marks_uv = uv[sel]
+    normal = np.cross(world[sel[1]] - world[sel[0]], world[sel[2]] - world[sel[0]])
+    normal /= np.linalg.norm(normal)
+    marks_w = world[sel]
+    for _ in range(2):
+        marks_uv = uv[sel] - _perspective_bias_px(camera, marks_w, normal, r_m)
+        z_marks = fill_depth_at(
+            masked, marks_uv[:, 0], marks_uv[:, 1], window=7, max_window=max_window, fallback="plane",
+            grow_step_px=max(2, 2 * (reach // 8)),
+        )
+        marks_w = camera.pixel_to_world(marks_uv[:, 0], marks_uv[:, 1], z_marks.depth_m)
+    if not np.isfinite(marks_w).all():  # cannot happen unless the correction left the board
+        marks_uv, marks_w = uv[sel], world[sel]
+    return MarkDetection(
+        status=MarkStatus.OK,
+        message=f"marks found, largest distance error {err[best] * 1000:.2f} mm",
+        marks_world_m=marks_w,
+        marks_pixels_uv=marks_uv,
+        depth_rules=rules[sel].astype(np.int8),
+        distance_error_m=float(err[best]),
+        candidates_uv=uv,
+        candidates_radius_px=r_eq,
+        candidates_world_m=world,
+    )
