@@ -9,11 +9,11 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test", "tests"]),
-    package_data={PACKAGE: ["data/*", "config/*"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", glob("config/*")),
+        (f"share/{PACKAGE}/data", glob("data/*")),
     ],
     install_requires=["setuptools"],
     zip_safe=False,
@@ -23,6 +23,8 @@ setup(
     entry_points={
         "console_scripts": [
             "selfcheck = stud_planner.selfcheck:main",
+            "drawing = stud_planner.drawing_node:main",
+            "drawing_inspect = stud_planner.drawing_inspect:main",
         ],
     },
 )

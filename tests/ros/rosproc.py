@@ -54,3 +54,22 @@ class Proc:
 def python_proc(script_or_module: str, args: list[str], log_path: Path, module: bool = False, **kw) -> Proc:
     cmd = [sys.executable, "-u"] + (["-m", script_or_module] if module else [script_or_module]) + args
     return Proc(cmd, log_path, **kw)
+
+
+def ros2_run(package: str, executable: str, log_path: Path, params: dict | None = None,
+             extra: list[str] | None = None) -> Proc:
+    """`ros2 run package executable --ros-args -p k:=v ...` as a real process."""
+    args = list(extra or [])
+    if params:
+        args += ["--ros-args"] + [a for k, v in params.items() for a in ("-p", f"{k}:={_param_text(v)}")]
+    return Proc(["ros2", "run", package, executable, *args], log_path)
+
+
+def _param_text(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (list, tuple)):
+        return "[" + ",".join(_param_text(v) for v in value) + "]"
+    if isinstance(value, str):
+        return value if value else "''"
+    return repr(value)

@@ -1,0 +1,154 @@
+"""Camera node: `ros2 run stud_perception camera` (simulated structured-light RGB-D camera).
+
+Publishes one triggered, synchronised RGB-D shot, as the paper takes one overhead shot
+after the arm has moved: ``/camera/color/image_raw`` (bgr8), ``/camera/depth/image_raw``
+(16UC1 mm, registered to colour), ``/camera/color/camera_info`` and ``/camera/pose`` (the
+optical frame in ``world``), all with one stamp. Shots come on ``/camera/trigger``
+(std_srvs/Trigger) or at ``rate_hz``.
+
+The camera pose comes from parameters, or from the arm (``pose_source:=arm``): the tool
+pose in ``/arm/state`` times the hand-eye transform (tool -> optical frame).
+
+With a real camera, run the vendor's ROS 2 driver instead and remap its topics onto the
+four above (see the package README); nothing downstream depends on this node.
+"""
+from __future__ import annotations
+
+import math
+import threading
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, Image
+from std_srvs.srv import Trigger
+
+from stud_perception import ros_io
+from stud_perception.camera_model import CameraModel
+from stud_perception.ros_io import Param
+from stud_perception.rotations import rpy_to_matrix
+from stud_perception.scene import (DEMO_FOV_DISTANCE_M, DEMO_FOV_WIDTH_M, DEMO_IMAGE_SIZE, SceneError,
+                                   demo_dome_scene, load_scene, render, view_camera)
+
+OPTICAL_FRAME = "camera_color_optical_frame"
+
+
+def _three(name: str):
+    return lambda v: None if len(v) == 3 else f"{name} needs 3 numbers, got {list(v)}"
+
+
+PARAMS = [
+    Param("source", "sim", "where frames come from; only 'sim' here (real cameras: run the vendor driver)",
+          choices=("sim",), read_only=True),
+    Param("scene_file", "", "scene description (.json/.yaml, see stud_perception/scene.py); empty: the bundled dome"),
+    Param("image_width", DEMO_IMAGE_SIZE[0], "image width [px]", min=16, max=8192),
+    Param("image_height", DEMO_IMAGE_SIZE[1], "image height [px]", min=16, max=8192),
+    Param("fov_width_m", DEMO_FOV_WIDTH_M, "field-of-view width at fov_distance_m [m]", min=0.01, max=10.0),
+    Param("fov_distance_m", DEMO_FOV_DISTANCE_M, "distance at which fov_width_m is spanned [m]", min=0.05, max=10.0),
+    Param("depth_noise_m", 0.0005, "std of Gaussian depth noise [m]", min=0.0, max=0.05),
+    Param("hole_fraction", 0.0, "fraction of depth pixels lost in blobs", min=0.0, max=0.9),
+    Param("mark_depth_dropout", False, "dark paint returns no depth (marks and stud marks lose depth)"),
+    Param("seed", 0, "random seed of noise and holes (incremented per shot)", min=0, max=2**31 - 1),
+    Param("rate_hz", 0.0, "shots per second; 0: only on /camera/trigger", min=0.0, max=30.0),
+    Param("pose_source", "param", "'param': camera_xyz_m/yaw/tilt; 'arm': /arm/state tool pose x hand-eye",
+          choices=("param", "arm")),
+    Param("camera_xyz_m", [-0.02, 0.0, 0.55], "optical centre in world [m] (pose_source=param)",
+          validate=_three("camera_xyz_m")),
+    Param("camera_yaw_deg", 0.0, "image rotation about the optical axis [deg]", min=-360.0, max=360.0),
+    Param("camera_tilt_deg", 0.0, "viewing direction tilt from straight down [deg]", min=0.0, max=60.0),
+    Param("camera_tilt_azimuth_deg", 0.0, "azimuth the camera leans toward [deg]", min=-360.0, max=360.0),
+    Param("hand_eye_xyz_m", [0.0, 0.0, 0.0], "optical frame origin in the tool frame [m] (pose_source=arm)",
+          validate=_three("hand_eye_xyz_m")),
+    Param("hand_eye_rpy_deg", [0.0, 0.0, 0.0], "optical frame orientation in the tool frame, roll-pitch-yaw [deg]",
+          validate=_three("hand_eye_rpy_deg")),
+]
+
+
+class CameraNode(Node):
+    def __init__(self) -> None:
+        super().__init__("camera")
+        self.p = ros_io.declare_params(self, PARAMS)
+        try:
+            self.scene = load_scene(self.p["scene_file"]) if self.p["scene_file"] else demo_dome_scene()
+        except (OSError, SceneError) as exc:
+            self.get_logger().fatal(f"cannot load scene_file '{self.p['scene_file']}': {exc}")
+            raise SystemExit(2) from None
+        q = ros_io.CAMERA_PUB_QOS
+        self.pub_color = self.create_publisher(Image, "/camera/color/image_raw", q)
+        self.pub_depth = self.create_publisher(Image, "/camera/depth/image_raw", q)
+        self.pub_info = self.create_publisher(CameraInfo, "/camera/color/camera_info", q)
+        self.pub_pose = self.create_publisher(PoseStamped, "/camera/pose", q)
+        self.create_service(Trigger, "/camera/trigger", self._on_trigger)
+        self.diag = ros_io.Diagnostics(self, hardware_id="sim_rgbd_camera")
+        self.create_timer(1.0, self.diag.publish)
+        self._arm_tool_pose = None
+        self._shots = 0
+        self._lock = threading.Lock()
+        if self.p["pose_source"] == "arm":
+            from stud_welding_msgs.msg import ArmState
+
+            self.create_subscription(ArmState, "/arm/state", self._on_arm_state, ros_io.RESULT_QOS)
+        if self.p["rate_hz"] > 0:
+            self.create_timer(1.0 / self.p["rate_hz"], self._on_timer)
+        self.get_logger().info(
+            f"sim camera {self.p['image_width']}x{self.p['image_height']}, scene "
+            f"'{self.p['scene_file'] or 'bundled dome'}' ({len(self.scene.stud_ids)} studs), pose from "
+            f"{self.p['pose_source']}, {'%.1f Hz' % self.p['rate_hz'] if self.p['rate_hz'] else 'on /camera/trigger'}")
+
+    # -- pose -----------------------------------------------------------------------------------
+    def _on_arm_state(self, msg) -> None:
+        self._arm_tool_pose = ros_io.pose_to_rt(msg.tool_pose)
+
+    def camera_model(self) -> CameraModel | None:
+        p = self.p
+        template = view_camera((0.0, 0.0, 0.0), distance_m=1.0, yaw_rad=math.radians(p["camera_yaw_deg"]),
+                               tilt_rad=math.radians(p["camera_tilt_deg"]),
+                               tilt_azimuth_rad=math.radians(p["camera_tilt_azimuth_deg"]),
+                               width=p["image_width"], height=p["image_height"], fov_width_m=p["fov_width_m"],
+                               fov_distance_m=p["fov_distance_m"])
+        if p["pose_source"] == "param":
+            return template.with_pose(template.R_wc, np.asarray(p["camera_xyz_m"], dtype=float))
+        if self._arm_tool_pose is None:
+            return None
+        R_wt, t_wt = self._arm_tool_pose
+        R_tc = rpy_to_matrix(*np.radians(p["hand_eye_rpy_deg"]))
+        t_tc = np.asarray(p["hand_eye_xyz_m"], dtype=float)
+        return template.with_pose(R_wt @ R_tc, R_wt @ t_tc + t_wt)
+
+    # -- shots ------------------------------------------------------------------------------------
+    def shoot(self) -> tuple[bool, str]:
+        with self._lock:
+            camera = self.camera_model()
+            if camera is None:
+                self.get_logger().warn("no shot: waiting for /arm/state (pose_source=arm)", throttle_duration_sec=5.0)
+                return False, "no camera pose yet: waiting for /arm/state"
+            view = render(self.scene, camera, seed=self.p["seed"] + self._shots,
+                          depth_noise_m=self.p["depth_noise_m"], hole_fraction=self.p["hole_fraction"],
+                          mark_depth_dropout=self.p["mark_depth_dropout"])
+            self._shots += 1
+            stamp = self.get_clock().now().to_msg()
+            self.pub_color.publish(ros_io.numpy_to_image(view.color_bgr, "bgr8", stamp, OPTICAL_FRAME))
+            self.pub_depth.publish(ros_io.numpy_to_image(view.depth_mm, "16UC1", stamp, OPTICAL_FRAME))
+            self.pub_info.publish(ros_io.camera_info_from_model(camera, stamp, OPTICAL_FRAME))
+            pose = PoseStamped()
+            pose.header.stamp = stamp
+            pose.header.frame_id = "world"
+            pose.pose = ros_io.rt_to_pose(camera.R_wc, camera.t_wc)
+            self.pub_pose.publish(pose)
+            self.diag.set(self.diag.OK, "publishing", shots=self._shots, visible_studs=int(view.stud_visible.sum()))
+            return True, f"shot {self._shots} at {stamp.sec}.{stamp.nanosec:09d}"
+
+    def _on_trigger(self, _request, response):
+        response.success, response.message = self.shoot()
+        return response
+
+    def _on_timer(self) -> None:
+        self.shoot()
+
+
+def main(args=None) -> int:
+    return ros_io.spin_node(CameraNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,92 @@
+"""Drawing node: `ros2 run stud_planner drawing --ros-args -p drawing_file:=part.dxf`.
+
+Reads the DXF (stud_planner.dxf_layout) and publishes ``/drawing/layout`` (StudLayout,
+reliable + transient local, so a late subscriber such as the HMI or a matcher started
+later still gets it) and ``/drawing/poses`` (PoseArray in the ``drawing`` frame, for
+visualisation). ``/drawing/load`` (LoadDrawing) reloads the file or loads another one. A
+bad file is reported in the log and on /diagnostics; the node keeps running and keeps
+publishing the last good layout.
+"""
+from __future__ import annotations
+
+from geometry_msgs.msg import PoseArray
+from rclpy.node import Node
+from stud_welding_msgs.msg import StudLayout
+from stud_welding_msgs.srv import LoadDrawing
+
+from stud_perception import ros_io
+from stud_perception.ros_io import Param
+from stud_planner import dxf_layout
+from stud_planner.msg_convert import layout_poses, layout_to_msg
+
+PARAMS = [
+    Param("drawing_file", "", "DXF drawing with stud circles and the marks O, A, B"),
+    Param("stud_layers", ["STUDS"], "layer names or glob patterns of the stud circles (case-insensitive)"),
+    Param("mark_layer", "MARKS", "layer (or glob pattern) of the O, A, B mark circles"),
+    Param("units_if_unitless", "mm", "unit of a drawing without $INSUNITS",
+          choices=("mm", "cm", "m", "in", "ft", "dm", "um")),
+    Param("min_diameter_m", 0.0, "ignore stud circles smaller than this [m] (0: no limit)", min=0.0, max=1.0),
+    Param("max_diameter_m", 0.0, "ignore stud circles larger than this [m] (0: no limit)", min=0.0, max=1.0),
+    Param("min_spacing_m", -1.0, "warn about studs closer than this [m]; -1: 2.5 x median diameter; 0: off",
+          min=-1.0, max=10.0),
+]
+
+
+class DrawingNode(Node):
+    def __init__(self) -> None:
+        super().__init__("drawing")
+        self.p = ros_io.declare_params(self, PARAMS)
+        self.pub_layout = self.create_publisher(StudLayout, "/drawing/layout", ros_io.LATCHED_QOS)
+        self.pub_poses = self.create_publisher(PoseArray, "/drawing/poses", ros_io.LATCHED_QOS)
+        self.diag = ros_io.Diagnostics(self)
+        self.create_service(LoadDrawing, "/drawing/load", self._on_load)
+        self.create_timer(1.0, self.diag.publish)
+        if self.p["drawing_file"]:
+            self.load(self.p["drawing_file"])
+        else:
+            self.diag.set(self.diag.WARN, "no drawing_file set: call /drawing/load")
+            self.get_logger().warn("no drawing_file parameter: waiting for a /drawing/load request")
+
+    def load(self, path: str) -> tuple[bool, str, int]:
+        p = self.p
+        try:
+            layout = dxf_layout.read_layout(
+                path, stud_layers=list(p["stud_layers"]), mark_layer=p["mark_layer"],
+                units_if_unitless=p["units_if_unitless"],
+                min_diameter_m=p["min_diameter_m"] or None, max_diameter_m=p["max_diameter_m"] or None,
+                min_spacing_m=None if p["min_spacing_m"] < 0 else p["min_spacing_m"])
+        except dxf_layout.DrawingError as exc:
+            self.get_logger().error(str(exc))
+            self.diag.set(self.diag.ERROR, str(exc), file=path)
+            self.diag.publish()
+            return False, str(exc), 0
+        msg = layout_to_msg(layout, self.get_clock().now().to_msg())
+        self.pub_layout.publish(msg)
+        self.pub_poses.publish(layout_poses(msg))
+        for warning in layout.warnings:
+            self.get_logger().warn(f"{path}: {warning}")
+        summary = (f"{path}: {len(layout.studs)} studs on {', '.join(layout.stud_layers)}, units "
+                   f"{layout.source_units}, marks by {layout.marks_rule}, {len(layout.warnings)} warnings")
+        self.get_logger().info(summary)
+        level = self.diag.WARN if layout.warnings else self.diag.OK
+        self.diag.set(level, summary, file=path, studs=len(layout.studs), warnings=len(layout.warnings))
+        self.diag.publish()
+        return True, summary, len(layout.studs)
+
+    def _on_load(self, request, response):
+        path = request.drawing_file or self.p["drawing_file"]
+        if not path:
+            response.success, response.message = False, "no drawing_file given and none loaded before"
+            return response
+        response.success, response.message, response.stud_count = self.load(path)
+        if response.success:
+            self.p["drawing_file"] = path
+        return response
+
+
+def main(args=None) -> int:
+    return ros_io.spin_node(DrawingNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,87 @@
+"""stud_planner's message <-> core conversions (one place, so nodes stay thin).
+
+Image/CameraInfo/Pose conversions are stud_perception.ros_io's; this module handles our
+own interfaces: layouts, registrations and weld targets.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from geometry_msgs.msg import Point, Pose, PoseArray, Quaternion, Vector3
+from stud_welding_msgs.msg import Registration, Stud, StudLayout, WeldTarget
+
+from stud_planner import dxf_layout
+
+
+def layout_to_msg(layout: dxf_layout.StudLayout, stamp=None) -> StudLayout:
+    msg = StudLayout()
+    if stamp is not None:
+        msg.header.stamp = stamp
+    msg.header.frame_id = "drawing"
+    msg.source_file = layout.source_file
+    msg.source_units = layout.source_units
+    msg.mark_o = Point(x=layout.mark_o.x_m, y=layout.mark_o.y_m)
+    msg.mark_a = Point(x=layout.mark_a.x_m, y=layout.mark_a.y_m)
+    msg.mark_b = Point(x=layout.mark_b.x_m, y=layout.mark_b.y_m)
+    msg.mark_diameter = float(layout.mark_diameter_m)
+    msg.studs = [Stud(id=s.id, x=s.x_m, y=s.y_m, diameter=s.diameter_m, layer=s.layer) for s in layout.studs]
+    msg.warnings = list(layout.warnings)
+    return msg
+
+
+@dataclass(frozen=True)
+class LayoutView:
+    """What the matcher and the registration need of a StudLayout message (numpy, metres, drawing frame)."""
+
+    ids: list[str]
+    xy_m: np.ndarray          # (N, 2)
+    marks_m: np.ndarray       # (3, 2) O, A, B
+    mark_diameter_m: float
+    source_file: str
+
+
+def layout_from_msg(msg: StudLayout) -> LayoutView:
+    return LayoutView(
+        ids=[s.id for s in msg.studs],
+        xy_m=np.array([(s.x, s.y) for s in msg.studs], dtype=np.float64).reshape(-1, 2),
+        marks_m=np.array([(m.x, m.y) for m in (msg.mark_o, msg.mark_a, msg.mark_b)], dtype=np.float64),
+        mark_diameter_m=float(msg.mark_diameter),
+        source_file=msg.source_file,
+    )
+
+
+def layout_poses(msg: StudLayout) -> PoseArray:
+    """The studs as a PoseArray in the `drawing` frame (for RViz / Foxglove)."""
+    arr = PoseArray()
+    arr.header = msg.header
+    arr.poses = [Pose(position=Point(x=s.x, y=s.y), orientation=Quaternion(w=1.0)) for s in msg.studs]
+    return arr
+
+
+def registration_from_msg(msg: Registration) -> np.ndarray:
+    """Registration message -> M_local2world (3, 3)."""
+    return np.asarray(msg.m_local2world, dtype=np.float64).reshape(3, 3)
+
+
+def weld_target_msg(stud_id: str, drawing_xy_m, position_w, normal_w, quat_xyzw, pixel_uv, view_index: int,
+                    iterations: int, xy_error_m: float, inclination_deg: float, normal_rms_m: float,
+                    status: int, status_text: str) -> WeldTarget:
+    """One WeldTarget; NaN positions (no match) are sent as NaN so nobody mistakes them for 0."""
+    t = WeldTarget()
+    t.stud_id = stud_id
+    t.drawing_x, t.drawing_y = float(drawing_xy_m[0]), float(drawing_xy_m[1])
+    p = [float(v) for v in position_w]
+    n = [float(v) for v in normal_w]
+    q = [float(v) for v in quat_xyzw]
+    t.pose = Pose(position=Point(x=p[0], y=p[1], z=p[2]), orientation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3]))
+    t.normal = Vector3(x=n[0], y=n[1], z=n[2])
+    t.pixel_u, t.pixel_v = float(pixel_uv[0]), float(pixel_uv[1])
+    t.view_index = int(view_index)
+    t.iterations = int(iterations)
+    t.xy_error = float(xy_error_m)
+    t.inclination = float(inclination_deg)
+    t.normal_rms = float(normal_rms_m)
+    t.status = int(status)
+    t.status_text = status_text
+    return t
