@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from stud_perception.depth_image import FillRule
 from stud_perception.markers import MarkDetectorConfig, MarkStatus, detect_marks
 from stud_perception.registration import registration_from_marks
-from stud_perception.scene import MarkingBoard, demo_camera, demo_dome_scene, render, view_camera
+from stud_perception.scene import MarkingBoard, Pose2D, demo_camera, demo_dome_scene, render, view_camera
 
 SCENE = demo_dome_scene()
 DRAWING = np.asarray(SCENE.board.marks_drawing_m)
@@ -121,3 +121,14 @@ def test_millimetre_depth_must_be_converted_first():
     view = render(SCENE, demo_camera(), seed=0)
     with pytest.raises(ValueError, match="depth_mm_to_m"):
         detect_marks(view.color_bgr, view.depth_mm, view.camera, DRAWING)
+
+
+def test_a_second_triangle_of_mark_sized_circles_is_reported_as_ambiguous():
+    # A copy of the mark triangle painted on the table beside the board: both triples fit.
+    copy = tuple((x + 0.22, y) for x, y in SCENE.board.marks_drawing_m)
+    scene = dataclasses.replace(SCENE, component=None, drawing_to_world=Pose2D(0.0, 0.0, 0.0), studs_drawing_m=copy,
+                                stud_ids=("X1", "X2", "X3"), stud_mark_diameter_m=SCENE.board.mark_diameter_m)
+    view = render(scene, view_camera((0.175, 0.05, 0.0), 0.6), seed=0)
+    det = _detect(view)
+    assert det.status is MarkStatus.AMBIGUOUS, det.message
+    assert len(det.candidates_uv) == 6 and np.isnan(det.marks_world_m).all()
