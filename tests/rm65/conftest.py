@@ -1,20 +1,16 @@
 """Fixtures for the rm65_driver tests: a loopback simulator, a connected client, a dome of targets."""
 from __future__ import annotations
 
-import time
-from typing import Callable
+import sys
+from pathlib import Path
 
-import numpy as np
 import pytest
 
-from rm65_driver.arm_client import ArmClient
-from rm65_driver.simulator import ArmSimulator
-from rm65_driver.weld_sequence import StudTarget
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # rm65_testing helpers
 
-#: A "ready" pose in front of the arm, tool pointing down (0.289, 0, 0.183 m flange).
-HOME_DEG = (0.0, -30.0, -100.0, 0.0, -50.0, 0.0)
-#: Motions run 50x faster than real time in the tests.
-FAST = 0.02
+from rm65_driver.arm_client import ArmClient  # noqa: E402
+from rm65_driver.simulator import ArmSimulator  # noqa: E402
+from rm65_testing import FAST, HOME_DEG  # noqa: E402
 
 
 @pytest.fixture
@@ -31,40 +27,3 @@ def client(sim):
     c.connect()
     yield c
     c.close()
-
-
-def dome_targets(center=(0.30, 0.0), radius_m: float = 2.0, z0: float = 0.03, rings=((0.0, 1), (0.05, 7), (0.10, 12))):
-    """Studs on a shallow spherical cap (sphere radius ``radius_m``): normals tilt up to ~3 deg."""
-    out = []
-    k = 0
-    for r, m in rings:
-        for j in range(m):
-            a = 2 * np.pi * j / m
-            dx, dy = r * np.cos(a), r * np.sin(a)
-            h = np.sqrt(radius_m**2 - dx * dx - dy * dy)
-            out.append(StudTarget(f"S{k:04d}", [center[0] + dx, center[1] + dy, z0 + h - radius_m],
-                                  np.array([dx, dy, h]) / radius_m))
-            k += 1
-    return out
-
-
-def wait_for(predicate: Callable[[], bool], timeout: float = 5.0, period: float = 0.005) -> bool:
-    """Poll ``predicate`` until true or ``timeout`` (s); returns its last value."""
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        time.sleep(period)
-    return bool(predicate())
-
-
-def welds_per_stud(sim: ArmSimulator, targets, io: int = 1, tol_m: float = 0.002) -> dict[str, int]:
-    """Count the simulator's trigger rising edges at each stud's position (within ``tol_m``)."""
-    counts = {t.stud_id: 0 for t in targets}
-    P = np.array([t.position for t in targets])
-    for e in sim.rising_edges(io):
-        d = np.linalg.norm(P - e.position, axis=1)
-        k = int(np.argmin(d))
-        assert d[k] < tol_m, f"a trigger fired {d[k] * 1e3:.1f} mm away from the nearest stud"
-        counts[targets[k].stud_id] += 1
-    return counts

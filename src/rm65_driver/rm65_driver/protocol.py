@@ -215,6 +215,10 @@ def get_current_arm_state() -> dict[str, Any]:
     return {"command": "get_current_arm_state"}
 
 
+def get_joint_degree() -> dict[str, Any]:
+    return {"command": "get_joint_degree"}
+
+
 def set_arm_stop() -> dict[str, Any]:
     """Trajectory emergency stop (fastest deceleration, not resumable), §1.5."""
     return {"command": "set_arm_stop"}

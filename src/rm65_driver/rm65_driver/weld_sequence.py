@@ -1,0 +1,506 @@
+"""The weld job: approach, descend, trigger, dwell, retract — for each stud, resumable, never twice.
+
+Pure Python on top of :class:`~rm65_driver.arm_client.ArmClient`,
+:class:`~rm65_driver.journal.Journal` and :class:`~rm65_driver.safety.SafetyChecker`; the ROS
+node only converts ``WeldTarget`` messages to :class:`StudTarget` and forwards feedback.
+
+Per target, in order:
+
+1. journal says **welded** -> not touched (reported welded when ``resume``, else skipped
+   "already welded"); journal says **uncertain** -> refused (failed, "needs an operator
+   decision": ``/arm/resolve_stud``);
+2. safety check (inclination, workspace, reach/IK inside the joint limits, straight descent
+   feasible): a rejection is journaled ``skipped(reason)`` and nothing is sent;
+3. ``approach``: ``movej`` to the checked joint solution of the approach pose, ``standoff_m``
+   out along the surface normal, tool z pointing into the surface;
+4. ``descend``: ``movel`` along the normal to the contact pose (tool tip on the surface, or
+   ``plunge_m`` beyond it);
+5. ``weld``: journal ``started`` (fsync'ed), digital output ``trigger_io`` high for ``pulse_s``,
+   then low. **The controller's outputs source at most 2 mA (RM65_PROTOCOL.md §1.8): a real
+   stud-welding gun must be triggered through an external relay / opto-coupled FET module on
+   that output, never wired to it directly.**
+6. ``dwell`` ``dwell_s`` (the gun completes its cycle), journal ``welded``;
+7. ``retract``: ``movel`` back to the approach pose.
+
+Stops: :meth:`WeldSequence.cancel` is graceful (motions before the trigger are stopped at once and
+the tool backs out along the normal; once the trigger fired, the weld, dwell and retract finish;
+then the job ends). :meth:`WeldSequence.halt` (stop / e-stop) sends ``set_arm_stop`` at once,
+drops the trigger output and ends the job with no further motion.
+
+Errors: a controller error (refused command, failed motion) aborts the job with the decoded
+error; the journal stays consistent (a stud that was triggered but not confirmed stays
+*uncertain*). A lost connection triggers a reconnect with back-off; then the output is forced low,
+the arm waits until idle and backs out along the normal. A stud not yet triggered is retried; a
+triggered one is reported *uncertain* (never re-welded) and the job continues with the next studs
+(``on_disconnect="continue"``, default) or ends (``"abort"``).
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from .arm_client import ArmClient, ArmCommandError, ArmConnectionError, ArmError, ArmStopped, ArmTimeout
+from .journal import Journal, JournalError
+from .kinematics import matrix_to_pose6
+from .safety import SafetyChecker, StudPlan
+
+_log = logging.getLogger(__name__)
+
+PHASES = ("approach", "descend", "weld", "dwell", "retract", "skip")
+
+
+@dataclass(frozen=True)
+class StudTarget:
+    """One stud to weld: ``position`` (3,) m on the surface and unit outward ``normal`` (3,), world frame."""
+
+    stud_id: str
+    position: np.ndarray
+    normal: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "position", np.asarray(self.position, dtype=np.float64).reshape(3))
+        n = np.asarray(self.normal, dtype=np.float64).reshape(3)
+        norm = np.linalg.norm(n)
+        object.__setattr__(self, "normal", n / norm if norm > 0 else n)
+
+
+@dataclass(frozen=True)
+class WeldParams:
+    """Job parameters. Lengths m, times s, speeds % of the controller maximum.
+
+    ``tool_offset_m``: flange -> weld-gun tip along the flange z axis (the ``weld_tool`` frame,
+    set on the controller as tool frame ``tool_frame_name``). ``trigger_io``: controller DO 1..4
+    (or tool-flange DO 1..2 with ``trigger_on_tool``); needs an external relay, see the module doc.
+    """
+
+    standoff_m: float = 0.05
+    tool_offset_m: float = 0.15
+    plunge_m: float = 0.0
+    tool_payload_kg: float = 1.0
+    tool_frame_name: str = "weld_gun"
+    trigger_io: int = 1
+    trigger_on_tool: bool = False
+    set_io_mode: bool = True  # Gen-3 multiplexed IO must be switched to output first
+    pulse_s: float = 0.2
+    dwell_s: float = 0.5
+    joint_speed_pct: int = 30
+    linear_speed_pct: int = 10
+    motion_timeout_s: float = 60.0
+    reconnect_timeout_s: float = 10.0
+    max_reconnects_per_stud: int = 3
+    on_disconnect: str = "continue"  # or "abort"
+    require_base_work_frame: bool = True
+
+    def __post_init__(self) -> None:
+        if self.on_disconnect not in ("continue", "abort"):
+            raise ValueError(f"on_disconnect={self.on_disconnect!r}: expected 'continue' or 'abort'")
+        for name in ("standoff_m", "tool_offset_m", "pulse_s", "dwell_s", "motion_timeout_s", "reconnect_timeout_s"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name}={getattr(self, name)} must not be negative")
+        if self.standoff_m <= 0:
+            raise ValueError("standoff_m must be positive (the approach pose must be off the surface)")
+
+    @property
+    def tool_T(self) -> np.ndarray:
+        """Flange -> weld tool (4x4, m)."""
+        T = np.eye(4)
+        T[2, 3] = self.tool_offset_m
+        return T
+
+
+@dataclass
+class JobResult:
+    welded: list[str] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
+    failed: list[str] = field(default_factory=list)
+    messages: list[str] = field(default_factory=list)
+    success: bool = False
+    message: str = ""
+
+
+PhaseCallback = Callable[[str, str, int, int], None]  # (stud_id, phase, done, total)
+
+
+class _JobEnded(Exception):
+    """Internal: the job stops here (cancel, halt, abort); ``message`` goes to the result."""
+
+
+class WeldSequence:
+    """Runs weld jobs on one arm; thread-safe control (:meth:`cancel`, :meth:`halt`, :meth:`pause`)."""
+
+    def __init__(self, client: ArmClient, journal: Journal, safety: SafetyChecker, params: WeldParams,
+                 on_phase: PhaseCallback | None = None):
+        self.client = client
+        self.journal = journal
+        self.safety = safety
+        self.params = params
+        self.on_phase = on_phase
+        if not np.allclose(safety.tool_T, params.tool_T):
+            raise ValueError("the safety checker's tool transform differs from params.tool_T")
+        self._lock = threading.Lock()
+        self._wake = threading.Condition(self._lock)
+        self._cancel = False
+        self._halt = False
+        self._halt_reason = ""
+        self._paused = False
+        self._epoch = 0  # client.stop_count when the job started
+        self.running = False
+        self.current_stud = ""
+        self.phase = ""
+        self.done = 0
+        self.total = 0
+
+    # ------------------------------------------------------------------------------------
+    # control from other threads
+    # ------------------------------------------------------------------------------------
+    def cancel(self) -> None:
+        """Graceful stop: motions before the trigger are stopped now; a started weld completes."""
+        with self._lock:
+            self._cancel = True
+            phase = self.phase
+            self._paused = False
+            self._wake.notify_all()
+        if phase in ("approach", "descend"):
+            self._stop_arm()
+
+    def halt(self, reason: str = "stop requested") -> None:
+        """Immediate stop: ``set_arm_stop`` now, trigger output low, job ends, nothing else moves."""
+        with self._lock:
+            self._halt = True
+            self._halt_reason = reason
+            self._paused = False
+            self._wake.notify_all()
+        self._stop_arm()
+        self._trigger_low()
+
+    def pause(self) -> None:
+        """Pause the running motion on its path; no new phase starts until :meth:`resume`."""
+        with self._lock:
+            self._paused = True
+        self.client.pause()
+
+    def resume(self) -> None:
+        self.client.resume()
+        with self._lock:
+            self._paused = False
+            self._wake.notify_all()
+
+    def _stop_arm(self) -> None:
+        try:
+            self.client.stop(wait_reply=False)
+        except ArmError as exc:
+            _log.error("could not send the stop command: %s", exc)
+
+    def _trigger_low(self) -> bool:
+        try:
+            self.client.set_do(self.params.trigger_io, False, tool=self.params.trigger_on_tool)
+            return True
+        except ArmError as exc:
+            _log.error("could not set the trigger output %d low: %s", self.params.trigger_io, exc)
+            return False
+
+    # ------------------------------------------------------------------------------------
+    # the job
+    # ------------------------------------------------------------------------------------
+    def run(self, targets: Sequence[StudTarget], resume: bool = True) -> JobResult:
+        """Weld ``targets`` in order (blocking). See the module docstring for the rules."""
+        res = JobResult()
+        with self._lock:
+            if self.running:
+                res.message = "a weld job is already running"
+                return res
+            self.running = True
+            self._cancel = self._halt = self._paused = False
+            self.total, self.done = len(targets), 0
+        try:
+            self._run(list(targets), resume, res)
+        finally:
+            with self._lock:
+                self.running = False
+                self.current_stud = self.phase = ""
+        _log.info("weld job ended: %s", res.message)
+        return res
+
+    def _run(self, targets: list[StudTarget], resume: bool, res: JobResult) -> None:
+        ids = [t.stud_id for t in targets]
+        if len(set(ids)) != len(ids):
+            res.message = "duplicate stud ids in the job: " + ", ".join(sorted({i for i in ids if ids.count(i) > 1}))
+            return
+        for v, linear in ((self.params.joint_speed_pct, False), (self.params.linear_speed_pct, True)):
+            why = self.safety.check_speed(v, linear)
+            if why:
+                res.message = f"job refused: {why}"
+                return
+        try:
+            if not self.client.connected:
+                self.client.reconnect(self.params.reconnect_timeout_s)
+            self._prepare()
+        except ArmError as exc:
+            res.message = f"job not started: {exc}"
+            return
+
+        with self._lock:
+            self._epoch = self.client.stop_count  # any stop from now on ends every motion of this job
+        i = 0
+        reconnects = 0
+        while i < len(targets):
+            t = targets[i]
+            if self._cancel or self._halt:
+                self._end_unprocessed(targets[i:], res)
+                res.message = self._stop_message()
+                return
+            status = self.journal.status(t.stud_id)
+            if status == "welded":
+                if resume:
+                    res.welded.append(t.stud_id)
+                else:
+                    res.skipped.append(t.stud_id)
+                    res.messages.append(f"{t.stud_id}: already welded (journal); not welded again")
+                self._finish_one(t, "skip")
+                i += 1
+                continue
+            if status == "uncertain":
+                res.failed.append(t.stud_id)
+                res.messages.append(f"{t.stud_id}: uncertain in the journal (started, never confirmed): "
+                                    "needs an operator decision (resolve_stud) before it can be welded")
+                self._finish_one(t, "skip")
+                i += 1
+                continue
+            try:
+                outcome = self._do_stud(t, res)
+            except ArmConnectionError as exc:
+                reconnects += 1
+                phase = self.phase
+                status = self.journal.status(t.stud_id)
+                _log.warning("connection lost at stud %s (phase %s, journal %s): %s", t.stud_id, phase, status, exc)
+                recovered = ""
+                try:
+                    self._recover(t, phase)
+                except (ArmError, _JobEnded) as exc2:
+                    recovered = str(exc2)
+                if status == "welded":  # lost during the retract: the stud is done
+                    res.welded.append(t.stud_id)
+                elif status == "uncertain":
+                    res.failed.append(t.stud_id)
+                    res.messages.append(f"{t.stud_id}: uncertain (connection lost after the trigger); "
+                                        "not re-welded, needs an operator decision")
+                if recovered:
+                    self._end_unprocessed(targets[i:], res)
+                    res.message = f"aborted: connection lost at {t.stud_id} and not recovered: {recovered}"
+                    return
+                if status in ("welded", "uncertain"):
+                    self._finish_one(t, "skip")
+                    i += 1
+                    reconnects = 0
+                    if status == "uncertain" and self.params.on_disconnect == "abort":
+                        self._end_unprocessed(targets[i:], res)
+                        res.message = "aborted after a connection loss mid-weld (on_disconnect=abort)"
+                        return
+                elif reconnects > self.params.max_reconnects_per_stud:
+                    res.failed.append(t.stud_id)
+                    res.messages.append(f"{t.stud_id}: connection lost {reconnects} times at this stud")
+                    self._end_unprocessed(targets[i + 1:], res)
+                    res.message = "aborted: the connection keeps dropping"
+                    return
+                continue  # the same stud again (it was never triggered), or the next one
+            except _JobEnded as end:
+                status = self.journal.status(t.stud_id)
+                if status == "welded":
+                    res.welded.append(t.stud_id)
+                elif status == "uncertain":
+                    res.failed.append(t.stud_id)
+                    res.messages.append(f"{t.stud_id}: uncertain (job ended after the trigger): "
+                                        "needs an operator decision")
+                elif not str(end).startswith(("cancelled", "halted")):
+                    res.failed.append(t.stud_id)
+                    res.messages.append(f"{t.stud_id}: {end}")
+                self._end_unprocessed(targets[i:], res)
+                res.message = str(end)
+                return
+            reconnects = 0
+            if outcome == "welded":
+                res.welded.append(t.stud_id)
+            i += 1
+        self._trigger_low()
+        stopped = self._cancel or self._halt
+        res.success = not res.failed and not stopped
+        res.message = self._stop_message() if stopped else (
+            f"done: {len(res.welded)} welded, {len(res.skipped)} skipped, {len(res.failed)} failed")
+
+    def _stop_message(self) -> str:
+        return f"halted: {self._halt_reason}" if self._halt else "cancelled"
+
+    def _end_unprocessed(self, rest: Sequence[StudTarget], res: JobResult) -> None:
+        for t in rest:
+            if t.stud_id not in res.welded and t.stud_id not in res.failed and t.stud_id not in res.skipped:
+                res.messages.append(f"{t.stud_id}: not processed (job ended)")
+
+    def _finish_one(self, t: StudTarget, phase: str) -> None:
+        with self._lock:
+            self.done += 1
+        self._set_phase(t, phase)
+
+    def _set_phase(self, t: StudTarget, phase: str) -> None:
+        with self._lock:
+            self.current_stud, self.phase = t.stud_id, phase
+            done, total = self.done, self.total
+        _log.info("stud %s: %s (%d/%d)", t.stud_id, phase, done, total)
+        if self.on_phase is not None:
+            try:
+                self.on_phase(t.stud_id, phase, done, total)
+            except Exception:
+                _log.exception("phase callback failed")
+
+    # ------------------------------------------------------------------------------------
+    def _prepare(self) -> None:
+        """Tool frame, work frame check, trigger output mode and level (idempotent)."""
+        p = self.params
+        if p.require_base_work_frame:
+            name, pose = self.client.current_work_frame()
+            if not np.allclose(pose, 0.0, atol=1e-6):
+                raise ArmCommandError("get_current_work_frame", 0x100E,
+                                      f"active work frame {name!r} is not the base frame (pose {pose.tolist()}); "
+                                      "weld targets are in the base frame")
+        self.client.set_tool_frame(p.tool_frame_name, [0.0, 0.0, p.tool_offset_m, 0.0, 0.0, 0.0], p.tool_payload_kg)
+        if p.set_io_mode:
+            self.client.set_io_output_mode(p.trigger_io, tool=p.trigger_on_tool)
+        self.client.set_do(p.trigger_io, False, tool=p.trigger_on_tool)
+
+    def _wait_not_paused(self) -> None:
+        with self._wake:
+            while self._paused and not (self._halt or self._cancel):
+                self._wake.wait(0.1)
+
+    def _sleep(self, seconds: float, interruptible: bool) -> None:
+        """Wait ``seconds``; a halt ends it early (a cancel does not: the weld completes)."""
+        end = time.monotonic() + seconds
+        with self._wake:
+            while (left := end - time.monotonic()) > 0:
+                if interruptible and self._halt:
+                    return
+                self._wake.wait(left)
+
+    def _check_halt(self) -> None:
+        if self._halt:
+            raise _JobEnded(self._stop_message())
+
+    def _move(self, kind: str, target, v: int) -> None:
+        """One motion of the job; any stop requested since the job began raises ArmStopped."""
+        p = self.params
+        if kind == "joint":
+            self.client.move_joints_and_wait(target, v, p.motion_timeout_s, stop_count=self._epoch)
+        else:
+            self.client.move_linear_and_wait(matrix_to_pose6(target), v, p.motion_timeout_s, stop_count=self._epoch)
+
+    def _between_phases(self) -> None:
+        self._wait_not_paused()
+        self._check_halt()
+
+    def _do_stud(self, t: StudTarget, res: JobResult) -> str:
+        """Weld one stud; returns "welded" or "skipped". Raises ArmConnectionError / _JobEnded."""
+        p = self.params
+        try:
+            q_now = self.client.get_state().joints_rad
+        except ArmConnectionError:
+            raise
+        except ArmError as exc:
+            self._abort_motion()
+            raise _JobEnded(f"aborted at {t.stud_id}: cannot read the arm state: {exc}") from exc
+        check = self.safety.check_target(t.position, t.normal, p.standoff_m, q_now, p.plunge_m)
+        if not check.ok:
+            self.journal.skipped(t.stud_id, check.reason)
+            res.skipped.append(t.stud_id)
+            res.messages.append(f"{t.stud_id}: {check.reason}")
+            self._finish_one(t, "skip")
+            return "skipped"
+        plan = check.plan
+        assert plan is not None
+        try:
+            self._between_phases()
+            if self._cancel:
+                raise _JobEnded("cancelled")
+            self._set_phase(t, "approach")
+            self._move("joint", plan.q_approach, p.joint_speed_pct)
+            self._between_phases()
+            if self._cancel:
+                raise _JobEnded("cancelled")
+            self._set_phase(t, "descend")
+            self._move("linear", plan.T_contact, p.linear_speed_pct)
+            self._between_phases()
+            if self._cancel:
+                self._back_out(plan)
+                raise _JobEnded("cancelled")
+            self._set_phase(t, "weld")
+            self._weld(t, plan)
+            self._between_phases()
+            self._set_phase(t, "retract")
+            self._move("linear", plan.T_approach, p.linear_speed_pct)
+        except ArmStopped as exc:
+            if self._halt:
+                raise _JobEnded(self._stop_message()) from exc
+            if self._cancel:
+                if self.journal.status(t.stud_id) not in ("welded", "uncertain"):
+                    self._back_out(plan)
+                raise _JobEnded("cancelled") from exc
+            self._abort_motion()
+            raise _JobEnded(f"aborted at {t.stud_id}: the arm was stopped from outside the job") from exc
+        except (ArmCommandError, ArmTimeout, JournalError) as exc:
+            self._abort_motion()
+            raise _JobEnded(f"aborted at {t.stud_id} ({self.phase}): {exc}") from exc
+        with self._lock:
+            self.done += 1
+        return "welded"
+
+    def _weld(self, t: StudTarget, plan: StudPlan) -> None:
+        p = self.params
+        # Durable *before* the trigger: after a crash this stud reads "uncertain", never "not welded".
+        self.journal.started(t.stud_id, position=t.position, normal=t.normal, joints=plan.q_contact)
+        try:
+            self.client.set_do(p.trigger_io, True, tool=p.trigger_on_tool)
+            self._sleep(p.pulse_s, interruptible=True)
+        finally:
+            low = self._trigger_low()
+        if not low:
+            raise ArmConnectionError("the trigger output could not be set low")
+        self._check_halt()
+        self._set_phase(t, "dwell")
+        self._sleep(p.dwell_s, interruptible=True)
+        self._check_halt()
+        self.journal.welded(t.stud_id)
+
+    def _back_out(self, plan: StudPlan) -> None:
+        """Straight back out along the normal to the approach pose (after a cancel, not a halt)."""
+        with self._lock:
+            if self._halt:
+                return
+            stop_count = self.client.stop_count  # a later halt still interrupts this move
+        try:
+            self.client.move_linear_and_wait(matrix_to_pose6(plan.T_approach), self.params.linear_speed_pct,
+                                             self.params.motion_timeout_s, stop_count=stop_count)
+        except ArmError as exc:
+            _log.error("could not back out along the normal: %s", exc)
+
+    def _abort_motion(self) -> None:
+        self._stop_arm()
+        self._trigger_low()
+
+    def _recover(self, t: StudTarget, phase: str) -> None:
+        """After a connection loss: reconnect, wait until idle, output low, back out along the normal."""
+        p = self.params
+        self._check_halt()
+        self.client.reconnect(p.reconnect_timeout_s)
+        self.client.wait_idle(p.motion_timeout_s)
+        if not self._trigger_low():
+            raise ArmConnectionError("the trigger output could not be set low after reconnecting")
+        self._prepare()
+        self._check_halt()
+        if phase in ("descend", "weld", "dwell", "retract"):
+            # Straight back along the normal to the standoff, keeping the current orientation.
+            T_back = self.safety.kin.fk(self.client.get_state().joints_rad) @ p.tool_T
+            T_back[:3, 3] = t.position + p.standoff_m * t.normal
+            self._move("linear", T_back, p.linear_speed_pct)

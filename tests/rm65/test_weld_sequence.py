@@ -1,0 +1,239 @@
+"""WeldSequence end to end against the simulator: jobs, rejections, errors, drops, stops."""
+from __future__ import annotations
+
+import json
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from rm65_driver import protocol as P
+from rm65_driver.journal import Journal
+from rm65_driver.kinematics import RM65Kinematics
+from rm65_driver.safety import SafetyChecker, SafetyLimits
+from rm65_driver.weld_sequence import StudTarget, WeldParams, WeldSequence
+from rm65_testing import dome_targets, wait_for, welds_per_stud
+
+PARAMS = WeldParams(standoff_m=0.04, tool_offset_m=0.15, pulse_s=0.01, dwell_s=0.01, joint_speed_pct=50,
+                    linear_speed_pct=20, motion_timeout_s=5.0, reconnect_timeout_s=3.0)
+
+
+def make_seq(client, tmp_path, params=PARAMS, phases=None, **limits):
+    journal = Journal(tmp_path / "weld.jsonl")
+    safety = SafetyChecker(RM65Kinematics(), SafetyLimits(**limits), params.tool_T)
+    cb = (lambda *a: phases.append(a)) if phases is not None else None
+    return WeldSequence(client, journal, safety, params, on_phase=cb), journal
+
+
+def test_full_dome_job_welds_every_stud_once_on_its_normal(client, sim, tmp_path):
+    targets = dome_targets()
+    assert len(targets) == 20
+    phases: list = []
+    seq, journal = make_seq(client, tmp_path, phases=phases)
+    t0 = time.monotonic()
+    res = seq.run(targets)
+    dt = time.monotonic() - t0
+    print(f"\nweld job: {len(targets)} studs in {dt:.2f} s wall (simulator time_scale 0.02, "
+          f"pulse {PARAMS.pulse_s} s, dwell {PARAMS.dwell_s} s)")
+    assert res.success, res.message
+    assert res.welded == [t.stud_id for t in targets] and not res.skipped and not res.failed
+    assert set(welds_per_stud(sim, targets).values()) == {1}
+    for edge, t in zip(sim.rising_edges(1), targets):
+        np.testing.assert_allclose(edge.position, t.position, atol=1e-4)
+        assert np.degrees(np.arccos(np.clip(edge.tcp_pose[:3, 2] @ -t.normal, -1, 1))) < 0.2
+    assert sim.do_state(1) == 0
+    assert journal.welded_ids == {t.stud_id for t in targets} and not journal.uncertain_ids
+    first = [p[1] for p in phases if p[0] == "S0000"]
+    assert first == ["approach", "descend", "weld", "dwell", "retract"]
+    assert phases[-1][3] == 20
+    # resume: nothing is welded twice
+    res2 = seq.run(targets, resume=True)
+    assert res2.success and res2.welded == res.welded
+    res3 = seq.run(targets, resume=False)
+    assert res3.skipped == res.welded and all("already welded" in m for m in res3.messages)
+    assert len(sim.rising_edges(1)) == 20
+
+
+def test_rejected_targets_are_never_sent(client, sim, tmp_path):
+    good = dome_targets(rings=((0.0, 1), (0.05, 2)))
+    unreachable = StudTarget("FAR", [0.50, 0.0, 0.0], [0, 0, 1])
+    tilted = StudTarget("TILT", [0.30, 0.08, 0.0], [np.sin(np.radians(8)), 0, np.cos(np.radians(8))])
+    outside = StudTarget("LOW", [0.30, -0.08, -0.05], [0, 0, 1])
+    targets = [good[0], unreachable, good[1], tilted, outside, good[2]]
+    seq, journal = make_seq(client, tmp_path)
+    res = seq.run(targets)
+    assert res.success and res.welded == [good[0].stud_id, good[1].stud_id, good[2].stud_id]
+    assert res.skipped == ["FAR", "TILT", "LOW"]
+    msgs = dict(m.split(": ", 1) for m in res.messages)
+    assert "unreachable" in msgs["FAR"] and "inclination 8.0" in msgs["TILT"] and "workspace box" in msgs["LOW"]
+    assert journal.status("FAR") == "skipped"
+    # the simulator never saw a motion towards a rejected stud
+    movels = [P.pose_from_wire(c.msg["pose"])[:3] for c in sim.commands_named("movel")]
+    for bad in (unreachable, tilted, outside):
+        assert min(np.linalg.norm(np.array(movels) - bad.position, axis=1)) > 0.06
+    assert len(sim.commands_named("movej")) == 3
+    assert set(welds_per_stud(sim, good).values()) == {1}
+
+
+def test_controller_error_mid_job_aborts_with_the_decoded_error_and_a_clean_journal(client, sim, tmp_path):
+    targets = dome_targets(rings=((0.0, 1), (0.05, 4)))
+    sim.fail_next("movel", 0x100D, mode="trajectory", nth=5)  # descend of the third stud
+    seq, journal = make_seq(client, tmp_path)
+    res = seq.run(targets)
+    assert not res.success
+    assert "0x100D: collision detected" in res.message
+    assert res.welded == ["S0000", "S0001"] and res.failed == ["S0002"]
+    assert journal.welded_ids == {"S0000", "S0001"} and not journal.uncertain_ids
+    assert sum(1 for m in res.messages if "not processed" in m) == 2
+    lines = (tmp_path / "weld.jsonl").read_text().splitlines()
+    assert all(json.loads(x)["stud"] in {"S0000", "S0001"} for x in lines)
+    assert not sim.moving and sim.do_state(1) == 0
+
+
+def test_trigger_refused_after_start_leaves_the_stud_uncertain(client, sim, tmp_path):
+    targets = dome_targets(rings=((0.0, 1), (0.05, 2)))
+    sim.fail_next("set_DO_state", 0x2005, nth=4)  # prepare sets low once, S0000 high+low, then S0001 high
+    seq, journal = make_seq(client, tmp_path)
+    res = seq.run(targets)
+    assert not res.success and "0x2005" in res.message
+    assert res.welded == ["S0000"] and res.failed == ["S0001"]
+    assert journal.uncertain_ids == {"S0001"}
+    assert sim.do_state(1) == 0
+
+
+def test_connection_drop_mid_descend_reconnects_and_no_stud_is_welded_twice_or_skipped(client, sim, tmp_path):
+    targets = dome_targets(rings=((0.0, 1), (0.05, 7)))
+    sim.drop_mid_motion(nth=3, fraction=0.5, command="movel")  # S0001's descent
+    sim.drop_mid_motion(nth=7, fraction=0.2, command="movej")  # a later approach (counted from now)
+    seq, journal = make_seq(client, tmp_path)
+    res = seq.run(targets)
+    assert res.success, res.message
+    assert res.welded == [t.stud_id for t in targets] and not res.skipped and not res.failed
+    assert set(welds_per_stud(sim, targets).values()) == {1}
+    assert sim.connection_count == 3  # two drops, two reconnects
+
+
+def test_connection_drop_after_the_trigger_marks_the_stud_uncertain_and_the_job_goes_on(client, sim, tmp_path):
+    targets = dome_targets(rings=((0.0, 1), (0.05, 5)))
+    sim.drop_after_commands(4, command="set_DO_state")  # prepare: low; S0000: high, low; S0001: high -> drop
+    seq, journal = make_seq(client, tmp_path)
+    res = seq.run(targets)
+    assert res.failed == ["S0001"] and "uncertain" in res.messages[0]
+    assert res.welded == ["S0000", "S0002", "S0003", "S0004", "S0005"]
+    counts = welds_per_stud(sim, targets)
+    assert set(counts.values()) == {1}  # S0001 fired once (then the link dropped) and never again
+    assert journal.uncertain_ids == {"S0001"}
+    assert sim.do_state(1) == 0  # forced low after the reconnect
+    # Next job: the uncertain stud is refused until an operator decides
+    res2 = seq.run(targets)
+    assert res2.failed == ["S0001"] and len(sim.rising_edges(1)) == 6
+    journal.resolve("S0001", welded=True, note="stud present")
+    res3 = seq.run(targets)
+    assert res3.success and len(res3.welded) == 6 and len(sim.rising_edges(1)) == 6
+
+
+def test_on_disconnect_abort_policy(client, sim, tmp_path):
+    targets = dome_targets(rings=((0.0, 1), (0.05, 3)))
+    sim.drop_after_commands(2, command="set_DO_state")  # prepare low, S0000 high -> drop
+    params = WeldParams(**{**PARAMS.__dict__, "on_disconnect": "abort"})
+    seq, journal = make_seq(client, tmp_path, params=params)
+    res = seq.run(targets)
+    assert not res.success and "on_disconnect=abort" in res.message
+    assert res.failed == ["S0000"] and len(sim.rising_edges(1)) == 1
+
+
+def test_reconnect_failure_aborts_the_job(client, sim, tmp_path):
+    targets = dome_targets(rings=((0.0, 1), (0.05, 2)))
+    params = WeldParams(**{**PARAMS.__dict__, "reconnect_timeout_s": 0.3})
+    seq, journal = make_seq(client, tmp_path, params=params)
+    sim.refuse_connections()  # the open connection lives on; any new one is refused
+    sim.drop_mid_motion(nth=3, fraction=0.5, command="movel")  # S0001's descent
+    t0 = time.monotonic()
+    res = seq.run(targets)
+    assert time.monotonic() - t0 < 3.0
+    assert not res.success and "not recovered" in res.message and "gave up reconnecting" in res.message
+    assert res.welded == ["S0000"] and not res.failed  # S0001 was never triggered
+    assert journal.welded_ids == {"S0000"} and not journal.uncertain_ids
+
+
+def test_cancel_during_approach_stops_the_arm_and_welds_nothing_more(client, sim, tmp_path):
+    sim.time_scale = 0.3
+    targets = dome_targets(rings=((0.0, 1), (0.05, 3)))
+    seq, journal = make_seq(client, tmp_path)
+    out = {}
+    t = threading.Thread(target=lambda: out.setdefault("res", seq.run(targets)))
+    t.start()
+    assert wait_for(lambda: seq.current_stud == "S0001" and seq.phase == "approach" and sim.moving, 10)
+    seq.cancel()
+    t.join(10)
+    res = out["res"]
+    assert res.message == "cancelled" and res.welded == ["S0000"] and not res.failed
+    assert "set_arm_stop" in sim.command_names()
+    assert len(sim.rising_edges(1)) == 1 and not journal.uncertain_ids
+    assert not sim.moving
+
+
+def test_cancel_after_the_trigger_completes_the_stud(client, sim, tmp_path):
+    targets = dome_targets(rings=((0.0, 1), (0.05, 3)))
+    params = WeldParams(**{**PARAMS.__dict__, "dwell_s": 0.3})
+    seq, journal = make_seq(client, tmp_path, params=params)
+    out = {}
+    t = threading.Thread(target=lambda: out.setdefault("res", seq.run(targets)))
+    t.start()
+    assert wait_for(lambda: seq.current_stud == "S0000" and seq.phase == "dwell", 10)
+    seq.cancel()
+    t.join(10)
+    res = out["res"]
+    assert res.message == "cancelled" and res.welded == ["S0000"]
+    assert journal.welded_ids == {"S0000"}
+    np.testing.assert_allclose(sim.tcp_pose()[:3, 3], targets[0].position + 0.04 * targets[0].normal, atol=1e-4)
+
+
+def test_halt_during_dwell_stops_at_once_and_leaves_the_stud_uncertain(client, sim, tmp_path):
+    targets = dome_targets(rings=((0.0, 1), (0.05, 3)))
+    params = WeldParams(**{**PARAMS.__dict__, "pulse_s": 0.5})
+    seq, journal = make_seq(client, tmp_path, params=params)
+    out = {}
+    t = threading.Thread(target=lambda: out.setdefault("res", seq.run(targets)))
+    t.start()
+    assert wait_for(lambda: sim.do_state(1) == 1, 10)
+    t0 = time.monotonic()
+    seq.halt("e-stop")
+    t.join(10)
+    assert time.monotonic() - t0 < 0.5
+    res = out["res"]
+    assert res.message == "halted: e-stop" and res.failed == ["S0000"]
+    assert journal.uncertain_ids == {"S0000"} and sim.do_state(1) == 0
+    assert sim.command_names()[-1] in ("set_DO_state", "set_arm_stop")
+
+
+def test_pause_and_resume_mid_job(client, sim, tmp_path):
+    sim.time_scale = 0.2
+    targets = dome_targets(rings=((0.0, 1), (0.05, 1)))
+    seq, journal = make_seq(client, tmp_path)
+    out = {}
+    t = threading.Thread(target=lambda: out.setdefault("res", seq.run(targets)))
+    t.start()
+    assert wait_for(lambda: seq.current_stud == "S0001" and sim.moving, 10)
+    seq.pause()
+    q = sim.joints
+    time.sleep(0.2)
+    np.testing.assert_allclose(sim.joints, q)
+    seq.resume()
+    t.join(10)
+    assert out["res"].success and len(sim.rising_edges(1)) == 2
+
+
+def test_job_refused_for_speed_caps_and_a_foreign_work_frame(client, sim, tmp_path):
+    fast = WeldParams(**{**PARAMS.__dict__, "linear_speed_pct": 60})
+    seq, _ = make_seq(client, tmp_path, params=fast)
+    res = seq.run(dome_targets())
+    assert not res.success and "speed cap" in res.message and not sim.commands_named("movej")
+    client.command(P.set_manual_work_frame("table", [0.3, 0, 0, 0, 0, 0]))
+    client.set_work_frame("table")
+    seq2, _ = make_seq(client, tmp_path)
+    res = seq2.run(dome_targets())
+    assert not res.success and "not the base frame" in res.message
+    with pytest.raises(ValueError):
+        WeldParams(on_disconnect="retry")
