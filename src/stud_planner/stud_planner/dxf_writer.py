@@ -1,0 +1,177 @@
+"""Write stud-layout drawings (DXF) the way civil engineers' CAD programs do.
+
+Used by the tests and by ``tools/make_demo_drawings.py``. Input is in the ``drawing`` frame
+(metres, origin at O, x toward A, y toward B); the writer places that frame in the DXF's WCS
+with ``origin_wcs_m`` / ``rotation_deg`` (and ``mirror_frame``), converts to ``units``, and
+draws the studs as circles, optionally as INSERTs of a block (rotated, scaled, mirrored,
+nested) or as circles with extrusion (0, 0, -1), as mirrored drawings contain them.
+
+:func:`stud_planner.dxf_layout.read_layout` on the written file gives back the input
+(to float precision), which is what the round-trip tests check.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import ezdxf
+import numpy as np
+from ezdxf.math import OCS
+
+from .dxf_layout import units_to_metres
+
+__all__ = ["write_layout_dxf", "write_scene_drawing"]
+
+_FLIP = (0.0, 0.0, -1.0)
+
+
+def _rot(deg: float) -> np.ndarray:
+    a = math.radians(deg)
+    return np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+
+
+def write_layout_dxf(
+    path: str | Path,
+    studs_xy_m: np.ndarray | Sequence[Sequence[float]],
+    marks_xy_m: Mapping[str, Sequence[float]],
+    *,
+    stud_diameter_m: float | Sequence[float] = 0.019,
+    mark_diameter_m: float = 0.03,
+    dxfversion: str = "R2010",
+    units: str = "mm",
+    unitless_as: str = "mm",
+    stud_layer: str | Sequence[str] = "STUDS",
+    mark_layer: str = "MARKS",
+    labels: bool = True,
+    label_layer: str = "TEXT",
+    label_kind: str = "text",
+    as_blocks: bool = False,
+    block_rotation_deg: float = 0.0,
+    block_scale: float = 1.0,
+    mirror_blocks: bool = False,
+    nested_blocks: bool = False,
+    ocs_flip: bool = False,
+    origin_wcs_m: Sequence[float] = (0.0, 0.0),
+    rotation_deg: float = 0.0,
+    mirror_frame: bool = False,
+    binary: bool = False,
+) -> Path:
+    """Write a DXF with stud circles and the three marks O, A, B; return the path.
+
+    Args:
+        studs_xy_m: (N, 2) stud centres, drawing frame, metres.
+        marks_xy_m: {"O": (x, y), "A": ..., "B": ...}, drawing frame, metres.
+        stud_diameter_m: one diameter for all studs or one per stud (m).
+        dxfversion: "R12", "R2000", "R2004", "R2007", "R2010", "R2013", "R2018".
+        units: "mm", "cm", "m", "in", "ft", ... or "unitless" ($INSUNITS 0, coordinates in
+            ``unitless_as``).
+        stud_layer: one layer for all studs or one per stud.
+        labels: write TEXT (``label_kind="text"``) or MTEXT (``"mtext"``, R2000+) labels O/A/B
+            next to the marks.
+        as_blocks: studs as INSERTs of block ``STUD`` (a circle of diameter ``1 / block_scale``
+            on layer 0, off the block origin, with a non-zero base point) with
+            ``block_rotation_deg``, scale ``block_scale x stud diameter`` and ``mirror_blocks``
+            (negative x scale); ``nested_blocks`` wraps it in a block
+            ``STUD_GROUP`` that inserts ``STUD`` rotated by 30 deg at scale 0.5.
+        ocs_flip: plain circles (and INSERTs) written with extrusion (0, 0, -1), OCS coordinates.
+        origin_wcs_m, rotation_deg, mirror_frame: where the drawing frame sits in the WCS
+            (metres, degrees; ``mirror_frame`` flips the WCS y axis, so B ends up clockwise from A).
+        binary: write binary DXF.
+    """
+    path = Path(path)
+    studs = np.asarray(studs_xy_m, dtype=np.float64).reshape(-1, 2)
+    n = studs.shape[0]
+    if units == "unitless":
+        insunits, scale = 0, units_to_metres(unitless_as)[2]
+    else:
+        insunits, _, scale = units_to_metres(units)
+    k = 1.0 / scale  # drawing units per metre
+    diam = np.broadcast_to(np.asarray(stud_diameter_m, dtype=np.float64), (n,))
+    layers = [stud_layer] * n if isinstance(stud_layer, str) else list(stud_layer)
+    if len(layers) != n:
+        raise ValueError(f"stud_layer: {len(layers)} layers for {n} studs")
+
+    # drawing frame (m) -> WCS (drawing units)
+    M = _rot(rotation_deg) @ (np.diag([1.0, -1.0]) if mirror_frame else np.eye(2))
+    t = np.asarray(origin_wcs_m, dtype=np.float64)
+
+    def to_wcs(xy_m: np.ndarray) -> np.ndarray:
+        return (np.asarray(xy_m, dtype=np.float64).reshape(-1, 2) @ M.T + t) * k
+
+    doc = ezdxf.new(dxfversion, setup=False)
+    doc.header["$INSUNITS"] = insunits
+    doc.header["$MEASUREMENT"] = 0 if insunits in (1, 2, 3, 8, 9, 10, 21, 22, 23, 24) else 1
+    for name, color in ((mark_layer, 1), (label_layer, 7)):
+        if name not in doc.layers:
+            doc.layers.add(name, color=color)
+    for name in dict.fromkeys(layers):
+        if name not in doc.layers:
+            doc.layers.add(name, color=3)
+    msp = doc.modelspace()
+    flip = OCS(_FLIP)
+
+    def add_circle(layout, center_wcs, radius: float, layer: str) -> None:
+        c = (float(center_wcs[0]), float(center_wcs[1]), 0.0)
+        if ocs_flip:
+            layout.add_circle(flip.from_wcs(c), radius, dxfattribs={"layer": layer, "extrusion": _FLIP})
+        else:
+            layout.add_circle(c, radius, dxfattribs={"layer": layer})
+
+    stud_wcs = to_wcs(studs)
+    radius_units = diam * k / 2.0
+    if not as_blocks:
+        for p, r, lay in zip(stud_wcs, radius_units, layers):
+            add_circle(msp, p, r, lay)
+    else:
+        # block STUD: unit-diameter circle at an offset, base point elsewhere (both exercise the transform)
+        offset, base = np.array([3.0, -2.0]), np.array([1.0, 1.0])
+        stud_block = doc.blocks.new("STUD", base_point=(*base, 0.0))
+        stud_block.add_circle((*offset, 0.0), 0.5 / block_scale, dxfattribs={"layer": "0"})
+        # local position of the circle centre in the inserted block, and the block's length scale
+        local, unit_scale, block_name = offset - base, 1.0, "STUD"
+        if nested_blocks:
+            group = doc.blocks.new("STUD_GROUP", base_point=(0.0, 0.0, 0.0))
+            inner_ins, inner_rot, inner_scale = np.array([10.0, 5.0]), 30.0, 0.5
+            group.add_blockref("STUD", (*inner_ins, 0.0), dxfattribs={
+                "layer": "0", "rotation": inner_rot, "xscale": inner_scale, "yscale": inner_scale})
+            local = inner_ins + _rot(inner_rot) @ (inner_scale * (offset - base))
+            unit_scale, block_name = inner_scale, "STUD_GROUP"
+        sx = -1.0 if mirror_blocks else 1.0
+        for p, d_units, lay in zip(stud_wcs, diam * k, layers):
+            s = block_scale * d_units / unit_scale  # block circle (1 / block_scale) * unit_scale -> d_units
+            A = _rot(block_rotation_deg) @ np.diag([sx * s, s])
+            ins = p - A @ local
+            attribs = {"layer": lay, "rotation": block_rotation_deg, "xscale": sx * s, "yscale": s, "zscale": s}
+            if ocs_flip:
+                # INSERT in the OCS of extrusion -Z (OCS x = -WCS x): WCS = F (ins_ocs + A local)
+                attribs["extrusion"] = _FLIP
+                ins_ocs = np.array([-p[0], p[1]]) - A @ local
+                msp.add_blockref(block_name, (*ins_ocs, 0.0), dxfattribs=attribs)
+            else:
+                msp.add_blockref(block_name, (*ins, 0.0), dxfattribs=attribs)
+
+    mark_r = mark_diameter_m * k / 2.0
+    for name in ("O", "A", "B"):
+        p = to_wcs(marks_xy_m[name])[0]
+        add_circle(msp, p, mark_r, mark_layer)
+        if labels:
+            h = 2.0 * mark_r
+            pos = (float(p[0] + 1.2 * mark_r), float(p[1] + 1.2 * mark_r), 0.0)
+            if label_kind == "mtext":
+                msp.add_mtext(name, dxfattribs={"layer": label_layer, "insert": pos, "char_height": h})
+            else:
+                msp.add_text(name, height=h, dxfattribs={"layer": label_layer, "insert": pos})
+    path.parent.mkdir(parents=True, exist_ok=True)
+    doc.saveas(path, fmt="bin" if binary else "asc")
+    return path
+
+
+def write_scene_drawing(
+    path: str | Path, studs_xy_m: np.ndarray | Sequence[Sequence[float]], marks: Mapping[str, Sequence[float]],
+    *, stud_diameter_m: float = 0.019, mark_diameter_m: float = 0.03, **kwargs,
+) -> Path:
+    """Hook for demo scenes: studs and marks O/A/B (drawing frame, m) as a labelled R2010 mm drawing
+    (19 mm studs, 30 mm marks unless given); ``kwargs`` go to :func:`write_layout_dxf`."""
+    return write_layout_dxf(path, studs_xy_m, marks, stud_diameter_m=stud_diameter_m,
+                            mark_diameter_m=mark_diameter_m, **kwargs)
