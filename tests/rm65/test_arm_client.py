@@ -131,7 +131,7 @@ def test_estop_reaches_the_controller_within_100ms_while_a_motion_is_awaited(cli
 
     def stuck_query():
         try:
-            client.request({"command": "get_joint_degree"}, timeout_s=3)
+            client.request({"command": "get_joint_degree"}, timeout_s=1.0)
         except BaseException as exc:  # noqa: BLE001
             errors.append(exc)
 

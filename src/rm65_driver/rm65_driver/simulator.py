@@ -100,10 +100,14 @@ class _Motion:
     fail_at: float | None = None  # fraction where it aborts with trajectory_state false
     fail_code: int = 0
     drop_at: float | None = None  # fraction where the commanding connection is dropped
-    released: bool = False  # set once the acknowledgement is on the wire: ack always precedes arrival
+    released_at: float | None = None  # monotonic time the acknowledgement was on the wire
+
+    @property
+    def released(self) -> bool:  # ack always precedes motion and arrival
+        return self.released_at is not None
 
     def release(self) -> None:
-        self.released = True
+        self.released_at = time.monotonic()
 
     def fraction(self) -> float:
         return 1.0 if self.duration_s <= 0 else min(1.0, self.elapsed_s / self.duration_s)
@@ -169,6 +173,7 @@ class ArmSimulator:
     unless the IO was switched to output mode first (Gen-3 behaviour, [INFERRED]).
     ``keep_moving_on_disconnect``: a dropped TCP connection does not stop a planned motion
     (what a controller executing its own trajectory does; [UNCERTAIN] on hardware).
+    ``min_motion_real_s``: floor on a motion's wall-clock duration, whatever ``time_scale``.
     """
 
     def __init__(
@@ -187,6 +192,7 @@ class ArmSimulator:
         strict_io_mode: bool = True,
         keep_moving_on_disconnect: bool = True,
         product_version: str = "RM65-BI",
+        min_motion_real_s: float = 0.01,
     ):
         if err_format not in ("list", "scalar", "arm_sys"):
             raise ValueError(f"err_format {err_format!r}: expected list, scalar or arm_sys")
@@ -203,6 +209,9 @@ class ArmSimulator:
         self.strict_io_mode = strict_io_mode
         self.keep_moving_on_disconnect = keep_moving_on_disconnect
         self.product_version = product_version
+        # No real trajectory ends within milliseconds of its acknowledgement; the official SDK's
+        # single-thread mode misses an arrival message that shares a TCP read with the ack.
+        self.min_motion_real_s = min_motion_real_s
 
         self._lock = threading.RLock()
         self._joints = np.radians(np.asarray(initial_joints_deg, dtype=np.float64))
@@ -625,7 +634,7 @@ class ArmSimulator:
                     self._queue.clear()
                     self._errors = [m.fail_code]
                     outbox.append((m.conn_id, _trajectory_msg(False)))
-                elif f >= 1.0:
+                elif f >= 1.0 and now - (m.released_at or now) >= self.min_motion_real_s:
                     self._queue.popleft()
                     outbox.append((m.conn_id, _trajectory_msg(True)))
                 self._changed.notify_all()
