@@ -390,6 +390,25 @@ def test_radius_le_0_nonuniform_and_degenerate_inserts_are_skipped_with_warnings
     assert "INSERT of block 'S': degenerate transform (zero scale); 1 reference skipped" in w
 
 
+def test_rounding_level_scale_differences_keep_circles(tmp_path):
+    doc = _plain_doc(STUDS * 1e3)
+    blk = doc.blocks.new("S")
+    blk.add_circle((0, 0), 9.5)
+    doc.modelspace().add_blockref("S", (550, 280), dxfattribs={"layer": "STUDS", "xscale": 1.0, "yscale": 1.000001})
+    doc.saveas(tmp_path / "round.dxf")
+    layout = read_layout(tmp_path / "round.dxf")
+    assert len(layout.studs) == len(STUDS) + 1 and layout.warnings == []
+
+
+def test_missing_eof_after_a_closed_section_is_read_with_a_warning(tmp_path):
+    text = write_layout_dxf(tmp_path / "ok.dxf", STUDS, MARKS).read_text()
+    path = tmp_path / "no_eof.dxf"
+    path.write_text(text[: text.rindex("  0\nEOF")])
+    layout = read_layout(path)
+    assert_studs(layout, STUDS)
+    assert any("no EOF marker" in w for w in layout.warnings)
+
+
 def test_recoverable_damage_is_read_with_a_warning(tmp_path):
     path = write_layout_dxf(tmp_path / "ok.dxf", STUDS, MARKS)
     text = path.read_text()
@@ -531,6 +550,7 @@ def test_50000_studs_parse_in_seconds(tmp_path):
     elapsed = time.perf_counter() - t0
     print(f"\n50 000 studs parsed in {elapsed:.2f} s")
     assert len(layout.studs) == 50_000 and layout.studs[-1].id == "S50000"
+    assert layout.units_assumed and layout.source_units == "mm"  # not ezdxf's default $INSUNITS 6
     assert layout.studs[1].x_m == pytest.approx(0.2) and layout.studs[250].y_m == pytest.approx(0.2)
     assert elapsed < 20.0  # ~3 s on a laptop, mostly ezdxf loading; generous for shared CI
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 import sys
 from pathlib import Path
@@ -177,6 +178,8 @@ def _run(argv: Sequence[str] | None) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Console entry point; returns the exit code (0 ok, 2 error, 130 interrupted)."""
+    # ezdxf logs oddities of weird files at WARNING; the CLI's contract is its own output only
+    logging.getLogger("ezdxf").addHandler(logging.NullHandler())
     try:
         return _run(argv)
     except SystemExit as exc:  # --help / --version

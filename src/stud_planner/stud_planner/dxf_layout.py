@@ -19,8 +19,12 @@ What is read
 
 Decisions (each one is reported as a warning when it applies)
     * A circle that a block reference scales non-uniformly is an ellipse, not a stud
-      circle: it is **skipped** (as ezdxf's own ``virtual_entities`` turns it into an ELLIPSE).
-      Circles whose plane is not parallel to XY (tilted extrusion) are skipped likewise.
+      circle: it is **skipped** (as ezdxf's own ``virtual_entities`` turns it into an ELLIPSE;
+      taking its centre would hide a drawing error). Circles whose plane is not parallel to XY
+      (tilted extrusion) are skipped likewise. Rounding-level differences (< 0.01 %) are not
+      non-uniform.
+    * ezdxf reports ``$INSUNITS`` 6 (metres) for a file without a HEADER section; such a file
+      is treated as unitless, since it says nothing about its units.
     * Circles with radius <= 0 are skipped.
     * A degenerate INSERT (zero scale, a transform that raises in ezdxf) is skipped; the rest
       of the drawing is kept.
@@ -316,8 +320,8 @@ def _one_line(text: object) -> str:
     return " ".join(str(text).split())
 
 
-def _check_file(path: Path) -> bytes:
-    """Raise DrawingError for a missing, empty, non-DXF or truncated file; return its bytes."""
+def _check_file(path: Path) -> tuple[bytes, list[str]]:
+    """Raise DrawingError for a missing, empty, non-DXF or truncated file; return its bytes and warnings."""
     if not path.exists():
         raise DrawingError(f"{path}: file not found")
     if path.is_dir():
@@ -331,15 +335,17 @@ def _check_file(path: Path) -> bytes:
     if data.startswith(_BINARY_SENTINEL):
         if b"EOF\x00" not in data[-64:]:
             raise DrawingError(f"{path}: truncated or corrupt binary DXF (no EOF at the end of the file)")
-        return data
+        return data, []
     if re.match(rb"AC[0-9.]{4}", data[:6]):
         raise DrawingError(f"{path}: not a DXF file (this looks like a DWG; export it as DXF)")
     if not _ASCII_HEAD.match(data[:4096]):
         head = _one_line(data[:24].decode("latin-1"))[:24]
         raise DrawingError(f"{path}: not a DXF file (starts with {head!r}, expected '0 / SECTION')")
-    if not _ASCII_EOF.search(data) and not _ASCII_TAIL_ENDSEC.search(data[-256:]):
+    if _ASCII_EOF.search(data):
+        return data, []
+    if not _ASCII_TAIL_ENDSEC.search(data[-256:]):
         raise DrawingError(f"{path}: truncated or corrupt DXF (the file ends inside a section, no EOF)")
-    return data
+    return data, [f"{path.name}: no EOF marker after the last section: the file may be incomplete"]
 
 
 def load_document(path: str | Path) -> tuple[Any, str, list[str]]:
@@ -348,7 +354,7 @@ def load_document(path: str | Path) -> tuple[Any, str, list[str]]:
     Raises DrawingError (one line, naming the file) for anything ezdxf cannot read.
     """
     path = Path(path)
-    data = _check_file(path)
+    data, file_warns = _check_file(path)
     try:
         doc, mode, warns = ezdxf.readfile(path), "read", []
     except Exception as exc:  # ezdxf raises DXFStructureError, IOError, IndexError, struct.error ...
@@ -367,13 +373,17 @@ def load_document(path: str | Path) -> tuple[Any, str, list[str]]:
     end = data.find(b"ENTITIES")
     if b"$INSUNITS" not in data[: end if end > 0 else len(data)] and "$INSUNITS" in doc.header:
         del doc.header["$INSUNITS"]
-    return doc, mode, warns
+    return doc, mode, file_warns + warns
 
 
 # -- collecting circles (with block expansion) -----------------------------------------------------
 _LABEL_LETTERS = ("O", "A", "B")
 _TEXT_CODES = re.compile(r"%%[uUoOkK]")
 _MAX_NESTING = 32
+# A transformed circle whose axes differ in length or squareness by more than this (relative),
+# or whose plane tilts from XY by more than acos(1 - this) (0.8 deg), is an ellipse in plan view.
+# Rounded scale factors in real files (1.000001) stay circles.
+_SHAPE_TOL = 1e-4
 
 
 @dataclass
@@ -463,11 +473,9 @@ def _label_position(e: Any, dxftype: str) -> tuple[float, float, float]:
 class _Collector:
     """Walks modelspace and block definitions; caches each block's flattened content."""
 
-    def __init__(self, doc: Any, path: Path) -> None:
+    def __init__(self, doc: Any) -> None:
         self.doc = doc
-        self.path = path
         self.cache: dict[str, _Content] = {}
-        self.warnings: list[str] = []
         self.skipped_inserts: Counter = Counter()
         self.layer_entities: Counter = Counter()
 
@@ -635,7 +643,7 @@ def collect_circles(
             what = f"unsupported $INSUNITS code {insunits}"
         warns.append(f"{path.name}: {what}: coordinates taken as {unit_name} (units_if_unitless)")
 
-    collector = _Collector(doc, path)
+    collector = _Collector(doc)
     content = collector.scan(doc.modelspace(), (), in_block=False)
 
     layers = np.array(["0" if lay is None else lay for lay in content.layers], dtype=object)
@@ -644,11 +652,12 @@ def collect_circles(
     normal = np.cross(u, v)
     nn = np.linalg.norm(normal, axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        uniform = (np.abs(nu - nv) <= 1e-9 * np.maximum(nu, nv)) & (
-            np.abs(np.einsum("ij,ij->i", u, v)) <= 1e-9 * nu * nv
+        uniform = (np.abs(nu - nv) <= _SHAPE_TOL * np.maximum(nu, nv)) & (
+            np.abs(np.einsum("ij,ij->i", u, v)) <= _SHAPE_TOL * nu * nv
         )
-        planar = np.abs(normal[:, 2]) >= (1.0 - 1e-9) * nn
+        planar = np.abs(normal[:, 2]) >= (1.0 - _SHAPE_TOL) * nn
     ok = uniform & planar & (nu > 0)
+    radii = np.sqrt(nu * nv)  # equal to nu within _SHAPE_TOL for the circles kept
     skipped = {
         "radius<=0": int(sum(content.nonpositive.values())),
         "non-uniform scale": int(np.count_nonzero(~uniform & (nu > 0))),
@@ -675,7 +684,7 @@ def collect_circles(
     return CircleSet(
         source_file=str(path), dxf_version=str(doc.dxfversion), read_mode=read_mode, insunits=insunits,
         source_units=unit_name, metres_per_unit=scale, units_assumed=assumed,
-        centers_wcs=np.ascontiguousarray(content.centers[ok, :2]), radii=nu[ok].copy(),
+        centers_wcs=np.ascontiguousarray(content.centers[ok, :2]), radii=radii[ok],
         layers=tuple(layers[ok]), labels=labels, layer_entities=dict(collector.layer_entities),
         skipped=skipped, warnings=warns,
     )
@@ -800,7 +809,8 @@ def _identify_marks(
     """
     match, _ = _layer_matcher(mark_layer)
     xy, r = cs.centers_wcs, cs.radii
-    on_layer = np.array([k for k, lay in enumerate(cs.layers) if match(lay)], dtype=np.int64)
+    hit = {lay: match(lay) for lay in set(cs.layers)}
+    on_layer = np.array([k for k, lay in enumerate(cs.layers) if hit[lay]], dtype=np.int64)
     cand = _merge_concentric(on_layer, xy, r, dup_tol_units)
     where = f"on layer {_fmt_pats(mark_layer)}"
     warns: list[str] = []
@@ -943,7 +953,8 @@ def _build_layout(
     s = cs.metres_per_unit
     name = path.name
     stud_match, _ = _layer_matcher(stud_layers)
-    is_stud = np.array([stud_match(lay) for lay in cs.layers], dtype=bool)
+    hit = {lay: stud_match(lay) for lay in set(cs.layers)}  # a few layers, many circles
+    is_stud = np.array([hit[lay] for lay in cs.layers], dtype=bool)
     if not is_stud.any():
         raise DrawingError(
             f"{path}: no studs found: no circles on layer(s) {_fmt_pats(stud_layers)}; layers: {cs.layer_summary()}"
