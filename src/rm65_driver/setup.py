@@ -22,7 +22,8 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-
+            "driver = rm65_driver.driver_node:main",
+            "simulator = rm65_driver.simulator:main",
         ],
     },
 )

@@ -1,0 +1,501 @@
+"""RM-65 driver node: `ros2 run rm65_driver driver` — a thin rclpy adapter over the ROS-free core.
+
+Talks to the controller's JSON-over-TCP port (:mod:`.arm_client`), runs weld jobs
+(:mod:`.weld_sequence`) with the journal (:mod:`.journal`) and the pre-motion checks
+(:mod:`.safety`). Everything that decides anything lives there; this file declares parameters,
+converts messages, and publishes.
+
+Interfaces
+  publishes  /arm/state (stud_welding_msgs/ArmState, reliable depth 10), /joint_states
+             (sensor_msgs/JointState, joint1..joint6, rad), /diagnostics, and with
+             ``publish_camera_pose`` /camera/pose (geometry_msgs/PoseStamped: weld-tool pose ×
+             hand-eye, the optical frame in ``world``) — all at ``state_rate_hz``.
+  action     /arm/weld_job (stud_welding_msgs/action/WeldJob); a cancel is graceful (see
+             weld_sequence: motions before the trigger stop at once, a started weld completes).
+  services   /arm/stop, /arm/pause, /arm/resume, /arm/estop (std_srvs/Trigger);
+             /arm/resolve_stud (stud_welding_msgs/srv/ResolveStud).
+  subscribes /arm/estop (std_msgs/Bool): true engages the e-stop latch, false releases it.
+
+The e-stop here is a *software* stop (``set_arm_stop`` + trigger output low + a latch that refuses
+new jobs until released). It is not a safety-rated emergency stop: the cell's hardware e-stop
+chain must stay wired to the controller.
+
+Addresses: ``arm_ip`` defaults to 127.0.0.1 (the simulator, ``ros2 run rm65_driver simulator``)
+so nothing in this repository reaches for real hardware by default; the factory address of a
+real RM-65 controller is 192.168.1.18, port 8080.
+"""
+from __future__ import annotations
+
+import os
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import PoseStamped
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool
+from std_srvs.srv import Trigger
+from stud_welding_msgs.action import WeldJob
+from stud_welding_msgs.msg import ArmState, WeldTarget
+from stud_welding_msgs.srv import ResolveStud
+
+from stud_perception import ros_io
+from stud_perception.ros_io import Param
+
+from . import protocol as P
+from .arm_client import ArmClient, ArmError
+from .journal import Journal, JournalError
+from .kinematics import D6_BY_VARIANT, DHModel, RM65Kinematics, euler_zyx_to_matrix
+from .safety import SafetyChecker, SafetyLimits
+from .weld_sequence import JobResult, StudTarget, WeldParams, WeldSequence
+
+JOINT_NAMES = [f"joint{i}" for i in range(1, 7)]
+
+
+def _vec3(name: str):
+    return lambda v: None if len(v) == 3 else f"{name} needs 3 numbers, got {list(v)}"
+
+
+def _default_journal() -> str:
+    home = os.environ.get("ROS_HOME") or os.path.join(os.path.expanduser("~"), ".ros")
+    return os.path.join(home, "stud_welding", "weld_journal.jsonl")
+
+
+PARAMS = [
+    Param("arm_ip", "127.0.0.1", "controller address; the real RM-65's factory address is 192.168.1.18 "
+          "(default here: loopback, the simulator)", read_only=True),
+    Param("tcp_port", P.DEFAULT_PORT, "controller JSON port (8080)", min=1, max=65535, read_only=True),
+    Param("arm_variant", "RM65-B", "arm variant (sets the flange distance d6 of the kinematics)",
+          choices=tuple(D6_BY_VARIANT), read_only=True),
+    Param("connect_timeout_s", 2.0, "TCP connect timeout [s]", min=0.1, max=30.0),
+    Param("reply_timeout_s", 1.0, "wait for a command's reply [s]", min=0.1, max=10.0),
+    Param("state_rate_hz", 10.0, "arm state polling and /arm/state, /joint_states rate [Hz] "
+          "(RealMan: poll no faster than every 20 ms)", min=0.5, max=50.0),
+    Param("standoff_m", 0.05, "approach distance from the surface along the normal [m]", min=0.005, max=0.3),
+    Param("tool_offset_m", 0.15, "flange -> weld-gun tip along the flange z axis (weld_tool frame) [m]",
+          min=0.0, max=0.5),
+    Param("plunge_m", 0.0, "how far beyond the surface the tip is commanded (gun spring travel) [m]",
+          min=0.0, max=0.02),
+    Param("tool_payload_kg", 1.0, "weld gun mass for the controller's tool frame [kg]", min=0.0, max=5.0),
+    Param("tool_frame_name", "weld_gun", "controller tool frame name (<= 10 characters)",
+          validate=lambda v: None if 0 < len(v) <= 10 else f"tool_frame_name {v!r} must be 1..10 characters"),
+    Param("trigger_io", 1, "digital output that triggers the weld gun (controller DO 1..4, tool DO 1..2); "
+          "it sources 2 mA at most: use an external relay module", min=1, max=4),
+    Param("trigger_on_tool", False, "trigger through the tool-flange DO instead of the controller DO"),
+    Param("set_io_mode", True, "switch the trigger IO to output mode before a job (Gen-3 controllers)"),
+    Param("pulse_s", 0.2, "trigger pulse length [s]", min=0.0, max=5.0),
+    Param("dwell_s", 0.5, "hold still after the pulse while the gun completes the weld [s]", min=0.0, max=10.0),
+    Param("joint_speed_pct", 30, "joint-move speed [% of max]", min=1, max=100),
+    Param("linear_speed_pct", 10, "linear-move speed [% of max]", min=1, max=100),
+    Param("max_joint_speed_pct", 50, "speed cap for joint moves [%]", min=1, max=100),
+    Param("max_linear_speed_pct", 30, "speed cap for linear moves [%]", min=1, max=100),
+    Param("workspace_min_m", [-0.70, -0.70, -0.02], "workspace box lower corner, world [m]",
+          validate=_vec3("workspace_min_m")),
+    Param("workspace_max_m", [0.70, 0.70, 1.10], "workspace box upper corner, world [m]",
+          validate=_vec3("workspace_max_m")),
+    Param("max_inclination_deg", 5.0, "max angle between a target's normal and stud_axis [deg]", min=0.0, max=90.0),
+    Param("stud_axis", [0.0, 0.0, 1.0], "direction studs are welded along, world", validate=_vec3("stud_axis")),
+    Param("motion_timeout_s", 60.0, "a motion that has not arrived by then aborts the job [s]", min=1.0, max=600.0),
+    Param("reconnect_timeout_s", 10.0, "reconnection attempts before a job aborts [s]", min=0.5, max=300.0),
+    Param("on_disconnect", "continue", "after a connection loss mid-weld: 'continue' with the next studs or 'abort'",
+          choices=("continue", "abort")),
+    Param("journal_file", "", "weld journal (JSON lines); empty: $ROS_HOME/stud_welding/weld_journal.jsonl",
+          read_only=True),
+    Param("publish_camera_pose", False, "publish /camera/pose = weld-tool pose x hand-eye (an eye-in-hand camera)"),
+    Param("hand_eye_xyz_m", [0.0, 0.0, 0.0], "optical frame origin in the weld-tool frame [m]",
+          validate=_vec3("hand_eye_xyz_m")),
+    Param("hand_eye_rpy_deg", [0.0, 0.0, 0.0], "optical frame orientation in the weld-tool frame, "
+          "roll-pitch-yaw [deg]", validate=_vec3("hand_eye_rpy_deg")),
+]
+
+
+# -- message <-> core conversions --------------------------------------------------------------
+
+
+def target_from_msg(msg: WeldTarget) -> tuple[StudTarget | None, str]:
+    """WeldTarget -> StudTarget, or (None, reason) for a target the matcher did not mark usable.
+
+    The normal is ``msg.normal``; if that is zero, the z axis of ``msg.pose`` (outward normal).
+    """
+    if msg.status != WeldTarget.STATUS_OK:
+        return None, f"matcher status {msg.status_text or msg.status}"
+    n = np.array([msg.normal.x, msg.normal.y, msg.normal.z])
+    if np.linalg.norm(n) < 1e-9:
+        R, _ = ros_io.pose_to_rt(msg.pose)
+        n = R[:, 2]
+    p = msg.pose.position
+    return StudTarget(msg.stud_id, [p.x, p.y, p.z], n), ""
+
+
+def result_to_msg(res: JobResult, pre_skipped: list[tuple[str, str]]) -> WeldJob.Result:
+    out = WeldJob.Result()
+    out.welded = list(res.welded)
+    out.skipped = [sid for sid, _ in pre_skipped] + list(res.skipped)
+    out.failed = list(res.failed)
+    out.messages = [f"{sid}: {why}" for sid, why in pre_skipped] + list(res.messages)
+    out.success = bool(res.success)
+    out.message = res.message
+    return out
+
+
+class DriverNode(Node):
+    def __init__(self) -> None:
+        super().__init__("rm65_driver")
+        self.p = ros_io.declare_params(self, PARAMS)
+        p = self.p
+        self.kin = RM65Kinematics(dh=DHModel.rm65(D6_BY_VARIANT[p["arm_variant"]]))
+        self.client = ArmClient(p["arm_ip"], p["tcp_port"], p["connect_timeout_s"], p["reply_timeout_s"])
+        journal_path = Path(p["journal_file"] or _default_journal()).expanduser()
+        try:
+            self.journal = Journal(journal_path)
+        except (OSError, JournalError) as exc:
+            self.get_logger().fatal(f"cannot open the weld journal '{journal_path}': {exc}")
+            raise SystemExit(2) from None
+        for w in self.journal.warnings:
+            self.get_logger().warn(f"weld journal: {w}")
+        self.get_logger().info(f"weld journal {journal_path}: {len(self.journal.welded_ids)} welded, "
+                               f"{len(self.journal.uncertain_ids)} uncertain stud(s)")
+        self.sequence: WeldSequence | None = None
+        self._job_lock = threading.Lock()
+        self._estop = False
+        self._message = ""
+        self._last_state = None
+        self._connected_logged: bool | None = None
+
+        group = ReentrantCallbackGroup()
+        self.pub_state = self.create_publisher(ArmState, "/arm/state", ros_io.RESULT_QOS)
+        self.pub_joints = self.create_publisher(JointState, "/joint_states", 10)
+        self.pub_camera = (self.create_publisher(PoseStamped, "/camera/pose", ros_io.CAMERA_PUB_QOS)
+                           if p["publish_camera_pose"] else None)
+        self.diag = ros_io.Diagnostics(self, hardware_id=f"RM65 {p['arm_ip']}:{p['tcp_port']}")
+        self.create_timer(1.0, self.diag.publish, callback_group=group)
+        self.create_service(Trigger, "/arm/stop", self._on_stop, callback_group=group)
+        self.create_service(Trigger, "/arm/pause", self._on_pause, callback_group=group)
+        self.create_service(Trigger, "/arm/resume", self._on_resume, callback_group=group)
+        self.create_service(Trigger, "/arm/estop", self._on_estop_srv, callback_group=group)
+        self.create_service(ResolveStud, "/arm/resolve_stud", self._on_resolve, callback_group=group)
+        self.create_subscription(Bool, "/arm/estop", self._on_estop_topic, 10, callback_group=group)
+        self.action = ActionServer(self, WeldJob, "/arm/weld_job", execute_callback=self._execute,
+                                   goal_callback=self._on_goal, cancel_callback=self._on_cancel,
+                                   callback_group=group)
+        self._running = True
+        self._wake = threading.Event()
+        self._poller = threading.Thread(target=self._poll_loop, name="rm65-state", daemon=True)
+        self._poller.start()
+        self.get_logger().info(f"RM65 driver for {p['arm_ip']}:{p['tcp_port']} ({p['arm_variant']}), "
+                               f"state at {p['state_rate_hz']:.1f} Hz, trigger DO{p['trigger_io']}"
+                               f"{' (tool)' if p['trigger_on_tool'] else ''}")
+
+    # -- configuration per job ------------------------------------------------------------------
+    def _make_sequence(self) -> WeldSequence:
+        p = self.p
+        params = WeldParams(
+            standoff_m=p["standoff_m"], tool_offset_m=p["tool_offset_m"], plunge_m=p["plunge_m"],
+            tool_payload_kg=p["tool_payload_kg"], tool_frame_name=p["tool_frame_name"], trigger_io=p["trigger_io"],
+            trigger_on_tool=p["trigger_on_tool"], set_io_mode=p["set_io_mode"], pulse_s=p["pulse_s"],
+            dwell_s=p["dwell_s"], joint_speed_pct=p["joint_speed_pct"], linear_speed_pct=p["linear_speed_pct"],
+            motion_timeout_s=p["motion_timeout_s"], reconnect_timeout_s=p["reconnect_timeout_s"],
+            on_disconnect=p["on_disconnect"])
+        limits = SafetyLimits(
+            workspace_min_m=tuple(p["workspace_min_m"]), workspace_max_m=tuple(p["workspace_max_m"]),
+            max_inclination_deg=p["max_inclination_deg"], stud_axis=tuple(p["stud_axis"]),
+            max_joint_speed_pct=p["max_joint_speed_pct"], max_linear_speed_pct=p["max_linear_speed_pct"])
+        return WeldSequence(self.client, self.journal, SafetyChecker(self.kin, limits, params.tool_T), params)
+
+    @property
+    def tool_T(self) -> np.ndarray:
+        T = np.eye(4)
+        T[2, 3] = self.p["tool_offset_m"]
+        return T
+
+    # -- state publishing -------------------------------------------------------------------------
+    def _poll_loop(self) -> None:
+        backoff = 0.2
+        while self._running:
+            period = 1.0 / self.p["state_rate_hz"]
+            t0 = time.monotonic()
+            seq = self.sequence
+            job_running = seq is not None and seq.running
+            if not self.client.connected and not job_running:  # a running job reconnects by itself
+                try:
+                    self.client.connect()
+                    backoff = 0.2
+                except ArmError as exc:
+                    self._log_connection(False, str(exc))
+                    self._publish(None)
+                    self._sleep(backoff)
+                    backoff = min(backoff * 2, 5.0)
+                    continue
+            reading = None
+            if self.client.connected:
+                try:
+                    reading = self.client.get_state()
+                except ArmError as exc:
+                    self.get_logger().warn(f"arm state not read: {exc}", throttle_duration_sec=5.0)
+            self._log_connection(self.client.connected, self.client.last_error)
+            self._publish(reading)
+            self._sleep(period - (time.monotonic() - t0))
+
+    def _sleep(self, seconds: float) -> None:
+        self._wake.wait(max(0.0, seconds))  # set at shutdown
+
+    def _log_connection(self, connected: bool, why: str) -> None:
+        if connected != self._connected_logged:
+            if connected:
+                self.get_logger().info(f"connected to the controller at {self.p['arm_ip']}:{self.p['tcp_port']}")
+            else:
+                self.get_logger().warn(f"controller {self.p['arm_ip']}:{self.p['tcp_port']} not connected: {why}")
+            self._connected_logged = connected
+
+    def _mode(self, reading) -> int:
+        seq = self.sequence
+        if self._estop:
+            return ArmState.MODE_ESTOP
+        if not self.client.connected:
+            return ArmState.MODE_DISCONNECTED
+        if reading is not None and reading.error_codes:
+            return ArmState.MODE_FAULT
+        if self.client.paused:
+            return ArmState.MODE_PAUSED
+        if seq is not None and seq.running:
+            return ArmState.MODE_WELDING if seq.phase in ("weld", "dwell") else ArmState.MODE_MOVING
+        return ArmState.MODE_IDLE
+
+    def _publish(self, reading) -> None:
+        stamp = self.get_clock().now().to_msg()
+        msg = ArmState()
+        msg.header.stamp = stamp
+        msg.header.frame_id = "world"
+        msg.mode = self._mode(reading)
+        msg.connected = self.client.connected
+        seq = self.sequence
+        if seq is not None and seq.running:
+            msg.current_stud, msg.done, msg.total = seq.current_stud, seq.done, seq.total
+        msg.message = self._message
+        if reading is not None:
+            self._last_state = reading
+            T_tool = self.kin.fk(reading.joints_rad) @ self.tool_T  # weld_tool in world, whatever the controller's tool frame
+            msg.joints = [float(v) for v in reading.joints_rad]
+            msg.tool_pose = ros_io.rt_to_pose(T_tool[:3, :3], T_tool[:3, 3])
+            msg.error_codes = [int(c) & 0xFFFF for c in reading.error_codes]
+            msg.errors = reading.errors_text
+            js = JointState()
+            js.header.stamp = stamp
+            js.name = JOINT_NAMES
+            js.position = [float(v) for v in reading.joints_rad]
+            self.pub_joints.publish(js)
+            if self.pub_camera is not None:
+                T_cam = T_tool @ self._hand_eye()
+                cam = PoseStamped()
+                cam.header.stamp = stamp
+                cam.header.frame_id = "world"
+                cam.pose = ros_io.rt_to_pose(T_cam[:3, :3], T_cam[:3, 3])
+                self.pub_camera.publish(cam)
+        self.pub_state.publish(msg)
+        self._update_diagnostics(msg)
+
+    def _hand_eye(self) -> np.ndarray:
+        T = np.eye(4)
+        T[:3, :3] = euler_zyx_to_matrix(*np.radians(self.p["hand_eye_rpy_deg"]))
+        T[:3, 3] = self.p["hand_eye_xyz_m"]
+        return T
+
+    def _update_diagnostics(self, msg: ArmState) -> None:
+        d = self.diag
+        values = dict(connected=msg.connected, mode=msg.mode, job=f"{msg.done}/{msg.total}",
+                      current_stud=msg.current_stud, errors="; ".join(msg.errors) or "none",
+                      uncertain_studs=len(self.journal.uncertain_ids))
+        if self._estop:
+            d.set(d.ERROR, "e-stop engaged (publish false on /arm/estop to release)", **values)
+        elif not msg.connected:
+            d.set(d.ERROR, f"controller not connected: {self.client.last_error}", **values)
+        elif msg.errors:
+            d.set(d.ERROR, "controller error: " + "; ".join(msg.errors), **values)
+        elif self.journal.uncertain_ids:
+            d.set(d.WARN, "uncertain studs need an operator decision (/arm/resolve_stud)", **values)
+        else:
+            d.set(d.OK, "connected", **values)
+
+    # -- weld job action --------------------------------------------------------------------------
+    def _on_goal(self, goal) -> GoalResponse:
+        seq = self.sequence
+        if self._estop:
+            self.get_logger().warn("weld job rejected: e-stop engaged")
+            return GoalResponse.REJECT
+        if seq is not None and seq.running:
+            self.get_logger().warn("weld job rejected: a job is already running")
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    def _on_cancel(self, _goal_handle) -> CancelResponse:
+        seq = self.sequence
+        if seq is not None and seq.running:
+            self.get_logger().info("weld job cancel requested: stopping at the next safe point")
+            seq.cancel()
+        return CancelResponse.ACCEPT
+
+    def _execute(self, goal_handle) -> WeldJob.Result:
+        goal = goal_handle.request
+        targets, pre_skipped = [], []
+        for t in goal.targets:
+            st, why = target_from_msg(t)
+            if st is None:
+                pre_skipped.append((t.stud_id, why))
+            else:
+                targets.append(st)
+        with self._job_lock:
+            seq = self._make_sequence()
+            total = len(goal.targets)
+
+            def feedback(stud_id: str, phase: str, done: int, _total: int) -> None:
+                fb = WeldJob.Feedback(stud_id=stud_id, phase=phase, done=done + len(pre_skipped), total=total)
+                goal_handle.publish_feedback(fb)
+
+            seq.on_phase = feedback
+            self.sequence = seq
+            self.get_logger().info(f"weld job: {len(targets)} target(s), {len(pre_skipped)} not usable, "
+                                   f"resume={goal.resume}")
+            try:
+                res = seq.run(targets, resume=goal.resume)
+            except Exception as exc:  # the job must end with a result, never hang the action
+                self.get_logger().error(f"weld job crashed: {exc!r}")
+                seq.halt("internal error")
+                res = JobResult(message=f"internal error: {exc!r}")
+        self._message = res.message
+        out = result_to_msg(res, pre_skipped)
+        if goal_handle.is_cancel_requested:
+            goal_handle.canceled()
+        elif res.success:
+            goal_handle.succeed()
+        else:
+            goal_handle.abort()
+        level = self.get_logger().info if res.success else self.get_logger().warn
+        level(f"weld job ended: {res.message}; welded {len(out.welded)}, skipped {len(out.skipped)}, "
+              f"failed {len(out.failed)}")
+        return out
+
+    # -- services ---------------------------------------------------------------------------------
+    def _stop_now(self, reason: str) -> tuple[bool, str]:
+        seq = self.sequence
+        if seq is not None and seq.running:
+            seq.halt(reason)  # stop + trigger low + the job ends
+            return True, f"stop sent; weld job halting ({reason})"
+        try:
+            self.client.stop(wait_reply=False)
+        except ArmError as exc:
+            return False, f"stop not sent: {exc}"
+        try:
+            self.client.set_do(self.p["trigger_io"], False, tool=self.p["trigger_on_tool"])
+        except ArmError:
+            pass  # the output may not be configured yet; the stop went out
+        return True, "stop sent"
+
+    def _on_stop(self, _req, resp):
+        resp.success, resp.message = self._stop_now("stop requested")
+        self.get_logger().warn(f"/arm/stop: {resp.message}")
+        return resp
+
+    def _on_pause(self, _req, resp):
+        try:
+            seq = self.sequence
+            if seq is not None and seq.running:
+                seq.pause()
+            else:
+                self.client.pause()
+            resp.success, resp.message = True, "paused"
+        except ArmError as exc:
+            resp.success, resp.message = False, f"pause failed: {exc}"
+        return resp
+
+    def _on_resume(self, _req, resp):
+        if self._estop:
+            resp.success, resp.message = False, "e-stop engaged: publish false on /arm/estop first"
+            return resp
+        try:
+            seq = self.sequence
+            if seq is not None and seq.running:
+                seq.resume()
+            else:
+                self.client.resume()
+            resp.success, resp.message = True, "resumed"
+        except ArmError as exc:
+            resp.success, resp.message = False, f"resume failed: {exc}"
+        return resp
+
+    def _engage_estop(self, source: str) -> tuple[bool, str]:
+        self._estop = True
+        ok, text = self._stop_now(f"e-stop ({source})")
+        self._message = f"e-stop engaged ({source})"
+        self.get_logger().error(f"E-STOP from {source}: {text}")
+        return ok, text
+
+    def _on_estop_srv(self, _req, resp):
+        resp.success, resp.message = self._engage_estop("/arm/estop service")
+        return resp
+
+    def _on_estop_topic(self, msg: Bool) -> None:
+        if msg.data:
+            self._engage_estop("/arm/estop topic")
+        elif self._estop:
+            self._estop = False
+            self._message = "e-stop released"
+            self.get_logger().warn("e-stop released from /arm/estop topic")
+
+    def _on_resolve(self, req, resp):
+        welded = req.decision == ResolveStud.Request.DECISION_WELDED
+        if req.decision not in (ResolveStud.Request.DECISION_WELDED, ResolveStud.Request.DECISION_NOT_WELDED):
+            resp.success, resp.message = False, f"unknown decision {req.decision}"
+            return resp
+        try:
+            self.journal.resolve(req.stud_id, welded=welded, note="operator via /arm/resolve_stud")
+            resp.success = True
+            resp.message = f"{req.stud_id} recorded as {'welded' if welded else 'not welded'}"
+            self.get_logger().info(f"resolve_stud: {resp.message}")
+        except JournalError as exc:
+            resp.success, resp.message = False, str(exc)
+        return resp
+
+    # -- shutdown ---------------------------------------------------------------------------------
+    def shutdown(self) -> None:
+        self._running = False
+        self._wake.set()
+        seq = self.sequence
+        if seq is not None and seq.running:
+            seq.halt("driver shutting down")
+        self._poller.join(timeout=2.0)
+        self.client.close()
+        self.journal.close()
+
+
+def main(args=None) -> int:
+    """Init, spin on a multi-threaded executor (a weld job blocks one thread while stop services
+    stay responsive), shut down cleanly on Ctrl-C."""
+    rclpy.init(args=args)
+    node = None
+    code = 0
+    try:
+        node = DriverNode()
+        executor = MultiThreadedExecutor(num_threads=4)
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    finally:
+        if node is not None:
+            node.shutdown()
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.try_shutdown()
+    return code
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
