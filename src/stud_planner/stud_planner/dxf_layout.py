@@ -51,10 +51,20 @@ Drawing frame (INTERFACES.md, frame ``drawing``)
 Stud order and ids
     Studs are sorted by (layer name, case-folded), then drawing y, then drawing x, both
     rounded to 0.1 mm, then diameter and the exact coordinates; ids are ``S0001``, ``S0002``,
-    ... in that order (``S%04d``; more digits past 9999). The key depends only on the
-    geometry, so ids do not change when a CAD program reorders entities in the file.
-    Duplicates (centres within ``duplicate_tol_m``, any layer) keep the first stud in this
-    order.
+    ... in that order (4 digits; all ids get 5 digits from 10 000 studs on, so that text order
+    stays id order). The key depends only on the geometry, so ids do not change when a CAD
+    program reorders entities in the file. Duplicates (centres within ``duplicate_tol_m``, any
+    layer) keep the first stud in this order.
+
+Warnings (``StudLayout.warnings``, one line each) and errors
+    Warned: duplicates removed, stud pairs closer than ``min_spacing_m``, diameters far from
+    the median, studs outside the marks' quadrant (x < 0 or y < 0), non-perpendicular or
+    mirrored marks, assumed units, recovered files, and everything skipped above.
+    Refused with :class:`DrawingError` (one line naming the file): missing file, not a DXF,
+    truncated/corrupt file, no studs (listing the layers with entity and circle counts), marks
+    missing or ambiguous (how many circles on which layer), collinear or coincident marks.
+    The duplicate and spacing checks use a grid hash (:func:`close_pairs`), O(N) for sane
+    spacing: 50 000 studs take well under a second on top of ezdxf's load.
 """
 from __future__ import annotations
 
@@ -81,6 +91,7 @@ __all__ = [
     "read_circles",
     "collect_circles",
     "load_document",
+    "close_pairs",
     "UNITS",
     "units_to_metres",
 ]

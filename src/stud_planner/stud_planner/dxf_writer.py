@@ -63,7 +63,8 @@ def write_layout_dxf(
         studs_xy_m: (N, 2) stud centres, drawing frame, metres.
         marks_xy_m: {"O": (x, y), "A": ..., "B": ...}, drawing frame, metres.
         stud_diameter_m: one diameter for all studs or one per stud (m).
-        dxfversion: "R12", "R2000", "R2004", "R2007", "R2010", "R2013", "R2018".
+        dxfversion: "R12", "R2000", "R2004", "R2007", "R2010", "R2013", "R2018" (R12 files
+            carry no units: coordinates are written in ``units`` all the same).
         units: "mm", "cm", "m", "in", "ft", ... or "unitless" ($INSUNITS 0, coordinates in
             ``unitless_as``).
         stud_layer: one layer for all studs or one per stud.
@@ -100,8 +101,9 @@ def write_layout_dxf(
         return (np.asarray(xy_m, dtype=np.float64).reshape(-1, 2) @ M.T + t) * k
 
     doc = ezdxf.new(dxfversion, setup=False)
-    doc.header["$INSUNITS"] = insunits
-    doc.header["$MEASUREMENT"] = 0 if insunits in (1, 2, 3, 8, 9, 10, 21, 22, 23, 24) else 1
+    if doc.dxfversion != "AC1009":  # R12 has no $INSUNITS: R12 drawings are always unitless
+        doc.header["$INSUNITS"] = insunits
+        doc.header["$MEASUREMENT"] = 0 if insunits in (1, 2, 3, 8, 9, 10, 21, 22, 23, 24) else 1
     for name, color in ((mark_layer, 1), (label_layer, 7)):
         if name not in doc.layers:
             doc.layers.add(name, color=color)
