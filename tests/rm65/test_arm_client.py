@@ -11,7 +11,7 @@ import pytest
 from rm65_driver import protocol as P
 from rm65_driver.arm_client import ArmClient, ArmCommandError, ArmConnectionError, ArmStopped, ArmTimeout
 from rm65_driver.simulator import ArmSimulator
-from rm65_testing import FAST, HOME_DEG, wait_for
+from rm65_testing import HOME_DEG, wait_for
 
 HOME = np.radians(HOME_DEG)
 

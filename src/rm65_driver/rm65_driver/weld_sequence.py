@@ -182,7 +182,13 @@ class WeldSequence:
         """Pause the running motion on its path; no new phase starts until :meth:`resume`."""
         with self._lock:
             self._paused = True
-        self.client.pause()
+        try:
+            self.client.pause()
+        except ArmError:
+            with self._lock:
+                self._paused = False  # not paused: the job must not wait for a resume that never comes
+                self._wake.notify_all()
+            raise
 
     def resume(self) -> None:
         self.client.resume()
