@@ -21,5 +21,7 @@ source "$_stud_ws/install/setup.bash"
 # are on the cell network: set ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET there).
 export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
 export PYTHONUNBUFFERED=1
+# Whole RGB-D frames through shared memory (see config/fastdds.xml); a user's own profile wins.
+export FASTRTPS_DEFAULT_PROFILES_FILE="${FASTRTPS_DEFAULT_PROFILES_FILE:-$_stud_ws/config/fastdds.xml}"
 [ "$_stud_nounset" = 1 ] && set -u
 unset _stud_ws _stud_venv _stud_nounset

@@ -23,6 +23,7 @@ setup(
     entry_points={
         "console_scripts": [
             "camera = stud_perception.camera_node:main",
+            "registration = stud_perception.registration_node:main",
         ],
     },
 )

@@ -25,6 +25,7 @@ setup(
             "selfcheck = stud_planner.selfcheck:main",
             "drawing = stud_planner.drawing_node:main",
             "drawing_inspect = stud_planner.drawing_inspect:main",
+            "matcher = stud_planner.matcher_node:main",
         ],
     },
 )

@@ -45,6 +45,8 @@ PARAMS = [
     Param("image_height", DEMO_IMAGE_SIZE[1], "image height [px]", min=16, max=8192),
     Param("fov_width_m", DEMO_FOV_WIDTH_M, "field-of-view width at fov_distance_m [m]", min=0.01, max=10.0),
     Param("fov_distance_m", DEMO_FOV_DISTANCE_M, "distance at which fov_width_m is spanned [m]", min=0.05, max=10.0),
+    Param("depth_encoding", "16UC1", "depth image encoding: '16UC1' (mm, 0 = none; what RGB-D drivers send) or "
+          "'32FC1' (m, NaN = none; not quantised)", choices=("16UC1", "32FC1")),
     Param("depth_noise_m", 0.0005, "std of Gaussian depth noise [m]", min=0.0, max=0.05),
     Param("hole_fraction", 0.0, "fraction of depth pixels lost in blobs", min=0.0, max=0.9),
     Param("mark_depth_dropout", False, "dark paint returns no depth (marks and stud marks lose depth)"),
@@ -128,7 +130,8 @@ class CameraNode(Node):
             self._shots += 1
             stamp = self.get_clock().now().to_msg()
             self.pub_color.publish(ros_io.numpy_to_image(view.color_bgr, "bgr8", stamp, OPTICAL_FRAME))
-            self.pub_depth.publish(ros_io.numpy_to_image(view.depth_mm, "16UC1", stamp, OPTICAL_FRAME))
+            self.pub_depth.publish(ros_io.numpy_to_image(self._depth_image(view), self.p["depth_encoding"], stamp,
+                                                         OPTICAL_FRAME))
             self.pub_info.publish(ros_io.camera_info_from_model(camera, stamp, OPTICAL_FRAME))
             pose = PoseStamped()
             pose.header.stamp = stamp
@@ -137,6 +140,16 @@ class CameraNode(Node):
             self.pub_pose.publish(pose)
             self.diag.set(self.diag.OK, "publishing", shots=self._shots, visible_studs=int(view.stud_visible.sum()))
             return True, f"shot {self._shots} at {stamp.sec}.{stamp.nanosec:09d}"
+
+    def _depth_image(self, view) -> np.ndarray:
+        if self.p["depth_encoding"] == "16UC1":
+            return view.depth_mm
+        # 32FC1: the exact depth with the same holes and Gaussian noise, without mm quantisation.
+        rng = np.random.default_rng(self.p["seed"] + self._shots)
+        depth = view.depth_exact_m + rng.normal(0.0, self.p["depth_noise_m"], view.depth_exact_m.shape) \
+            if self.p["depth_noise_m"] > 0 else view.depth_exact_m.copy()
+        depth[view.depth_mm == 0] = np.nan
+        return depth.astype(np.float32)
 
     def _on_trigger(self, _request, response):
         response.success, response.message = self.shoot()

@@ -1,0 +1,136 @@
+"""Marker registration node: `ros2 run stud_perception registration`.
+
+Inputs: ``/drawing/layout`` (for |OA|, |OB|, |AB| and the mark size) and one synchronised
+RGB-D view (colour, depth, camera info, ``/camera/pose``, matched by stamp). Finds O, A, B
+(Hough + sub-pixel, markers.py), lifts them with Eq. 1 and publishes ``/registration/result``
+(Registration, reliable + transient local) and ``/registration/overlay``.
+
+By default the node registers on the first view where the marks are found and then holds
+that result (the board does not move during a job); ``/registration/trigger`` re-runs it on
+the next view, ``continuous:=true`` registers every view. A bad view publishes
+``valid=false`` with the reason (logged once per distinct reason) and never kills the node.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from geometry_msgs.msg import Point, PoseStamped
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, Image
+from std_srvs.srv import Trigger
+from stud_welding_msgs.msg import Registration, StudLayout
+
+from stud_perception import ros_io
+from stud_perception.markers import MarkDetectorConfig
+from stud_perception.ros_io import Param
+from stud_perception.view_registration import config_for_layout, draw_registration_overlay, register_view
+
+PARAMS = [
+    Param("continuous", False, "register every view (true) or once, then on /registration/trigger (false)"),
+    Param("method", "eq3", "transform from the marks: 'eq3' (paper) or 'least_squares'",
+          choices=("eq3", "least_squares")),
+    Param("distance_tol_m", 0.004, "allowed |measured - drawing| of |OA|, |OB|, |AB| [m]", min=1e-4, max=0.05),
+    Param("depth_min_m", 0.25, "nearest camera-to-board distance searched [m]", min=0.05, max=5.0),
+    Param("depth_max_m", 1.2, "farthest camera-to-board distance searched [m]", min=0.1, max=10.0),
+    Param("min_contrast", 40.0, "least grey-level difference between a mark and its surround", min=1.0, max=255.0),
+    Param("sync_slop_s", 0.0, "stamps closer than this belong to one view [s] (0: equal stamps)", min=0.0, max=1.0),
+    Param("publish_overlay", True, "publish /registration/overlay"),
+]
+
+
+class RegistrationNode(Node):
+    def __init__(self) -> None:
+        super().__init__("registration")
+        self.p = ros_io.declare_params(self, PARAMS)
+        self.layout: StudLayout | None = None
+        self.armed = True  # register on the next complete view
+        self._last_reason = ""
+        self.pub_result = self.create_publisher(Registration, "/registration/result", ros_io.LATCHED_QOS)
+        self.pub_overlay = self.create_publisher(Image, "/registration/overlay", ros_io.RESULT_QOS)
+        self.diag = ros_io.Diagnostics(self)
+        self.diag.set(self.diag.WARN, "waiting for /drawing/layout and a view")
+        self.create_timer(1.0, self.diag.publish)
+        self.create_subscription(StudLayout, "/drawing/layout", self._on_layout, ros_io.LATCHED_QOS)
+        self.sync = ros_io.StampSync(["color", "depth", "info", "pose"], self._on_view,
+                                     slop_ns=int(self.p["sync_slop_s"] * 1e9))
+        for name, topic, typ in (("color", "/camera/color/image_raw", Image), ("depth", "/camera/depth/image_raw", Image),
+                                 ("info", "/camera/color/camera_info", CameraInfo), ("pose", "/camera/pose", PoseStamped)):
+            self.create_subscription(typ, topic, lambda m, n=name: self.sync.add(n, m), ros_io.SENSOR_QOS)
+        self.create_service(Trigger, "/registration/trigger", self._on_trigger)
+        self.get_logger().info("waiting for /drawing/layout and a synchronised RGB-D view")
+
+    def _on_layout(self, msg: StudLayout) -> None:
+        self.layout = msg
+        self.armed = True  # a new drawing needs a new registration
+        self.get_logger().info(f"layout '{msg.source_file}': marks |OA|={msg.mark_a.x * 1e3:.1f} mm, "
+                               f"mark diameter {msg.mark_diameter * 1e3:.1f} mm")
+
+    def _on_trigger(self, _req, resp):
+        self.armed = True
+        resp.success, resp.message = True, "registration will run on the next view"
+        return resp
+
+    def _on_view(self, view: dict) -> None:
+        if self.layout is None:
+            self.get_logger().info("view received, waiting for /drawing/layout", throttle_duration_sec=10.0)
+            return
+        if not (self.armed or self.p["continuous"]):
+            return
+        stamp = view["color"].header.stamp
+        try:
+            camera = ros_io.camera_model_from_msgs(view["info"], view["pose"].pose)
+            color = ros_io.color_to_bgr(view["color"])
+            depth = ros_io.depth_to_metres(view["depth"])
+        except (ros_io.MessageError, ValueError) as exc:
+            self._publish_invalid(stamp, f"unusable view: {exc}")
+            return
+        marks = layout_marks_m(self.layout)
+        config = config_for_layout(MarkDetectorConfig(
+            depth_range_m=(self.p["depth_min_m"], self.p["depth_max_m"]), distance_tol_m=self.p["distance_tol_m"],
+            min_contrast=self.p["min_contrast"]), self.layout.mark_diameter)
+        try:
+            result = register_view(color, depth, camera, marks, config, method=self.p["method"])
+        except ValueError as exc:  # sizes of colour/depth/camera info disagree
+            self._publish_invalid(stamp, f"unusable view: {exc}")
+            return
+        if self.p["publish_overlay"]:
+            self.pub_overlay.publish(ros_io.numpy_to_image(draw_registration_overlay(color, result, camera), "bgr8",
+                                                           stamp, view["color"].header.frame_id))
+        if not result.ok:
+            self._publish_invalid(stamp, result.message)
+            return
+        reg = result.registration
+        msg = Registration(valid=True, message=result.message, residual=float(reg.residual_m))
+        msg.header.stamp, msg.header.frame_id = stamp, "world"
+        msg.m_local2world = [float(v) for v in reg.M_local2world.ravel()]
+        msg.mark_o, msg.mark_a, msg.mark_b = (Point(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+                                              for p in reg.marks_world_m)
+        msg.angle_aob = math.radians(float(reg.angle_AOB_deg))
+        self.pub_result.publish(msg)
+        self.armed = False
+        self._last_reason = ""
+        self.get_logger().info(result.message)
+        self.diag.set(self.diag.OK, result.message, residual_mm=f"{reg.residual_m * 1e3:.3f}")
+
+    def _publish_invalid(self, stamp, reason: str) -> None:
+        msg = Registration(valid=False, message=reason)
+        msg.header.stamp, msg.header.frame_id = stamp, "world"
+        self.pub_result.publish(msg)
+        if reason != self._last_reason:  # log once per distinct reason
+            self.get_logger().warn(f"registration failed: {reason}")
+            self._last_reason = reason
+        self.diag.set(self.diag.WARN, f"registration failed: {reason}")
+
+
+def layout_marks_m(layout: StudLayout) -> np.ndarray:
+    """(3, 2) O, A, B of a StudLayout message, drawing frame, metres."""
+    return np.array([(m.x, m.y) for m in (layout.mark_o, layout.mark_a, layout.mark_b)], dtype=np.float64)
+
+
+def main(args=None) -> int:
+    return ros_io.spin_node(RegistrationNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,208 @@
+"""FPM matcher node: `ros2 run stud_planner matcher`.
+
+For every synchronised RGB-D view (colour, depth, camera info, ``/camera/pose``; images with
+sensor-data QoS so best-effort camera drivers work) with a layout (``/drawing/layout``) and a
+valid registration (``/registration/result``): drawing -> world XY (Eq. 2), match each stud
+with the ``algorithm`` parameter (``batch`` default, ``fpm``, ``bfs`` the paper's baselines),
+estimate the surface pose, and publish
+
+* ``/weld_targets`` (WeldTargetArray: every stud of the drawing, in drawing order, with status),
+* ``/weld_targets/poses`` (PoseArray, same order, frame ``world``),
+* ``/weld_targets/markers`` (MarkerArray: an arrow per in-view stud along its normal, coloured by status),
+* ``/weld_targets/overlay`` (the colour image with matched pixels and ids, the paper's Fig. 11),
+* ``/diagnostics`` (input ages and rates, last match time, counts by status).
+
+Missing inputs give a throttled "waiting for ..." log; a registration older than
+``max_registration_age_s`` (measured between stamps) is stale: nothing is published and
+the reason is logged.
+"""
+from __future__ import annotations
+
+import time
+from collections import deque
+
+import numpy as np
+from geometry_msgs.msg import Point, PoseArray, PoseStamped, Vector3
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import ColorRGBA
+from stud_welding_msgs.msg import Registration, StudLayout, WeldTargetArray
+from visualization_msgs.msg import Marker, MarkerArray
+
+from stud_perception import ros_io
+from stud_perception.ros_io import Param
+from stud_planner.msg_convert import layout_from_msg, registration_from_msg, weld_target_msg
+from stud_planner.view_planning import (ALGORITHMS, STATUS_BGR, STATUS_OUT_OF_VIEW, PlannerConfig,
+                                        draw_targets_overlay, plan_view)
+
+PARAMS = [
+    Param("algorithm", "batch", "matcher: 'batch' (ours), 'fpm' or 'bfs' (the paper's)", choices=ALGORITHMS),
+    Param("tolerance_m", 0.001, "match tolerance on world XY [m] (paper: 1 mm)", min=1e-5, max=0.02),
+    Param("fpm_window_px", 25, "FPM brute-force window side [px] (paper: 25)", min=3, max=201),
+    Param("hole_window_px", 7, "missing-depth window side [px] (paper: 7)", min=3, max=63),
+    Param("normal_window_m", 0.02, "side of the surface patch the normal is fitted on [m]", min=0.002, max=0.2),
+    Param("max_normal_rms_m", 0.0015, "largest plane-fit RMS for a trusted normal [m]", min=1e-5, max=0.05),
+    Param("max_inclination_deg", 5.0, "largest angle between normal and world z for a weldable stud [deg]",
+          min=0.0, max=90.0),
+    Param("tool_offset_m", 0.0, "report the point this far along the normal [m] (0: on the surface)",
+          min=-0.5, max=0.5),
+    Param("bfs_max_pixels", 0, "BFS only: pixels evaluated per stud at most (0: all)", min=0, max=100_000_000),
+    Param("max_registration_age_s", 0.0, "a registration older than this (stamps) is stale [s]; 0: never",
+          min=0.0, max=1e6),
+    Param("sync_slop_s", 0.0, "stamps closer than this belong to one view [s] (0: equal stamps)", min=0.0, max=1.0),
+    Param("publish_overlay", True, "publish /weld_targets/overlay"),
+]
+_ODD = ("fpm_window_px", "hole_window_px")
+
+
+class MatcherNode(Node):
+    def __init__(self) -> None:
+        super().__init__("matcher")
+        params = [p if p.name not in _ODD else Param(p.name, p.default, p.description, p.min, p.max,
+                                                     validate=lambda v, n=p.name: None if v % 2 else f"{n}={v}: must be odd")
+                  for p in PARAMS]
+        self.p = ros_io.declare_params(self, params)
+        self.layout: StudLayout | None = None
+        self.registration: Registration | None = None
+        self.view_index = 0
+        self._arrivals: dict[str, deque] = {k: deque(maxlen=20) for k in ("color", "depth", "info", "pose")}
+        self.pub_targets = self.create_publisher(WeldTargetArray, "/weld_targets", ros_io.RESULT_QOS)
+        self.pub_poses = self.create_publisher(PoseArray, "/weld_targets/poses", ros_io.RESULT_QOS)
+        self.pub_markers = self.create_publisher(MarkerArray, "/weld_targets/markers", ros_io.RESULT_QOS)
+        self.pub_overlay = self.create_publisher(Image, "/weld_targets/overlay", ros_io.RESULT_QOS)
+        self.diag = ros_io.Diagnostics(self)
+        self.diag.set(self.diag.WARN, "waiting for inputs")
+        self.create_timer(1.0, self._publish_diagnostics)
+        self.create_subscription(StudLayout, "/drawing/layout", self._on_layout, ros_io.LATCHED_QOS)
+        self.create_subscription(Registration, "/registration/result", self._on_registration, ros_io.LATCHED_QOS)
+        self.sync = ros_io.StampSync(list(self._arrivals), self._on_view, slop_ns=int(self.p["sync_slop_s"] * 1e9))
+        for name, topic, typ in (("color", "/camera/color/image_raw", Image), ("depth", "/camera/depth/image_raw", Image),
+                                 ("info", "/camera/color/camera_info", CameraInfo), ("pose", "/camera/pose", PoseStamped)):
+            self.create_subscription(typ, topic, lambda m, n=name: self._on_input(n, m), ros_io.SENSOR_QOS)
+        self.get_logger().info(f"matcher '{self.p['algorithm']}' waiting for /drawing/layout, /registration/result "
+                               "and synchronised RGB-D views")
+
+    # -- inputs ------------------------------------------------------------------------------------
+    def _on_layout(self, msg: StudLayout) -> None:
+        self.layout = msg
+        self.get_logger().info(f"layout '{msg.source_file}' with {len(msg.studs)} studs")
+
+    def _on_registration(self, msg: Registration) -> None:
+        self.registration = msg
+        if not msg.valid:
+            self.get_logger().warn(f"registration not valid: {msg.message}", throttle_duration_sec=10.0)
+
+    def _on_input(self, name: str, msg) -> None:
+        self._arrivals[name].append(time.monotonic())
+        self.sync.add(name, msg)
+
+    def planner_config(self) -> PlannerConfig:
+        p = self.p
+        return PlannerConfig(algorithm=p["algorithm"], tol_m=p["tolerance_m"], fpm_window_px=p["fpm_window_px"],
+                             hole_window_px=p["hole_window_px"], normal_window_m=p["normal_window_m"],
+                             max_normal_rms_m=p["max_normal_rms_m"], max_inclination_deg=p["max_inclination_deg"],
+                             tool_offset_m=p["tool_offset_m"], bfs_max_pixels=p["bfs_max_pixels"] or None)
+
+    def _not_ready(self, stamp) -> str | None:
+        if self.layout is None:
+            return "waiting for /drawing/layout"
+        if self.registration is None:
+            return "waiting for /registration/result"
+        if not self.registration.valid:
+            return f"waiting for a valid registration (last: {self.registration.message})"
+        max_age = self.p["max_registration_age_s"]
+        age = (ros_io.stamp_to_ns(stamp) - ros_io.stamp_to_ns(self.registration.header.stamp)) * 1e-9
+        if max_age > 0 and age > max_age:
+            return f"registration is stale ({age:.1f} s older than the view, limit {max_age:.1f} s): targets not published"
+        return None
+
+    # -- one view ------------------------------------------------------------------------------------
+    def _on_view(self, view: dict) -> None:
+        stamp = view["depth"].header.stamp
+        reason = self._not_ready(stamp)
+        if reason:
+            self.get_logger().info(reason, throttle_duration_sec=5.0)
+            self.diag.set(self.diag.WARN, reason)
+            return
+        try:
+            camera = ros_io.camera_model_from_msgs(view["info"], view["pose"].pose)
+            depth = ros_io.depth_to_metres(view["depth"])
+            if depth.shape != (camera.height, camera.width):
+                raise ros_io.MessageError(f"depth {depth.shape[1]}x{depth.shape[0]} does not match camera_info "
+                                          f"{camera.width}x{camera.height} (is depth registered to colour?)")
+        except (ros_io.MessageError, ValueError) as exc:
+            self.get_logger().error(f"unusable view: {exc}", throttle_duration_sec=5.0)
+            self.diag.set(self.diag.ERROR, f"unusable view: {exc}")
+            return
+        layout = layout_from_msg(self.layout)
+        targets = plan_view(layout.ids, layout.xy_m, registration_from_msg(self.registration), depth, camera,
+                            self.planner_config())
+        self._publish(targets, view, camera, stamp)
+        self.view_index += 1
+
+    def _publish(self, targets, view: dict, camera, stamp) -> None:
+        out = WeldTargetArray(algorithm=targets.algorithm, match_time=float(targets.match_time_s),
+                              total_iterations=int(targets.matches.total_iterations), view_index=self.view_index)
+        out.header.stamp, out.header.frame_id = stamp, "world"
+        texts = targets.status_text
+        for i, sid in enumerate(targets.ids):
+            out.targets.append(weld_target_msg(
+                sid, targets.drawing_xy_m[i], targets.position_w[i], targets.normal_w[i], _quat(targets.quat_xyzw[i]),
+                targets.matches.pixel_uv[i], self.view_index, targets.matches.iterations[i],
+                targets.matches.xy_residual_m[i], targets.inclination_deg[i], targets.normal_rms_m[i],
+                targets.status[i], texts[i]))
+        self.pub_targets.publish(out)
+        poses = PoseArray(poses=[t.pose for t in out.targets])
+        poses.header = out.header
+        self.pub_poses.publish(poses)
+        self.pub_markers.publish(self._markers(out))
+        if self.p["publish_overlay"]:
+            color = ros_io.color_to_bgr(view["color"])
+            self.pub_overlay.publish(ros_io.numpy_to_image(draw_targets_overlay(color, targets, camera), "bgr8",
+                                                           stamp, view["color"].header.frame_id))
+        counts = targets.counts()
+        summary = (f"view {self.view_index}: {counts.get('ok', 0)}/{len(targets.ids)} ok "
+                   f"({', '.join(f'{k} {v}' for k, v in sorted(counts.items()) if k != 'ok') or 'no failures'}), "
+                   f"{targets.algorithm} {targets.match_time_s * 1e3:.1f} ms, {out.total_iterations} iterations")
+        self.get_logger().info(summary)
+        self.diag.set(self.diag.OK, summary, last_match_time_ms=f"{targets.match_time_s * 1e3:.2f}",
+                      **{f"count_{k}": v for k, v in counts.items()})
+
+    @staticmethod
+    def _markers(arr: WeldTargetArray) -> MarkerArray:
+        markers = MarkerArray(markers=[Marker(action=Marker.DELETEALL)])
+        for i, t in enumerate(arr.targets):
+            if t.status == STATUS_OUT_OF_VIEW or not np.isfinite(t.pose.position.x) or not np.isfinite(t.normal.z):
+                continue
+            b, g, r = STATUS_BGR.get(t.status, (0, 0, 255))
+            p = t.pose.position
+            m = Marker(ns="weld_targets", id=i, type=Marker.ARROW, action=Marker.ADD,
+                       points=[Point(x=p.x, y=p.y, z=p.z),
+                               Point(x=p.x + 0.05 * t.normal.x, y=p.y + 0.05 * t.normal.y, z=p.z + 0.05 * t.normal.z)],
+                       scale=Vector3(x=0.003, y=0.006, z=0.01), color=ColorRGBA(r=r / 255, g=g / 255, b=b / 255, a=1.0))
+            m.header = arr.header
+            markers.markers.append(m)
+        return markers
+
+    def _publish_diagnostics(self) -> None:
+        now = time.monotonic()
+        for name, times in self._arrivals.items():
+            if times:
+                rate = (len(times) - 1) / (times[-1] - times[0]) if len(times) > 1 and times[-1] > times[0] else 0.0
+                self.diag.values[f"{name}_age_s"] = f"{now - times[-1]:.2f}"
+                self.diag.values[f"{name}_rate_hz"] = f"{rate:.2f}"
+            else:
+                self.diag.values[f"{name}_age_s"] = "never received"
+        self.diag.publish()
+
+
+def _quat(q: np.ndarray) -> np.ndarray:
+    return q if np.all(np.isfinite(q)) else np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def main(args=None) -> int:
+    return ros_io.spin_node(MatcherNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

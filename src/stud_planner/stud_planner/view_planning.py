@@ -1,0 +1,167 @@
+"""Weld targets for one view: drawing -> world XY (Eq. 2), match (BFS / FPM / batch), pose, status.
+
+The core the matcher node and the offline planner share. For each stud of the drawing it
+returns the weld point on the surface, the outward normal, the pose quaternion (z along
+the normal), the inclination, and one status:
+
+``ok`` | ``out_of_view`` | ``no_depth`` | ``not_converged`` | ``depth_discontinuity`` (from the
+matcher) | ``no_normal`` (the plane fit could not give a trustworthy normal) |
+``inclination_exceeded`` (the stud would lean more than ``max_inclination_deg``).
+Status codes equal the STATUS_* constants of stud_welding_msgs/WeldTarget.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from stud_perception.camera_model import CameraModel
+from stud_perception.registration import local_to_world
+from stud_planner.matching import MatchResults, MatchStatus, match_batch, match_bfs, match_fpm
+from stud_planner.surface_pose import SurfacePoses, estimate_surface_poses_for_matches, offset_along_normal
+
+STATUS_OK = 0
+STATUS_OUT_OF_VIEW = 1
+STATUS_NO_DEPTH = 2
+STATUS_NOT_CONVERGED = 3
+STATUS_INCLINATION_EXCEEDED = 4
+STATUS_UNREACHABLE = 5
+STATUS_NO_NORMAL = 6
+STATUS_DEPTH_DISCONTINUITY = 7
+STATUS_TEXT = {
+    STATUS_OK: "ok", STATUS_OUT_OF_VIEW: "out_of_view", STATUS_NO_DEPTH: "no_depth",
+    STATUS_NOT_CONVERGED: "not_converged", STATUS_INCLINATION_EXCEEDED: "inclination_exceeded",
+    STATUS_UNREACHABLE: "unreachable", STATUS_NO_NORMAL: "no_normal",
+    STATUS_DEPTH_DISCONTINUITY: "depth_discontinuity",
+}
+ALGORITHMS = ("batch", "fpm", "bfs")
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Matcher and pose settings (metres, pixels, degrees).
+
+    ``tool_offset_m``: the reported position is moved this far along the normal (0: the surface
+    point; the paper's M16x150 stud top is 13 mm -> use the arm driver's tool offset instead).
+    """
+
+    algorithm: str = "batch"
+    tol_m: float = 0.001
+    fpm_window_px: int = 25
+    hole_window_px: int = 7
+    normal_window_m: float = 0.02
+    max_normal_rms_m: float = 0.0015
+    max_inclination_deg: float = 5.0
+    tool_offset_m: float = 0.0
+    bfs_max_pixels: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.algorithm not in ALGORITHMS:
+            raise ValueError(f"algorithm '{self.algorithm}' unknown; expected one of {list(ALGORITHMS)}")
+
+
+@dataclass(frozen=True, eq=False)
+class ViewTargets:
+    """Targets of N studs on one view (arrays in stud order; NaN where there is no value)."""
+
+    ids: list[str]
+    drawing_xy_m: np.ndarray     # (N, 2)
+    target_xy_w: np.ndarray      # (N, 2) where the drawing puts each stud on the world plane
+    position_w: np.ndarray       # (N, 3)
+    normal_w: np.ndarray         # (N, 3)
+    quat_xyzw: np.ndarray        # (N, 4)
+    inclination_deg: np.ndarray  # (N,)
+    normal_rms_m: np.ndarray     # (N,)
+    status: np.ndarray           # (N,) uint8, STATUS_*
+    matches: MatchResults
+    poses: SurfacePoses
+    algorithm: str
+    match_time_s: float
+
+    @property
+    def status_text(self) -> list[str]:
+        return [STATUS_TEXT[int(s)] for s in self.status]
+
+    @property
+    def ok(self) -> np.ndarray:
+        return self.status == STATUS_OK
+
+    def counts(self) -> dict[str, int]:
+        vals, n = np.unique(self.status, return_counts=True)
+        return {STATUS_TEXT[int(v)]: int(c) for v, c in zip(vals, n)}
+
+
+def match(algorithm: str, targets_xy_w: np.ndarray, depth_m: np.ndarray, camera: CameraModel,
+          config: PlannerConfig) -> MatchResults:
+    if algorithm == "batch":
+        return match_batch(targets_xy_w, depth_m, camera, tol_m=config.tol_m, hole_window_px=config.hole_window_px)
+    if algorithm == "fpm":
+        return match_fpm(targets_xy_w, depth_m, camera, tol_m=config.tol_m, window_px=config.fpm_window_px,
+                         hole_window_px=config.hole_window_px)
+    return match_bfs(targets_xy_w, depth_m, camera, tol_m=config.tol_m, hole_window_px=config.hole_window_px,
+                     max_pixels=config.bfs_max_pixels)
+
+
+def plan_view(ids: list[str], drawing_xy_m: np.ndarray, M_local2world: np.ndarray, depth_m: np.ndarray,
+              camera: CameraModel, config: PlannerConfig = PlannerConfig()) -> ViewTargets:
+    """Match every stud of the drawing on this view and estimate its weld pose (see module doc)."""
+    drawing_xy_m = np.asarray(drawing_xy_m, dtype=np.float64).reshape(-1, 2)
+    target_xy_w = local_to_world(M_local2world, drawing_xy_m)
+    t0 = time.perf_counter()
+    matches = match(config.algorithm, target_xy_w, depth_m, camera, config)
+    match_time = time.perf_counter() - t0
+    poses = estimate_surface_poses_for_matches(matches, depth_m, camera, window_m=config.normal_window_m,
+                                               max_rms_m=config.max_normal_rms_m)
+    status = matches.status.astype(np.uint8).copy()
+    matched = status == MatchStatus.OK
+    status[matched & ~poses.ok] = STATUS_NO_NORMAL
+    steep = matched & poses.ok & (poses.inclination_deg > config.max_inclination_deg)
+    status[steep] = STATUS_INCLINATION_EXCEEDED
+    position = np.where(poses.ok[:, None], poses.position_w, matches.point_w)
+    if config.tool_offset_m:
+        position = np.where(poses.ok[:, None], offset_along_normal(position, poses.normal_w, config.tool_offset_m),
+                            position)
+    return ViewTargets(ids=list(ids), drawing_xy_m=drawing_xy_m, target_xy_w=target_xy_w, position_w=position,
+                       normal_w=poses.normal_w, quat_xyzw=poses.quat_xyzw, inclination_deg=poses.inclination_deg,
+                       normal_rms_m=poses.plane_rms_m, status=status, matches=matches, poses=poses,
+                       algorithm=config.algorithm, match_time_s=match_time)
+
+
+# -- overlay (the paper's Fig. 11) ---------------------------------------------------------------------
+STATUS_BGR = {
+    STATUS_OK: (40, 200, 40), STATUS_INCLINATION_EXCEEDED: (0, 165, 255), STATUS_NO_NORMAL: (0, 200, 255),
+    STATUS_NO_DEPTH: (220, 0, 220), STATUS_NOT_CONVERGED: (0, 0, 230), STATUS_DEPTH_DISCONTINUITY: (0, 0, 230),
+    STATUS_UNREACHABLE: (200, 100, 0), STATUS_OUT_OF_VIEW: (128, 128, 128),
+}
+
+
+def draw_targets_overlay(color_bgr: np.ndarray, targets: ViewTargets, camera: CameraModel,
+                         label: bool = True) -> np.ndarray:
+    """Colour image with each in-view stud's matched pixel, its normal and its id, coloured by status."""
+    img = color_bgr.copy()
+    scale = max(1.0, img.shape[1] / 1280)
+    for i, sid in enumerate(targets.ids):
+        st = int(targets.status[i])
+        if st == STATUS_OUT_OF_VIEW:
+            continue
+        uv = targets.matches.pixel_uv[i]
+        if not np.all(np.isfinite(uv)):  # no pixel: show where the drawing puts it on the plane
+            u, v, _ = camera.world_to_pixel(np.append(targets.target_xy_w[i], 0.0))
+            if not (np.isfinite(u) and np.isfinite(v)):
+                continue
+            uv = np.array([u, v])
+        colour = STATUS_BGR.get(st, (0, 0, 255))
+        centre = (int(round(uv[0])), int(round(uv[1])))
+        cv2.circle(img, centre, int(6 * scale), colour, 2, cv2.LINE_AA)
+        n, p = targets.normal_w[i], targets.position_w[i]
+        if np.all(np.isfinite(n)) and np.all(np.isfinite(p)):
+            tip_u, tip_v, _ = camera.world_to_pixel(p + 0.03 * n)
+            if np.isfinite(tip_u) and np.isfinite(tip_v):
+                cv2.line(img, centre, (int(round(tip_u)), int(round(tip_v))), colour, 1, cv2.LINE_AA)
+        if label:
+            text = sid if st == STATUS_OK else f"{sid} {STATUS_TEXT[st]}"
+            cv2.putText(img, text, (centre[0] + 8, centre[1] - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.45 * scale, colour, 1,
+                        cv2.LINE_AA)
+    return img
