@@ -188,14 +188,22 @@ def test_bag_writer_output_opens_in_mcap_and_rosbags_readers(tmp_path, mode):
     assert back[1].message().data.tobytes() == bytes(image.data) and back[0].message().header.frame_id == "drawing"
 
 
-def test_bag_writer_splits_by_duration_and_reader_joins_the_files(tmp_path):
+@pytest.mark.parametrize("mode", ["none", "file"])
+def test_bag_writer_splits_by_duration_and_reader_joins_the_files(tmp_path, mode):
+    from rosbags.rosbag2 import Reader
+
     from std_msgs.msg import String
 
-    with BagWriter(tmp_path / "split", max_bag_duration_s=0.25) as bag:
+    with BagWriter(tmp_path / "split", max_bag_duration_s=0.25, compression_mode=mode) as bag:
         for i in range(20):
             bag.write("/s", String(data=str(i)), 10**18 + i * 50_000_000)
+    suffix = ".zstd" if mode == "file" else ""
+    assert sorted(p.name for p in (tmp_path / "split").iterdir()) == \
+        ["metadata.yaml"] + [f"split_{i}.mcap{suffix}" for i in range(4)]
+    with Reader(tmp_path / "split") as other:
+        assert [len(raw) for _c, _t, raw in other.messages()] == [len(m.data) for m in open_bag(tmp_path / "split")]
     with BagReader(tmp_path / "split") as reader:
-        assert reader.relative_file_paths == [f"split_{i}.mcap" for i in range(4)]
+        assert reader.relative_file_paths == [f"split_{i}.mcap{suffix}" for i in range(4)]
         assert [m.message().data for m in reader] == [str(i) for i in range(20)] and reader.notes == []
         assert [f.message_count for f in reader.metadata.files] == [6, 6, 6, 2]
 

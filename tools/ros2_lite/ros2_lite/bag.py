@@ -248,20 +248,24 @@ def main(argv: list[str]) -> int:
             raise _UsageError(f"ros2 bag: error: unknown verb '{argv[0]}' (expected info, record or play)")
         return verb(argv[1:])
     except _UsageError as exc:
-        print(str(exc), file=sys.stderr)
+        print(_one_line(exc), file=sys.stderr)
         return 2
     except SystemExit as exc:  # --help
         return exc.code if isinstance(exc.code, int) else 0
     except BagError as exc:
-        print(f"[ERROR] [ros2bag]: {exc}", file=sys.stderr)
+        print(f"[ERROR] [ros2bag]: {_one_line(exc)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         return 130
     except Exception as exc:  # one line, not a traceback; ROS2_LITE_DEBUG=1 shows it
         if os.environ.get("ROS2_LITE_DEBUG") == "1":
             raise
-        print(f"[ERROR] [ros2bag]: {type(exc).__name__}: {exc}", file=sys.stderr)
+        print(f"[ERROR] [ros2bag]: {type(exc).__name__}: {_one_line(exc)}", file=sys.stderr)
         return 1
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
 
 
 def run(args: argparse.Namespace) -> int:

@@ -20,6 +20,7 @@ import os
 import re
 import struct
 import tempfile
+import threading
 import time
 import weakref
 from dataclasses import dataclass, field
@@ -30,7 +31,7 @@ import yaml
 import zstandard
 from mcap.exceptions import EndOfFile, McapError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Footer, Header, Message, Metadata, Schema
+from mcap.records import Channel, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
@@ -164,7 +165,7 @@ class BagReader:
         self._tmpdir: tempfile.TemporaryDirectory | None = None
         self._finalizer = None
         if not self.path.exists():
-            raise BagError(f"Bag path '{self.path}' does not exist")
+            raise BagError(f"Bag path '{self.path}' does not exist (expected a rosbag2 bag directory or an .mcap file)")
         if self.path.is_dir():
             self.relative_file_paths, sources = self._files_of_directory()
         elif self.path.is_file():
@@ -181,8 +182,7 @@ class BagReader:
         if self.compression_mode == "MESSAGE" and self.compression_format not in ("zstd", ""):
             raise BagError(f"'{self.path}': compression format '{self.compression_format}' is not supported "
                            "(expected zstd)")
-        self._scans = [self._scan(self._storage_file(p), p.name if self.path.is_dir() else str(p))
-                       for p in sources]
+        self._scans = [self._scan(self._storage_file(p), str(p)) for p in sources]
         self.bag_size = self._bag_size()
         self._summarise()
 
@@ -268,7 +268,7 @@ class BagReader:
         except BagError:
             raise
         except _READ_ERRORS as exc:
-            raise BagError(f"'{label}': corrupt MCAP file ({type(exc).__name__}: {exc})") from None
+            raise BagError(f"'{label}': corrupt MCAP file, not readable as MCAP ({type(exc).__name__}: {exc})") from None
         except OSError as exc:
             raise BagError(f"'{label}': cannot read ({exc.strerror or exc})") from None
         return scan
@@ -302,10 +302,8 @@ class BagReader:
                     scan.channels[record.id] = record
                 elif collect and isinstance(record, Metadata) and record.name == "rosbag2":
                     scan.ros2_metadata = dict(record.metadata)
-                elif isinstance(record, (Footer,)):
+                elif isinstance(record, Footer):
                     return
-                elif isinstance(record, Header) and collect:
-                    pass
 
     def _bag_size(self) -> int:
         if self.path.is_dir():  # rosbag2: the size of the files in the bag directory
@@ -475,7 +473,7 @@ class _WriterTopic:
 
 
 class BagWriter:
-    """Write a rosbag2 bag directory as rosbag2 Jazzy's recorder does.
+    """Write a rosbag2 bag directory as rosbag2 Jazzy's recorder does (one thread at a time).
 
     ``storage_preset_profile``: ``zstd_fast`` (default: zstd-compressed 1 MiB chunks), ``zstd_small``
     (zstd, 4 MiB chunks), ``none`` (uncompressed chunks), ``fastwrite`` (no chunks, no index).
@@ -521,6 +519,8 @@ class BagWriter:
         self._schema_ids: dict[str, int] = {}
         self._channel_ids: dict[str, int] = {}
         self._closed = False
+        self._compressing: list[threading.Thread] = []
+        self._compression_error: OSError | None = None
         self._open_file()
 
     @property
@@ -622,13 +622,23 @@ class BagWriter:
         self._mcap.finish()
         self._file.close()
         self._mcap, self._file = None, None
-        if self._mode == "file":
-            name = self.metadata.relative_file_paths[-1]
-            source = self.path / name
+        if self._mode == "file":  # compressed in the background, as rosbag2's compression threads do
+            index = len(self.metadata.relative_file_paths) - 1
+            thread = threading.Thread(target=self._compress_file, args=(index,), name="bag_file_compression")
+            thread.start()
+            self._compressing.append(thread)
+
+    def _compress_file(self, index: int) -> None:
+        name = self.metadata.relative_file_paths[index]
+        source = self.path / name
+        try:
             with open(source, "rb") as fin, open(self.path / f"{name}.zstd", "wb") as fout:
                 zstandard.ZstdCompressor(level=ZSTD_LEVEL).copy_stream(fin, fout, size=source.stat().st_size)
-            source.unlink()
-            self.metadata.relative_file_paths[-1] = f"{name}.zstd"
+        except OSError as exc:
+            self._compression_error = exc
+            return
+        source.unlink()
+        self.metadata.relative_file_paths[index] = f"{name}.zstd"
 
     def _split(self) -> None:
         self._finish_file()
@@ -646,6 +656,10 @@ class BagWriter:
         if not self._closed:
             self._closed = True
             self._finish_file()
+            for thread in self._compressing:
+                thread.join()
+            if self._compression_error is not None:
+                raise BagError(f"Cannot compress a file of '{self.path}' ({self._compression_error})")
             write_metadata(self.path, self.metadata)
         return self.path
 

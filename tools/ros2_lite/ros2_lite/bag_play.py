@@ -5,13 +5,16 @@ the first played message, divided by ``--rate``) has elapsed on the monotonic cl
 published untouched (``publisher.publish(bytes)``), so header stamps are the recorded ones.
 
 QoS: reliable, and transient local when every recorded publisher of the topic offered transient local
-(as rosbag2 replays the recorded offer), so /drawing/layout and /registration/result still reach
-subscribers that start after playback. Depth: rosbag2's 10 for latched topics (a late subscriber gets
-at most the last ten), a deeper queue for volatile topics so bursts are not overwritten before they
-are sent. Topics whose Python message class is not importable here are reported once and skipped.
+(as rosbag2 replays the recorded offer), so /drawing/layout and /registration/result also reach
+subscribers that start while the bag plays. Depth: rosbag2's 10 for latched topics (a late subscriber
+gets at most the last ten); for volatile topics up to 1000 messages, or about 256 MiB of them, so
+bursts are not overwritten before they are sent. Before the first message the player waits until the
+subscribers it can see are matched (``--wait-for-subscribers N`` waits for N per topic). Topics whose
+Python message class is not importable here are reported once and skipped.
 """
 from __future__ import annotations
 
+import itertools
 import re
 import signal
 import sys
@@ -24,7 +27,8 @@ from ros2_lite.bag_metadata import Qos
 
 LOG_NAME = "rosbag2_player"
 LATCHED_DEPTH = 10  # rosbag2: the recorded profile with default history (keep last 10)
-VOLATILE_DEPTH = 1000
+VOLATILE_DEPTH = 1000  # most messages a publisher keeps unacknowledged: a burst of small messages fits...
+QUEUE_BYTES = 256 * 1024 * 1024  # ...but big ones (2.4 MB depth images) are held to about this much memory
 ACK_TIMEOUT_S = 2.0  # in total, for all publishers
 
 
@@ -47,11 +51,14 @@ class PlayOptions:
     wait_timeout_s: float = 10.0
 
 
-def replay_qos(offered: list[Qos]):
+def replay_qos(offered: list[Qos], message_size: int = 0):
+    """Reliable; transient local if every recorded publisher offered it. ``message_size`` (bytes, the
+    largest seen) bounds the depth of volatile topics so a slow subscriber cannot pile up gigabytes."""
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     latched = bool(offered) and all(q.durability == "transient_local" for q in offered)
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=LATCHED_DEPTH if latched else VOLATILE_DEPTH,
+    depth = LATCHED_DEPTH if latched else max(LATCHED_DEPTH, min(VOLATILE_DEPTH, QUEUE_BYTES // max(message_size, 1)))
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
                       reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
 
@@ -112,7 +119,8 @@ class Player:
             node = rclpy.create_node(LOG_NAME)
             publishers = {
                 name: node.create_publisher(message_class(type_name), name,
-                                            replay_qos(self.reader.topics[name].offered_qos_profiles))
+                                            replay_qos(self.reader.topics[name].offered_qos_profiles,
+                                                       self._message_size(name)))
                 for name, type_name in self.playable.items()
             }
             clock_pub = None
@@ -144,6 +152,10 @@ class Player:
                 signal.signal(s, handler)
         log("INFO", f"Played {self.published} messages on {len(self.playable)} topics")
         return 0
+
+    def _message_size(self, topic: str, sample: int = 20) -> int:
+        """Largest of the topic's first ``sample`` messages, bytes."""
+        return max((len(m.data) for m in itertools.islice(self.reader.messages([topic]), sample)), default=0)
 
     def _wait_for_subscribers(self, node, publishers) -> None:
         """Give discovery a moment so the first messages are not sent before subscribers are matched:
