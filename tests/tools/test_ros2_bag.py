@@ -10,8 +10,6 @@ import hashlib
 import json
 import os
 import subprocess
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -247,6 +245,8 @@ def test_missing_empty_and_corrupt_bags_are_one_line_errors_with_exit_1(tmp_path
     listed.mkdir()
     (listed / "metadata.yaml").write_text("rosbag2_bagfile_information: {version: 9}\n")
     _one_line_error(ros2("bag", "info", str(listed)), 1, "metadata.yaml", "missing field 'storage_identifier'")
+    with pytest.raises(BagError, match="does not exist"):  # the library raises what the CLI prints
+        open_bag(tmp_path / "nope")
 
 
 def test_usage_errors_exit_2_and_refusals_exit_1(tmp_path, shared_bag):
@@ -409,3 +409,48 @@ def test_record_keeps_up_with_full_size_depth_images_at_10_hz(tmp_path):
     assert gaps.mean() == pytest.approx(0.1, abs=0.01) and gaps.max() < 0.2
     raw = sum(len(f.data) for f in frames)
     print(f"recorded {len(frames)} frames of 2.4 MB at 10 Hz; {raw / 2**20:.1f} MiB raw -> {size / 2**20:.1f} MiB on disk")
+
+
+def test_play_topics_start_offset_and_loop_until_sigint(recorded, tmp_path):
+    bag_dir, _sent, _ = recorded
+    with BagReader(bag_dir) as bag:
+        offset_s = (bag.duration_ns / 1e9) / 2
+        cut = bag.start_time_ns + int(offset_s * 1e9)
+        selected = [m for m in bag.messages([TEXT]) if m.log_time_ns >= cut]
+    assert 3 < len(selected) < 20
+    listener = python_proc(NODES, ["listen", "--out", str(tmp_path / "received.json"), "--expect",
+                                   str(2 * len(selected)), "--timeout", "30"], tmp_path / "listener.log")
+    player = None
+    try:
+        wait_for(lambda: "listening" in listener.output(), 30, what="listener")
+        player = _ros2_proc(["bag", "play", str(bag_dir), "--topics", TEXT, "--start-offset", f"{offset_s:.6f}",
+                             "--loop", "--wait-for-subscribers", "1"], tmp_path / "play.log")
+        wait_for(lambda: "received" in listener.output(), 30, what="two loops")
+        assert player.popen.poll() is None  # still looping
+        assert player.stop() == 0  # SIGINT: clean exit
+    finally:
+        if player is not None:
+            player.stop()
+        listener.stop()
+    received = json.loads((tmp_path / "received.json").read_text())
+    assert {r["topic"] for r in received} == {TEXT}
+    assert [r["raw_sha"] for r in received] == 2 * [hashlib.sha256(m.data).hexdigest() for m in selected]
+
+
+@pytest.mark.parametrize("stop", ["max-duration", "SIGTERM"])
+def test_record_stops_on_max_duration_or_sigterm_and_finishes_the_bag(tmp_path, stop):
+    bag_dir = tmp_path / "short"
+    args = ["bag", "record", "-a", "-o", str(bag_dir)] + (["--max-duration", "1"] if stop == "max-duration" else [])
+    recorder = _ros2_proc(args, tmp_path / "rec.log")
+    try:
+        wait_for(lambda: "Recording..." in recorder.output(), 30, what="recorder")
+        if stop == "SIGTERM":
+            recorder.popen.terminate()
+        assert recorder.popen.wait(timeout=30) == 0, recorder.output()
+    finally:
+        recorder.stop()
+    assert "Recording stopped" in recorder.log_path.read_text()
+    meta = yaml.safe_load((bag_dir / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["relative_file_paths"] == ["short_0.mcap"]
+    with BagReader(bag_dir) as bag:
+        assert bag.notes == []  # indexed MCAP, metadata in agreement
