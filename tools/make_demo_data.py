@@ -49,11 +49,25 @@ def scene_with_drawing_ids(scene: SceneSpec, dxf_path: Path) -> SceneSpec:
 #: The paper's part is a section of an LNG-tank dome: a large sphere, so over the 460 mm field of
 #: view every stud's normal is within the 5 deg welding limit (here <= 4.3 deg at the outer ring).
 DEMO_DOME_HEIGHT_M = 0.015
+#: `world` is the RM-65 base frame, and the RM-65 is small (610 mm reach; with a 0.15 m weld gun
+#: pointing down it holds the camera ~0.3 m above the plane only within ~0.35 m of its axis). The
+#: part and the board are placed where the arm reaches the registration station, the camera
+#: stations and every weld point with its approach (checked with rm65_driver's IK when chosen):
+#: the bundled configuration turned by 90 deg about the dome centre, which is moved here.
+DEMO_DOME_CENTRE_XY_M = (0.28, 0.10)
+DEMO_TURN_DEG = 90.0
 
 
 def demo_scene() -> SceneSpec:
     d = scene_to_dict(demo_dome_scene())
     d["component"]["height_m"] = DEMO_DOME_HEIGHT_M
+    ox, oy = d["component"]["centre_xy_m"]
+    cx, cy = DEMO_DOME_CENTRE_XY_M
+    t = np.radians(DEMO_TURN_DEG)
+    px, py = d["drawing_to_world"]["x_m"] - ox, d["drawing_to_world"]["y_m"] - oy
+    d["drawing_to_world"].update(x_m=cx + np.cos(t) * px - np.sin(t) * py, y_m=cy + np.sin(t) * px + np.cos(t) * py,
+                                 yaw_deg=d["drawing_to_world"]["yaw_deg"] + DEMO_TURN_DEG)
+    d["component"]["centre_xy_m"] = [cx, cy]
     return scene_from_dict(d)
 
 

@@ -9,6 +9,7 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test", "tests"]),
+    package_data={PACKAGE: ["hmi_static/*"]},  # the HMI page (stud_planner/hmi_static/)
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
@@ -26,6 +27,8 @@ setup(
             "drawing = stud_planner.drawing_node:main",
             "drawing_inspect = stud_planner.drawing_inspect:main",
             "matcher = stud_planner.matcher_node:main",
+            "hmi = stud_planner.hmi_node:main",
+            "cell_sequencer = stud_planner.cell_sequencer:main",
         ],
     },
 )

@@ -50,7 +50,7 @@ def test_drawing_node_latches_the_layout_and_survives_a_bad_reload(ros_node, pro
 
 
 def test_camera_node_publishes_one_synchronised_shot_per_trigger(ros_node, procs, tmp_path):
-    params = {"scene_file": str(DEMO_SCENE), "depth_noise_m": 0.0, "camera_xyz_m": [0.0, 0.0, 0.55],
+    params = {"scene_file": str(DEMO_SCENE), "depth_noise_m": 0.0, "camera_xyz_m": [0.28, 0.10, 0.55],
               "camera_yaw_deg": 30.0}
     procs.append(ros2_run("stud_perception", "camera", tmp_path / "camera.log", params))
     got: dict[str, list] = {"color": [], "depth": [], "info": [], "pose": []}

@@ -43,7 +43,7 @@ from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
 from stud_welding_msgs.msg import ArmState, WeldTarget
-from stud_welding_msgs.srv import ResolveStud
+from stud_welding_msgs.srv import MoveTo, ResolveStud
 
 from stud_perception import ros_io
 from stud_perception.ros_io import Param
@@ -180,6 +180,7 @@ class DriverNode(Node):
         self.create_service(Trigger, "/arm/resume", self._on_resume, callback_group=group)
         self.create_service(Trigger, "/arm/estop", self._on_estop_srv, callback_group=group)
         self.create_service(ResolveStud, "/arm/resolve_stud", self._on_resolve, callback_group=group)
+        self.create_service(MoveTo, "/arm/move_to", self._on_move_to, callback_group=group)
         self.create_subscription(Bool, "/arm/estop", self._on_estop_topic, 10, callback_group=group)
         self.action = ActionServer(self, WeldJob, "/arm/weld_job", execute_callback=self._execute,
                                    goal_callback=self._on_goal, cancel_callback=self._on_cancel,
@@ -395,6 +396,41 @@ class DriverNode(Node):
         except ArmError:
             pass  # the output may not be configured yet; the stop went out
         return True, "stop sent"
+
+    def _on_move_to(self, req, resp):
+        """Joint-space move of the weld tool (or, through the hand-eye transform, the camera) to a
+        world pose: IK within joint limits and the workspace box are checked before anything is sent.
+        Used by the cell sequencer to put the camera over a station."""
+        resp.success, resp.message = self.move_to(req.pose, camera=req.frame == MoveTo.Request.FRAME_CAMERA)
+        return resp
+
+    def move_to(self, pose, camera: bool) -> tuple[bool, str]:
+        if self._estop:
+            return False, "e-stop engaged"
+        seq = self.sequence
+        if seq is not None and seq.running:
+            return False, "a weld job is running"
+        R, t = ros_io.pose_to_rt(pose)
+        T_goal = np.eye(4)
+        T_goal[:3, :3], T_goal[:3, 3] = R, t
+        if camera:
+            T_goal = T_goal @ np.linalg.inv(self._hand_eye())  # camera pose -> weld_tool pose
+        lo, hi = np.asarray(self.p["workspace_min_m"]), np.asarray(self.p["workspace_max_m"])
+        if np.any(T_goal[:3, 3] < lo) or np.any(T_goal[:3, 3] > hi):
+            return False, f"tool position {np.round(T_goal[:3, 3], 3).tolist()} m is outside the workspace box"
+        seed = self._last_state.joints_rad if self._last_state is not None else None
+        ik = self.kin.ik(T_goal, q_seed=seed, tool=self.tool_T)
+        if not ik.success:
+            return False, f"unreachable: {ik.message or 'no IK solution within the joint limits'}"
+        speed = min(self.p["joint_speed_pct"], self.p["max_joint_speed_pct"])
+        try:
+            with self._job_lock:
+                self.client.move_joints_and_wait(ik.q, speed, timeout_s=self.p["motion_timeout_s"])
+        except ArmError as exc:
+            return False, f"move failed: {exc}"
+        what = "camera" if camera else "tool"
+        self.get_logger().info(f"moved the {what} to {np.round(t, 3).tolist()} m")
+        return True, f"{what} at {np.round(t, 4).tolist()} m"
 
     def _on_stop(self, _req, resp):
         resp.success, resp.message = self._stop_now("stop requested")
