@@ -66,6 +66,33 @@ PARAMS = [
 ]
 
 
+def depth_image(view, encoding: str, noise_m: float, seed: int) -> np.ndarray:
+    """The depth image of a rendered view: 16UC1 mm as rendered, or 32FC1 metres (the exact depth
+    with the same holes and Gaussian noise of ``noise_m``, without mm quantisation)."""
+    if encoding == "16UC1":
+        return view.depth_mm
+    depth = view.depth_exact_m.copy()
+    if noise_m > 0:
+        depth += np.random.default_rng(seed).normal(0.0, noise_m, depth.shape)
+    depth[view.depth_mm == 0] = np.nan
+    return depth.astype(np.float32)
+
+
+def shot_messages(view, depth_encoding: str, stamp, noise_m: float = 0.0, seed: int = 0) -> dict:
+    """The four messages of one shot (colour, depth, camera info, optical-frame pose), one stamp."""
+    camera = view.camera
+    pose = PoseStamped()
+    pose.header.stamp, pose.header.frame_id = stamp, "world"
+    pose.pose = ros_io.rt_to_pose(camera.R_wc, camera.t_wc)
+    return {
+        "color": ros_io.numpy_to_image(view.color_bgr, "bgr8", stamp, OPTICAL_FRAME),
+        "depth": ros_io.numpy_to_image(depth_image(view, depth_encoding, noise_m, seed), depth_encoding, stamp,
+                                       OPTICAL_FRAME),
+        "info": ros_io.camera_info_from_model(camera, stamp, OPTICAL_FRAME),
+        "pose": pose,
+    }
+
+
 class CameraNode(Node):
     def __init__(self) -> None:
         super().__init__("camera")
@@ -129,27 +156,14 @@ class CameraNode(Node):
                           mark_depth_dropout=self.p["mark_depth_dropout"])
             self._shots += 1
             stamp = self.get_clock().now().to_msg()
-            self.pub_color.publish(ros_io.numpy_to_image(view.color_bgr, "bgr8", stamp, OPTICAL_FRAME))
-            self.pub_depth.publish(ros_io.numpy_to_image(self._depth_image(view), self.p["depth_encoding"], stamp,
-                                                         OPTICAL_FRAME))
-            self.pub_info.publish(ros_io.camera_info_from_model(camera, stamp, OPTICAL_FRAME))
-            pose = PoseStamped()
-            pose.header.stamp = stamp
-            pose.header.frame_id = "world"
-            pose.pose = ros_io.rt_to_pose(camera.R_wc, camera.t_wc)
-            self.pub_pose.publish(pose)
+            shot = shot_messages(view, self.p["depth_encoding"], stamp, self.p["depth_noise_m"],
+                                 self.p["seed"] + self._shots - 1)
+            self.pub_color.publish(shot["color"])
+            self.pub_depth.publish(shot["depth"])
+            self.pub_info.publish(shot["info"])
+            self.pub_pose.publish(shot["pose"])
             self.diag.set(self.diag.OK, "publishing", shots=self._shots, visible_studs=int(view.stud_visible.sum()))
             return True, f"shot {self._shots} at {stamp.sec}.{stamp.nanosec:09d}"
-
-    def _depth_image(self, view) -> np.ndarray:
-        if self.p["depth_encoding"] == "16UC1":
-            return view.depth_mm
-        # 32FC1: the exact depth with the same holes and Gaussian noise, without mm quantisation.
-        rng = np.random.default_rng(self.p["seed"] + self._shots)
-        depth = view.depth_exact_m + rng.normal(0.0, self.p["depth_noise_m"], view.depth_exact_m.shape) \
-            if self.p["depth_noise_m"] > 0 else view.depth_exact_m.copy()
-        depth[view.depth_mm == 0] = np.nan
-        return depth.astype(np.float32)
 
     def _on_trigger(self, _request, response):
         response.success, response.message = self.shoot()

@@ -1,0 +1,236 @@
+"""Offline planning: `ros2 run stud_planner plan --drawing D.dxf --bag B [--out report.json] ...`.
+
+Reads a rosbag2 MCAP sensor bag (colour, depth, camera info and /camera/pose, topic names
+overridable), groups the messages into views by stamp, registers the drawing on the first
+view where the marks are found, matches every stud on every view, keeps for each stud the
+view where its match lies most central in the image, and writes the JSON report of
+../shared/INTERFACES.md (one entry per drawing stud, in drawing order), optionally overlay
+PNGs and a CSV. Errors are one line on stderr and exit code 2.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from stud_perception import ros_io
+from stud_perception.markers import MarkDetectorConfig
+from stud_perception.view_registration import config_for_layout, register_view
+from stud_planner import dxf_layout
+from stud_planner.view_planning import ALGORITHMS, STATUS_OUT_OF_VIEW, PlannerConfig, draw_targets_overlay, plan_view
+
+DEFAULT_TOPICS = {"color": "/camera/color/image_raw", "depth": "/camera/depth/image_raw",
+                  "info": "/camera/color/camera_info", "pose": "/camera/pose"}
+
+
+class PlanError(Exception):
+    """A bag, drawing or option the planner cannot use; one line for the user."""
+
+
+@dataclass
+class View:
+    index: int
+    stamp_ns: int
+    color: object
+    depth: object
+    info: object
+    pose: object
+
+
+def read_views(bag_path: Path, topics: dict[str, str]) -> list[View]:
+    """All complete views (the four topics with one stamp) of a bag, in stamp order."""
+    try:
+        from ros2_lite.bag import BagError, open_bag
+    except ImportError as exc:  # pragma: no cover - setup.sh installs it
+        raise PlanError(f"the bag reader (tools/ros2_lite) is not installed: {exc}; run bash tools/setup.sh") from None
+    try:
+        reader = open_bag(bag_path)
+    except BagError as exc:
+        raise PlanError(str(exc)) from None
+    missing = [t for t in topics.values() if t not in reader.topics]
+    if missing:
+        have = ", ".join(f"{n} ({s.type}, {s.message_count})" for n, s in reader.topics.items()) or "none"
+        raise PlanError(f"{bag_path}: topic(s) {', '.join(missing)} not in the bag; it has: {have} "
+                        "(override names with --color-topic/--depth-topic/--info-topic/--pose-topic)")
+    views: list[dict] = []
+    sync = ros_io.StampSync(list(topics), views.append, max_sets=1000)
+    by_topic = {t: name for name, t in topics.items()}
+    try:
+        for item in reader.messages(list(topics.values())):
+            sync.add(by_topic[item.topic], item.message())
+    except BagError as exc:
+        raise PlanError(str(exc)) from None
+    finally:
+        reader.close()
+    out = [View(i, ros_io.stamp_to_ns(v["depth"].header.stamp), v["color"], v["depth"], v["info"], v["pose"])
+           for i, v in enumerate(sorted(views, key=lambda v: ros_io.stamp_to_ns(v["depth"].header.stamp)))]
+    if not out:
+        raise PlanError(f"{bag_path}: no complete view (colour, depth, camera info and pose with one stamp)")
+    return out
+
+
+def _decode(view: View):
+    try:
+        camera = ros_io.camera_model_from_msgs(view.info, view.pose.pose)
+        color = ros_io.color_to_bgr(view.color)
+        depth = ros_io.depth_to_metres(view.depth)
+    except (ros_io.MessageError, ValueError) as exc:
+        raise PlanError(f"view {view.index}: {exc}") from None
+    if depth.shape != (camera.height, camera.width) or color.shape[:2] != depth.shape:
+        raise PlanError(f"view {view.index}: colour {color.shape[1]}x{color.shape[0]}, depth {depth.shape[1]}x"
+                        f"{depth.shape[0]} and camera_info {camera.width}x{camera.height} differ (depth must be "
+                        "registered to colour)")
+    return camera, color, depth
+
+
+def _progress(i: int, n: int, quiet: bool, what: str) -> None:
+    if quiet or not sys.stderr.isatty():
+        return
+    width = 30
+    done = int(width * i / max(n, 1))
+    sys.stderr.write(f"\r{what} [{'#' * done}{'.' * (width - done)}] {i}/{n}")
+    if i == n:
+        sys.stderr.write("\n")
+    sys.stderr.flush()
+
+
+def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, str] | None = None,
+         overlay_dir: Path | None = None, quiet: bool = True, config: PlannerConfig | None = None) -> dict:
+    """Run the offline planning and return the report (see the module docstring)."""
+    topics = topics or DEFAULT_TOPICS
+    try:
+        layout = dxf_layout.read_layout(drawing)
+    except dxf_layout.DrawingError as exc:
+        raise PlanError(str(exc)) from None
+    config = config or PlannerConfig(algorithm=algorithm)
+    views = read_views(bag, topics)
+    marks = np.array([(m.x_m, m.y_m) for m in (layout.mark_o, layout.mark_a, layout.mark_b)])
+    det_config = config_for_layout(MarkDetectorConfig(), layout.mark_diameter_m)
+
+    registration, reg_view, reasons = None, None, []
+    for v in views:
+        camera, color, depth = _decode(v)
+        result = register_view(color, depth, camera, marks, det_config)
+        if result.ok:
+            registration, reg_view = result.registration, v.index
+            break
+        reasons.append(f"view {v.index}: {result.message}")
+    if registration is None:
+        raise PlanError(f"the marks O, A, B of {drawing} were found on none of the {len(views)} views of {bag} "
+                        f"(drawing and bag do not match?): " + "; ".join(reasons[:3]))
+
+    ids = [s.id for s in layout.studs]
+    xy = layout.studs_xy_m()
+    best: list[dict | None] = [None] * len(ids)
+    best_score = np.full(len(ids), np.inf)
+    fallback: list[dict | None] = [None] * len(ids)
+    iterations_total, match_time = 0, 0.0
+    for k, v in enumerate(views):
+        _progress(k, len(views), quiet, "matching")
+        camera, color, depth = _decode(v)
+        t = plan_view(ids, xy, registration.M_local2world, depth, camera, config)
+        iterations_total += t.matches.total_iterations
+        match_time += t.match_time_s
+        if overlay_dir is not None:
+            import cv2
+
+            overlay_dir.mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(overlay_dir / f"view_{v.index:03d}.png"), draw_targets_overlay(color, t, camera))
+        centre = np.array([camera.cx, camera.cy])
+        half_diag = np.hypot(camera.width, camera.height) / 2
+        for i in range(len(ids)):
+            entry = _entry(ids[i], xy[i], t, i, v.index)
+            if t.status[i] == 0:
+                score = np.linalg.norm(t.matches.pixel_uv[i] - centre) / half_diag  # most central view wins
+                if score < best_score[i]:
+                    best[i], best_score[i] = entry, score
+            elif t.status[i] != STATUS_OUT_OF_VIEW and fallback[i] is None:
+                fallback[i] = entry
+    _progress(len(views), len(views), quiet, "matching")
+    targets = []
+    for i, sid in enumerate(ids):
+        entry = best[i] or fallback[i] or {"stud_id": sid, "drawing_xy_mm": [xy[i, 0] * 1e3, xy[i, 1] * 1e3],
+                                          "status": "out_of_view"}
+        targets.append(entry)
+    return {
+        "drawing": str(drawing), "bag": str(bag), "algorithm": config.algorithm,
+        "registration": {"M_local2world": registration.M_local2world.tolist(),
+                         "residual_mm": registration.residual_m * 1e3, "view": reg_view},
+        "views": len(views), "total_iterations": int(iterations_total), "match_time_s": match_time,
+        "targets": targets,
+    }
+
+
+def _num(x) -> float | None:
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+def _entry(sid: str, xy_m, t, i: int, view_index: int) -> dict:
+    return {
+        "stud_id": sid, "drawing_xy_mm": [xy_m[0] * 1e3, xy_m[1] * 1e3], "status": t.status_text[i],
+        "position_m": [_num(v) for v in t.position_w[i]], "normal": [_num(v) for v in t.normal_w[i]],
+        "pixel": [_num(v) for v in t.matches.pixel_uv[i]], "view": view_index,
+        "iterations": int(t.matches.iterations[i]), "xy_error_mm": _num(t.matches.xy_residual_m[i] * 1e3),
+        "inclination_deg": _num(t.inclination_deg[i]),
+    }
+
+
+def write_csv(report: dict, path: Path) -> None:
+    fields = ["stud_id", "status", "x_m", "y_m", "z_m", "nx", "ny", "nz", "inclination_deg", "xy_error_mm", "view"]
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(fields)
+        for t in report["targets"]:
+            p = t.get("position_m") or [None] * 3
+            n = t.get("normal") or [None] * 3
+            w.writerow([t["stud_id"], t["status"], *p, *n, t.get("inclination_deg"), t.get("xy_error_mm"),
+                        t.get("view")])
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="plan", description="Weld targets for a drawing from a recorded sensor bag.")
+    parser.add_argument("--drawing", required=True, type=Path, help="DXF drawing with studs and marks O, A, B")
+    parser.add_argument("--bag", required=True, type=Path, help="rosbag2 MCAP bag (folder or .mcap)")
+    parser.add_argument("--out", type=Path, help="JSON report (default: print a summary only)")
+    parser.add_argument("--csv", type=Path, help="also write the targets as CSV")
+    parser.add_argument("--overlay-dir", type=Path, help="write an overlay PNG per view here")
+    parser.add_argument("--algorithm", choices=ALGORITHMS, default="batch")
+    for name, default in DEFAULT_TOPICS.items():
+        parser.add_argument(f"--{name}-topic", default=default)
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    args, _ros = parser.parse_known_args(argv)
+    topics = {name: getattr(args, f"{name}_topic") for name in DEFAULT_TOPICS}
+    t0 = time.perf_counter()
+    try:
+        report = plan(args.drawing, args.bag, args.algorithm, topics, args.overlay_dir, args.quiet)
+        if args.out:
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+            args.out.write_text(json.dumps(report, indent=1) + "\n")
+        if args.csv:
+            write_csv(report, args.csv)
+    except PlanError as exc:
+        print(f"plan: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"plan: error: {exc}", file=sys.stderr)
+        return 2
+    counts: dict[str, int] = {}
+    for t in report["targets"]:
+        counts[t["status"]] = counts.get(t["status"], 0) + 1
+    if not args.quiet:
+        print(f"{len(report['targets'])} studs over {report['views']} views ({report['algorithm']}): "
+              + ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
+              + f"; registration residual {report['registration']['residual_mm']:.2f} mm; "
+              f"{time.perf_counter() - t0:.1f} s" + (f"; report {args.out}" if args.out else ""))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
