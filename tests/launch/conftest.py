@@ -1,0 +1,5 @@
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # child.py / run_launcher.py helpers
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "ros"))  # rosproc: wait_for, REPO
