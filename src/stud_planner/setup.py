@@ -29,6 +29,8 @@ setup(
             "matcher = stud_planner.matcher_node:main",
             "hmi = stud_planner.hmi_node:main",
             "cell_sequencer = stud_planner.cell_sequencer:main",
+            "plan = stud_planner.offline_plan:main",
+            "cell = stud_planner.cell_launch:main",
         ],
     },
 )
