@@ -1,0 +1,104 @@
+"""The rest of the cell, faked in the test process with real rclpy publishers and service servers:
+what the HMI node subscribes to, and the Trigger services its buttons call (counting calls)."""
+from __future__ import annotations
+
+import json
+import math
+import time
+import urllib.request
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.action import ActionServer
+from sensor_msgs.msg import Image
+from std_srvs.srv import Trigger
+from stud_welding_msgs.action import WeldJob
+from stud_welding_msgs.msg import ArmState, CellStatus, WeldTarget, WeldTargetArray
+
+from rosproc import wait_for
+from stud_perception import ros_io
+
+NAN = math.nan
+
+
+def target(stud_id: str, status: int, xyz_m=(NAN, NAN, NAN), incl_deg=NAN, xy_error_m=NAN, view=0) -> WeldTarget:
+    t = WeldTarget(stud_id=stud_id, status=status, inclination=incl_deg, xy_error=xy_error_m, view_index=view)
+    t.status_text = {WeldTarget.STATUS_OK: "ok", WeldTarget.STATUS_NO_DEPTH: "no_depth",
+                     WeldTarget.STATUS_OUT_OF_VIEW: "out_of_view",
+                     WeldTarget.STATUS_INCLINATION_EXCEEDED: "inclination_exceeded"}[status]
+    t.pose.position.x, t.pose.position.y, t.pose.position.z = xyz_m
+    return t
+
+
+class FakeCell:
+    """Publishers of /weld_targets, overlay, /arm/state, /cell/status, /diagnostics; Trigger servers
+    for ``services`` (call counts in ``calls``); optionally a WeldJob action server."""
+
+    def __init__(self, node, services=("/cell/stop", "/arm/stop")):
+        self.node = node
+        self.calls = {s: 0 for s in services}
+        self._srvs = [node.create_service(Trigger, s, self._handler(s)) for s in services]
+        self.pub_targets = node.create_publisher(WeldTargetArray, "/weld_targets", ros_io.RESULT_QOS)
+        self.pub_overlay = node.create_publisher(Image, "/weld_targets/overlay", ros_io.RESULT_QOS)
+        self.pub_arm = node.create_publisher(ArmState, "/arm/state", ros_io.RESULT_QOS)
+        self.pub_cell = node.create_publisher(CellStatus, "/cell/status", ros_io.RESULT_QOS)
+        self.pub_diag = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.job_result: WeldJob.Result | None = None
+
+    def _handler(self, name: str):
+        def handle(_req, resp):
+            self.calls[name] += 1
+            resp.success, resp.message = True, f"{name} done (fake)"
+            return resp
+        return handle
+
+    def wait_for_hmi(self, port: int, proc, timeout_s: float = 30.0) -> None:
+        """Until the HMI answers /healthz and subscribes to our topics (DDS discovery)."""
+        def healthy() -> bool:
+            assert proc.popen.poll() is None, f"hmi exited:\n{proc.output()}"
+            try:
+                return json.loads(urllib.request.urlopen(f"http://127.0.0.1:{port}/healthz", timeout=1).read())["ok"]
+            except OSError:
+                return False
+        wait_for(healthy, timeout_s, spin=self.node.spin, what=f"hmi /healthz on port {port}")
+        wait_for(lambda: all(self.node.count_subscribers(t) >= 1 for t in
+                             ("/weld_targets", "/weld_targets/overlay", "/arm/state", "/cell/status")),
+                 timeout_s, spin=self.node.spin, what="the hmi's subscriptions")
+
+    # -- publishing ------------------------------------------------------------------------------------
+    def targets(self, targets: list[WeldTarget], view: int = 0) -> None:
+        arr = WeldTargetArray(targets=targets, algorithm="batch", view_index=view)
+        arr.header.frame_id = "world"
+        self.pub_targets.publish(arr)
+
+    def overlay(self, width: int = 1280, height: int = 960) -> None:
+        img = np.zeros((height, width, 3), np.uint8)
+        img[:, : width // 2] = (0, 0, 255)  # left half red (BGR)
+        self.pub_overlay.publish(ros_io.numpy_to_image(img, "bgr8", frame_id="camera_color_optical_frame"))
+
+    def arm(self, mode=ArmState.MODE_WELDING, current_stud="S0001", done=1, total=3) -> None:
+        msg = ArmState(mode=mode, current_stud=current_stud, done=done, total=total, connected=True,
+                       error_codes=[0x5001], errors=["joint 3 over temperature"], message="welding S0001")
+        msg.tool_pose.position.x, msg.tool_pose.position.z = 0.25, NAN
+        self.pub_arm.publish(msg)
+
+    def cell(self) -> None:
+        self.pub_cell.publish(CellStatus(state=CellStatus.STATE_WELDING, state_text="welding", station=2,
+                                         stations_total=4, studs_total=3, studs_welded=1, studs_failed=0,
+                                         unreachable=["S0099"], message="station 2: welding"))
+
+    def diagnostic(self, name: str, level: int, message: str) -> None:
+        self.pub_diag.publish(DiagnosticArray(status=[DiagnosticStatus(level=bytes([level]), name=name,
+                                                                       message=message)]))
+
+    # -- the arm's weld job action ----------------------------------------------------------------------
+    def serve_weld_job(self, phases: list[tuple[str, str]], result: WeldJob.Result) -> ActionServer:
+        """A WeldJob server that sends ``phases`` as feedback and ends with ``result``."""
+        def execute(goal_handle):
+            for i, (sid, phase) in enumerate(phases):
+                goal_handle.publish_feedback(WeldJob.Feedback(stud_id=sid, phase=phase, done=i, total=len(phases)))
+                time.sleep(0.05)
+            goal_handle.succeed()
+            return result
+        self._action = ActionServer(self.node, WeldJob, "/arm/weld_job", execute_callback=execute)
+        return self._action

@@ -1,0 +1,251 @@
+"""hmi_server without ROS: the RFC 6455 handshake and framing against a raw-socket client,
+several clients, retained messages, strict JSON, HTTP routes, origin check, clean stop."""
+from __future__ import annotations
+
+import io
+import json
+import math
+import socket
+import struct
+import threading
+import time
+import urllib.error
+import urllib.request
+
+import pytest
+
+from stud_planner import hmi_server
+from stud_planner.hmi_server import HmiServer, accept_key, encode_frame, read_frame, to_json
+from ws_client import HandshakeRefused, WsClient
+
+
+@pytest.fixture()
+def server(tmp_path):
+    (tmp_path / "index.html").write_text("<!DOCTYPE html><title>test page</title>")
+    (tmp_path / "app.js").write_text("console.log('hi');")
+    (tmp_path.parent / "secret.txt").write_text("not for the browser")
+    commands = []
+
+    def on_command(conn, msg):
+        commands.append(msg)
+        srv.reply(conn, {"type": "reply", "id": msg.get("id"), "echo": msg})
+
+    srv = HmiServer(tmp_path, "127.0.0.1", 0, on_command=on_command, hello={"version": 1})
+    srv.commands = commands
+    srv.start()
+    yield srv
+    srv.stop()
+
+
+def connect(srv, **kw) -> WsClient:
+    c = WsClient("127.0.0.1", srv.port, **kw)
+    hello = c.recv_message()
+    assert hello == {"type": "hello", "version": 1}
+    return c
+
+
+def wait_until(cond, timeout_s=5.0, what="condition"):
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.01)
+
+
+# -- framing, pure functions ------------------------------------------------------------------------
+def test_accept_key_is_the_rfc_6455_example():
+    assert accept_key("dGhlIHNhbXBsZSBub25jZQ==") == "s3pPLMBiTxaQ9kYGzzhZRbK+xOo="
+
+
+@pytest.mark.parametrize("n", [0, 5, 125, 126, 65535, 65536, 300_000])
+def test_frames_of_every_length_encoding_round_trip_masked_and_unmasked(n):
+    payload = bytes(range(256)) * (n // 256) + bytes(range(n % 256))
+    masked = encode_frame(hmi_server.OP_TEXT, payload, mask=b"\x01\x02\x03\x04")
+    assert masked[1] & 0x80 and (n == 0 or masked[-n:] != payload)
+    assert read_frame(io.BytesIO(masked), require_mask=True, max_bytes=1 << 20) == (True, hmi_server.OP_TEXT, payload)
+    plain = encode_frame(hmi_server.OP_TEXT, payload)
+    assert len(plain) == n + (2 if n < 126 else 4 if n < 65536 else 10)
+    assert read_frame(io.BytesIO(plain), require_mask=False, max_bytes=1 << 20) == (True, hmi_server.OP_TEXT, payload)
+
+
+def test_json_has_no_nan_tokens():
+    text = to_json({"a": math.nan, "b": [1.0, math.inf, -math.inf], "c": (2, "x"), "d": None})
+    assert json.loads(text) == {"a": None, "b": [1.0, None, None], "c": [2, "x"], "d": None}
+    assert "NaN" not in text and "Infinity" not in text
+
+
+# -- handshake -------------------------------------------------------------------------------------
+def test_handshake_answers_101_with_the_accept_key_and_a_hello(server):
+    c = connect(server)  # WsClient asserts Sec-WebSocket-Accept
+    assert c.response_headers["upgrade"].lower() == "websocket"
+    c.close()
+
+
+@pytest.mark.parametrize("headers, status", [
+    ({"Sec-WebSocket-Version": "8"}, 426),
+    ({"Sec-WebSocket-Key": "too-short"}, 400),
+    ({"Upgrade": "h2c"}, 400),
+])
+def test_bad_handshakes_are_refused_with_the_right_status(server, headers, status):
+    with pytest.raises(HandshakeRefused) as exc:
+        WsClient("127.0.0.1", server.port, extra_headers=headers)
+    assert exc.value.status == status
+
+
+def test_a_foreign_origin_is_refused_and_the_pages_own_origin_accepted(server):
+    with pytest.raises(HandshakeRefused) as exc:
+        WsClient("127.0.0.1", server.port, origin="http://evil.example")
+    assert exc.value.status == 403
+    connect(server, origin=f"http://127.0.0.1:{server.port}").close()
+    connect(server).close()  # no Origin: not a browser
+
+
+# -- messages --------------------------------------------------------------------------------------
+def test_a_masked_text_command_reaches_the_handler_and_its_reply_comes_back(server):
+    c = connect(server)
+    c.send_json({"cmd": "stop", "id": 7})
+    assert c.recv_message() == {"type": "reply", "id": 7, "echo": {"cmd": "stop", "id": 7}}
+    assert server.commands == [{"cmd": "stop", "id": 7}]
+    c.close()
+
+
+def test_a_fragmented_text_message_is_reassembled(server):
+    c = connect(server)
+    text = json.dumps({"cmd": "pause", "id": 3, "pad": "é" * 100}).encode()
+    c.send_frame(0x1, text[:10], fin=False)
+    c.send_frame(0x9, b"in-between ping")  # control frames may come between fragments
+    c.send_frame(0x0, text[10:50], fin=False)
+    c.send_frame(0x0, text[50:], fin=True)
+    fin, op, payload = c.recv_frame()
+    assert (op, payload) == (0xA, b"in-between ping")
+    assert c.recv_message()["echo"]["pad"] == "é" * 100
+    c.close()
+
+
+def test_not_json_gets_an_error_reply_not_a_disconnect(server):
+    c = connect(server)
+    c.send_text("stop please")
+    assert c.recv_message() == {"type": "reply", "ok": False, "error": "message is not JSON"}
+    c.send_json({"cmd": "start", "id": 1})
+    assert c.recv_message()["id"] == 1
+    c.close()
+
+
+def test_ping_is_answered_with_a_pong_carrying_the_same_payload(server):
+    c = connect(server)
+    c.send_frame(0x9, b"are you there")
+    assert c.recv_frame() == (True, 0xA, b"are you there")
+    c.close()
+
+
+def test_a_close_frame_is_echoed_and_the_connection_ends(server):
+    c = connect(server)
+    wait_until(lambda: server.client_count == 1, what="client registered")
+    c.send_frame(0x8, struct.pack("!H", 1000) + b"bye")
+    fin, op, payload = c.recv_frame()
+    assert op == 0x8 and struct.unpack("!H", payload[:2])[0] == 1000
+    with pytest.raises(ConnectionError):
+        c.recv_frame(2.0)  # the server closes the TCP connection after the handshake
+    wait_until(lambda: server.client_count == 0, what="client removed")
+
+
+@pytest.mark.parametrize("send, code", [
+    (lambda c: c.send_frame(0x1, b'{"cmd":"stop"}', masked=False), 1002),   # clients must mask
+    (lambda c: c.send_frame(0x2, b"\x00\x01"), 1003),                       # binary: unsupported
+    (lambda c: c.send_frame(0x1, b"\xff\xfe"), 1007),                       # not UTF-8
+    (lambda c: c.send_frame(0x0, b"orphan continuation"), 1002),
+    (lambda c: c.send_frame(0x1, b"x" * (hmi_server.MAX_INCOMING_BYTES + 1)), 1009),
+])
+def test_protocol_violations_close_with_the_rfc_code(server, send, code):
+    c = connect(server)
+    send(c)
+    assert c.recv_message() is None and c.closed_with == code
+    assert server.commands == []
+    c.close()
+
+
+def test_several_clients_get_every_broadcast_and_a_late_client_gets_the_newest_per_type(server):
+    clients = [connect(server) for _ in range(3)]
+    wait_until(lambda: server.client_count == 3, what="three clients")
+    server.publish({"type": "arm", "mode": "idle", "x": math.nan})
+    for c in clients:
+        assert c.recv_message() == {"type": "arm", "mode": "idle", "x": None}
+    server.publish({"type": "cell", "state": "welding"})
+    server.publish({"type": "arm", "mode": "welding", "x": 1.5})
+    for c in clients:
+        got = []
+        wait_until(lambda: got.extend(c.poll(0.05)) or {"type": "arm", "mode": "welding", "x": 1.5} in got,
+                   what="the second arm message")
+        assert {"type": "cell", "state": "welding"} in got
+    late = connect(server)
+    got = late.poll(0.5)
+    assert sorted(got, key=lambda m: m["type"]) == [{"type": "arm", "mode": "welding", "x": 1.5},
+                                                    {"type": "cell", "state": "welding"}]
+    for c in clients + [late]:
+        c.close()
+
+
+def test_each_client_gets_its_own_replies_only(server):
+    a, b = connect(server), connect(server)
+    a.send_json({"cmd": "start", "id": "a1"})
+    b.send_json({"cmd": "stop", "id": "b1"})
+    assert a.recv_message()["id"] == "a1"
+    assert b.recv_message()["id"] == "b1"
+    assert a.poll(0.2) == [] and b.poll(0.2) == []
+    a.close()
+    b.close()
+
+
+def test_a_client_that_never_reads_does_not_block_publishing(server):
+    stalled = WsClient("127.0.0.1", server.port)
+    stalled.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    reader = connect(server)
+    wait_until(lambda: server.client_count == 2, what="two clients")
+    big = "x" * 1_000_000
+    t0 = time.monotonic()
+    for i in range(100):  # 100 MB for a client that reads nothing
+        server.publish({"type": "overlay", "i": i, "data": big})
+    assert time.monotonic() - t0 < 5.0
+    got = []
+    wait_until(lambda: got.extend(reader.poll(0.1)) or any(m.get("i") == 99 for m in got), 10, "the newest overlay")
+    assert len(got) < 100  # stale frames were dropped, not queued
+    stalled.close()
+    reader.close()
+
+
+# -- HTTP ------------------------------------------------------------------------------------------
+def test_http_serves_the_page_static_files_and_health(server):
+    base = f"http://127.0.0.1:{server.port}"
+    page = urllib.request.urlopen(base + "/")
+    assert b"test page" in page.read() and page.headers["Content-Type"].startswith("text/html")
+    assert b"console.log" in urllib.request.urlopen(base + "/app.js").read()
+    health = json.loads(urllib.request.urlopen(base + "/healthz").read())
+    assert health["ok"] is True and health["clients"] == 0
+    for bad in ("/missing.css", "/../secret.txt", "/%2e%2e/secret.txt"):
+        with pytest.raises(urllib.error.HTTPError) as exc:
+            urllib.request.urlopen(base + bad)
+        assert exc.value.code == 404
+
+
+def test_stop_closes_clients_with_going_away_and_joins_every_thread(tmp_path):
+    (tmp_path / "index.html").write_text("x")
+    before = set(threading.enumerate())
+    srv = HmiServer(tmp_path, port=0).start()
+    clients = [WsClient("127.0.0.1", srv.port) for _ in range(2)]
+    idle_http = socket.create_connection(("127.0.0.1", srv.port))  # a connection that never sends a request
+    wait_until(lambda: srv.client_count == 2, what="clients")
+    t0 = time.monotonic()
+    srv.stop()
+    assert time.monotonic() - t0 < 12.0
+    for c in clients:
+        msgs = []
+        try:
+            while (m := c.recv_message(2.0)) is not None:
+                msgs.append(m)
+        except ConnectionError:
+            pass
+        assert c.closed_with == 1001
+        c.close()
+    idle_http.close()
+    wait_until(lambda: set(threading.enumerate()) <= before, 5, "server threads to end")
+    with pytest.raises(OSError):
+        socket.create_connection(("127.0.0.1", srv.port), timeout=1)
