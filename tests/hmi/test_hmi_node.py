@@ -3,8 +3,6 @@ Trigger services, a WeldJob action server) and a browser (a raw WebSocket client
 from __future__ import annotations
 
 import base64
-import os
-import signal
 import time
 
 import pytest
@@ -18,7 +16,7 @@ from rclpy.action import ActionClient  # noqa: E402
 from stud_welding_msgs.action import WeldJob  # noqa: E402
 from stud_welding_msgs.msg import WeldTarget  # noqa: E402
 
-from conftest import free_port  # noqa: E402
+from conftest import ctrl_c, free_port  # noqa: E402
 from fake_cell import FakeCell, target  # noqa: E402
 from rosproc import ros2_run, wait_for  # noqa: E402
 from ws_client import WsClient  # noqa: E402
@@ -137,8 +135,7 @@ def test_hmi_streams_the_cell_to_a_websocket_client_and_stop_calls_both_services
     assert final["welded"] == 1
 
     # -- Ctrl-C (to the process group, as a terminal sends it): clean exit, the browser is told -----------
-    os.killpg(hmi.popen.pid, signal.SIGINT)
-    assert hmi.popen.wait(timeout=10) == 0
+    assert ctrl_c(hmi) == 0
     assert "Traceback" not in hmi.output(), hmi.output()
     wait_for(lambda: inbox.find(lambda m: False) is None and ws.closed_with is not None, 5,
              what="the close frame")
