@@ -5,6 +5,7 @@ For each of our message types it subscribes to /rt/<Type> and publishes what it 
 and a result built from the goal, so the test can check all three parts of the action.
 """
 import sys
+import time
 
 import rclpy
 from rclpy.action import ActionServer
@@ -27,6 +28,10 @@ def main() -> int:
 
     def execute(goal_handle):
         targets = goal_handle.request.targets
+        # The client's feedback subscription may match a moment after its goal request arrived.
+        deadline = time.monotonic() + 5.0
+        while node.count_subscribers("/rt/weld_job/_action/feedback") < 1 and time.monotonic() < deadline:
+            time.sleep(0.02)
         for i, t in enumerate(targets):
             fb = WeldJob.Feedback(stud_id=t.stud_id, phase="weld", done=i + 1, total=len(targets))
             goal_handle.publish_feedback(fb)

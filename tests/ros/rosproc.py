@@ -41,7 +41,12 @@ class Proc:
 
     def stop(self, timeout_s: float = 10.0) -> int:
         if self.popen.poll() is None:
-            self.popen.send_signal(signal.SIGINT)
+            # Ctrl-C reaches a terminal's whole foreground group: do the same to our session's
+            # group, so `ros2 run`'s child gets SIGINT too (ros2 run itself just waits, as ros2cli does).
+            try:
+                os.killpg(self.popen.pid, signal.SIGINT)
+            except ProcessLookupError:
+                pass
             try:
                 self.popen.wait(timeout=timeout_s)
             except subprocess.TimeoutExpired:
