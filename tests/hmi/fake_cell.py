@@ -13,7 +13,7 @@ from rclpy.action import ActionServer
 from sensor_msgs.msg import Image
 from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
-from stud_welding_msgs.msg import ArmState, CellStatus, WeldTarget, WeldTargetArray
+from stud_welding_msgs.msg import ArmState, CellStatus, Stud, StudLayout, WeldTarget, WeldTargetArray
 
 from rosproc import wait_for
 from stud_perception import ros_io
@@ -43,6 +43,7 @@ class FakeCell:
         self.pub_arm = node.create_publisher(ArmState, "/arm/state", ros_io.RESULT_QOS)
         self.pub_cell = node.create_publisher(CellStatus, "/cell/status", ros_io.RESULT_QOS)
         self.pub_diag = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.pub_layout = node.create_publisher(StudLayout, "/drawing/layout", ros_io.LATCHED_QOS)
         self.job_result: WeldJob.Result | None = None
 
     def _handler(self, name: str):
@@ -70,6 +71,11 @@ class FakeCell:
         arr = WeldTargetArray(targets=targets, algorithm="batch", view_index=view)
         arr.header.frame_id = "world"
         self.pub_targets.publish(arr)
+
+    def layout(self, stud_ids: list[str]) -> None:
+        """Latched, as the drawing node publishes it."""
+        self.pub_layout.publish(StudLayout(source_file="part.dxf", studs=[
+            Stud(id=sid, x=0.01 * i, y=0.0) for i, sid in enumerate(stud_ids)]))
 
     def overlay(self, width: int = 1280, height: int = 960) -> None:
         img = np.zeros((height, width, 3), np.uint8)

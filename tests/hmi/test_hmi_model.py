@@ -39,6 +39,16 @@ def test_layout_lists_every_stud_in_drawing_order_before_any_view():
     assert rows_by_id(t)["S0003"]["status"] == "not_seen"
 
 
+def test_a_first_layout_arriving_after_a_view_orders_the_table_without_losing_the_view():
+    t = StudTable()
+    t.update_view([target("S0002"), target("S0001", "no_depth")], view=0)
+    t.job_result(welded=["S0002"], skipped=[], failed=[])
+    t.set_layout(["S0001", "S0002", "S0003"])
+    rows = t.rows()
+    assert [(r["stud_id"], r["status"], r["weld"]) for r in rows] == [
+        ("S0001", "no_depth", ""), ("S0002", "ok", "welded"), ("S0003", "not_seen", "")]
+
+
 def test_a_stud_out_of_a_later_view_keeps_its_earlier_match_but_a_new_match_replaces_it():
     t = StudTable()
     t.update_view([target("S0001", view=0, x=0.1), target("S0002", "out_of_view", view=0)], view=0)
@@ -52,6 +62,7 @@ def test_a_stud_out_of_a_later_view_keeps_its_earlier_match_but_a_new_match_repl
 
 def test_weld_state_follows_feedback_arm_state_and_the_job_result():
     t = StudTable()
+    t.set_layout(["S0001", "S0002", "S0003", "S0004"])
     t.update_view([target(s) for s in ("S0001", "S0002", "S0003", "S0004")])
     assert t.arm_progress("S0001") and not t.arm_progress("S0001")
     assert rows_by_id(t)["S0001"]["weld"] == "active"
@@ -68,7 +79,7 @@ def test_weld_state_follows_feedback_arm_state_and_the_job_result():
     rows = rows_by_id(t)
     assert [rows[s]["weld"] for s in ("S0001", "S0002", "S0003", "S0004")] == ["welded", "failed", "skipped", ""]
     assert t.message()["welded"] == 1
-    t.set_layout(["S0001"])  # a new drawing starts afresh
+    t.set_layout(["S0001"])  # another drawing starts afresh
     assert rows_by_id(t)["S0001"]["weld"] == ""
 
 

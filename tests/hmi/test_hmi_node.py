@@ -58,6 +58,7 @@ def test_hmi_streams_the_cell_to_a_websocket_client_and_stop_calls_both_services
                    {"port": port, "overlay_max_width": 320, "overlay_rate_hz": 20.0})
     procs.append(hmi)
     cell = FakeCell(ros_node)
+    cell.layout(["S0001", "S0002", "S0003", "S0004"])  # latched: the hmi gets it whenever it starts
     cell.wait_for_hmi(port, hmi)
     ws = WsClient("127.0.0.1", port)
     inbox = Inbox(ws)
@@ -67,16 +68,17 @@ def test_hmi_streams_the_cell_to_a_websocket_client_and_stop_calls_both_services
     # -- targets: the table's rows, NaN as null -------------------------------------------------------
     view = [target("S0001", OK, (0.1, 0.2, 0.05), incl_deg=2.5, xy_error_m=0.0004),
             target("S0002", NO_DEPTH), target("S0003", OUT)]
-    msg = inbox.wait(lambda m: m["type"] == "targets" and len(m["rows"]) == 3, ros_node, "targets",
-                     publish=lambda: cell.targets(view))
+    msg = inbox.wait(lambda m: m["type"] == "targets" and m["view"] == 0 and len(m["rows"]) == 4, ros_node,
+                     "targets and the layout", publish=lambda: cell.targets(view))
     r = rows(msg)
-    assert [row["stud_id"] for row in msg["rows"]] == ["S0001", "S0002", "S0003"]
+    assert [row["stud_id"] for row in msg["rows"]] == ["S0001", "S0002", "S0003", "S0004"]  # drawing order
+    assert r["S0004"]["status"] == "not_seen" and r["S0004"]["position_mm"] is None
     assert r["S0001"]["status"] == "ok" and r["S0001"]["inclination_deg"] == pytest.approx(2.5)
     assert r["S0001"]["position_mm"] == pytest.approx([100.0, 200.0, 50.0])
     assert r["S0001"]["xy_error_mm"] == pytest.approx(0.4) and r["S0001"]["welded"] is False
     assert r["S0002"]["status"] == "no_depth" and r["S0002"]["position_mm"] == [None, None, None]
     assert r["S0002"]["inclination_deg"] is None and r["S0003"]["status"] == "out_of_view"
-    assert msg["counts"] == {"ok": 1, "no_depth": 1, "out_of_view": 1}
+    assert msg["counts"] == {"ok": 1, "no_depth": 1, "out_of_view": 1, "not_seen": 1}
 
     # -- overlay: downscaled JPEG, same picture ---------------------------------------------------------
     ov = inbox.wait(lambda m: m["type"] == "overlay", ros_node, "overlay", publish=cell.overlay)
@@ -116,6 +118,9 @@ def test_hmi_streams_the_cell_to_a_websocket_client_and_stop_calls_both_services
     assert reply["ok"] is False and "/cell/start is not available" in reply["results"][0]["message"]
     ws.send_json({"cmd": "weld everything", "id": 44})
     reply = inbox.wait(lambda m: m["type"] == "reply" and m.get("id") == 44, ros_node, "reply to unknown")
+    assert reply["ok"] is False and "unknown command" in reply["error"]
+    ws.send_json({"cmd": ["stop"], "id": 45})
+    reply = inbox.wait(lambda m: m["type"] == "reply" and m.get("id") == 45, ros_node, "reply to a list")
     assert reply["ok"] is False and "unknown command" in reply["error"]
 
     # -- a weld job: feedback and the job's result mark studs welded / failed -----------------------------

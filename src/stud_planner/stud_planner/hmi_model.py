@@ -48,6 +48,7 @@ class StudTable:
         self._weld: dict[str, str] = {}
         self._phase: dict[str, str] = {}
         self._active = ""  # the stud the arm is on now
+        self._has_layout = False
         self.view = -1
         self.algorithm = ""
 
@@ -56,13 +57,22 @@ class StudTable:
             self._order.setdefault(stud_id, None)
 
     def set_layout(self, stud_ids: Iterable[str]) -> None:
-        """A new drawing: forget everything, list its studs (as "not seen") in drawing order."""
-        self._order = dict.fromkeys(stud_ids)
-        self._targets.clear()
-        self._weld.clear()
-        self._phase.clear()
-        self._active = ""
-        self.view = -1
+        """The drawing: its studs in drawing order (those in no view yet are "not seen").
+
+        The first layout only orders what is known (it may arrive after the first view or job
+        result when the HMI starts before the drawing node); a later one is another drawing:
+        everything is forgotten."""
+        ids = dict.fromkeys(stud_ids)
+        if self._has_layout:
+            self._targets.clear()
+            self._weld.clear()
+            self._phase.clear()
+            self._active = ""
+            self.view = -1
+            self._order = ids
+        else:
+            self._order = {**ids, **self._order}
+        self._has_layout = True
 
     def update_view(self, targets: Iterable[TargetInfo], view: int = -1, algorithm: str = "") -> None:
         """The targets of one view. A stud out of this view keeps its result from an earlier view

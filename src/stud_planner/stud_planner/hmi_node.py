@@ -174,7 +174,8 @@ class HmiNode(Node):
 
     # -- ROS -> page -------------------------------------------------------------------------------
     def _on_layout(self, msg: StudLayout) -> None:
-        key = (msg.source_file, msg.header.stamp.sec, msg.header.stamp.nanosec, len(msg.studs))
+        # A reload of the same drawing keeps the weld states; another drawing starts a new table.
+        key = (msg.source_file, tuple((s.id, round(s.x, 6), round(s.y, 6)) for s in msg.studs))
         if key != self._layout_key:
             self._layout_key = key
             self.table.set_layout(s.id for s in msg.studs)
@@ -254,9 +255,10 @@ class HmiNode(Node):
         self._overlay = msg  # encoded by the rate-capped timer: only the newest frame matters
 
     def _send_overlay(self) -> None:
-        msg, self._overlay = self._overlay, None
+        msg = self._overlay
         if msg is None or self.server.client_count == 0:
-            return
+            return  # (kept: the first browser to connect gets it)
+        self._overlay = None
         try:
             bgr = ros_io.color_to_bgr(msg)
         except ros_io.MessageError as exc:
@@ -305,7 +307,7 @@ class HmiNode(Node):
 
     def _start_call(self, conn: WebSocketConnection, msg: dict) -> None:
         cmd, cid = msg.get("cmd"), msg.get("id")
-        if cmd not in COMMANDS:
+        if not isinstance(cmd, str) or cmd not in COMMANDS:
             self.server.reply(conn, {"type": "reply", "cmd": cmd, "id": cid, "ok": False, "results": [],
                                      "error": f"unknown command {cmd!r}; expected one of {list(COMMANDS)}"})
             return
