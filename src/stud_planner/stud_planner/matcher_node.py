@@ -41,6 +41,8 @@ PARAMS = [
     Param("fpm_window_px", 25, "FPM brute-force window side [px] (paper: 25)", min=3, max=201),
     Param("hole_window_px", 7, "missing-depth window side [px] (paper: 7)", min=3, max=63),
     Param("normal_window_m", 0.02, "side of the surface patch the normal is fitted on [m]", min=0.002, max=0.2),
+    Param("normal_samples_per_side", 21, "depth samples per side of the normal's patch (the patch size, not the "
+          "count, sets the accuracy; cost grows with its square)", min=5, max=101),
     Param("max_normal_rms_m", 0.0015, "largest plane-fit RMS for a trusted normal [m]", min=1e-5, max=0.05),
     Param("max_inclination_deg", 5.0, "largest angle between normal and world z for a weldable stud [deg]",
           min=0.0, max=90.0),
@@ -100,6 +102,7 @@ class MatcherNode(Node):
         p = self.p
         return PlannerConfig(algorithm=p["algorithm"], tol_m=p["tolerance_m"], fpm_window_px=p["fpm_window_px"],
                              hole_window_px=p["hole_window_px"], normal_window_m=p["normal_window_m"],
+                             normal_samples_per_side=p["normal_samples_per_side"],
                              max_normal_rms_m=p["max_normal_rms_m"], max_inclination_deg=p["max_inclination_deg"],
                              tool_offset_m=p["tool_offset_m"], bfs_max_pixels=p["bfs_max_pixels"] or None)
 
@@ -151,12 +154,16 @@ class MatcherNode(Node):
                 targets.matches.pixel_uv[i], self.view_index, targets.matches.iterations[i],
                 targets.matches.xy_residual_m[i], targets.inclination_deg[i], targets.normal_rms_m[i],
                 targets.status[i], texts[i]))
-        self.pub_targets.publish(out)
-        poses = PoseArray(poses=[t.pose for t in out.targets])
-        poses.header = out.header
-        self.pub_poses.publish(poses)
-        self.pub_markers.publish(self._markers(out))
-        if self.p["publish_overlay"]:
+        self.pub_targets.publish(out)  # first: it is what the cell waits for
+        # Visualisation topics are built only when somebody listens (a MarkerArray of 100 arrows
+        # costs more than the matching itself).
+        if self.pub_poses.get_subscription_count():
+            poses = PoseArray(poses=[t.pose for t in out.targets])
+            poses.header = out.header
+            self.pub_poses.publish(poses)
+        if self.pub_markers.get_subscription_count():
+            self.pub_markers.publish(self._markers(out))
+        if self.p["publish_overlay"] and self.pub_overlay.get_subscription_count():
             color = ros_io.color_to_bgr(view["color"])
             self.pub_overlay.publish(ros_io.numpy_to_image(draw_targets_overlay(color, targets, camera), "bgr8",
                                                            stamp, view["color"].header.frame_id))

@@ -52,6 +52,7 @@ class PlannerConfig:
     fpm_window_px: int = 25
     hole_window_px: int = 7
     normal_window_m: float = 0.02
+    normal_samples_per_side: int = 21
     max_normal_rms_m: float = 0.0015
     max_inclination_deg: float = 5.0
     tool_offset_m: float = 0.0
@@ -113,6 +114,7 @@ def plan_view(ids: list[str], drawing_xy_m: np.ndarray, M_local2world: np.ndarra
     matches = match(config.algorithm, target_xy_w, depth_m, camera, config)
     match_time = time.perf_counter() - t0
     poses = estimate_surface_poses_for_matches(matches, depth_m, camera, window_m=config.normal_window_m,
+                                               max_samples_per_side=config.normal_samples_per_side,
                                                max_rms_m=config.max_normal_rms_m)
     status = matches.status.astype(np.uint8).copy()
     matched = status == MatchStatus.OK
