@@ -30,7 +30,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
-from stud_welding_msgs.msg import CellStatus, Registration, StudLayout, WeldTargetArray
+from stud_welding_msgs.msg import ArmState, CellStatus, Registration, StudLayout, WeldTargetArray
 from stud_welding_msgs.srv import MoveTo
 
 from stud_perception import ros_io
@@ -81,6 +81,8 @@ class CellSequencer(Node):
         self.layout: StudLayout | None = None
         self.registration: Registration | None = None
         self.targets: list[WeldTargetArray] = []
+        self.arm_state: ArmState | None = None
+        self.best: dict[str, tuple[float, object]] = {}  # stud id -> (distance from image centre, ok target)
         self._cond = threading.Condition()
         self._stop = threading.Event()
         self._paused = threading.Event()
@@ -94,6 +96,7 @@ class CellSequencer(Node):
                                  callback_group=cb)
         self.create_subscription(WeldTargetArray, "/weld_targets", self._on_targets, ros_io.RESULT_QOS,
                                  callback_group=cb)
+        self.create_subscription(ArmState, "/arm/state", self._on_arm_state, ros_io.RESULT_QOS, callback_group=cb)
         self.cli_move = self.create_client(MoveTo, "/arm/move_to", callback_group=cb)
         self.cli_shot = self.create_client(Trigger, "/camera/trigger", callback_group=cb)
         self.cli_register = self.create_client(Trigger, "/registration/trigger", callback_group=cb)
@@ -124,6 +127,11 @@ class CellSequencer(Node):
         with self._cond:
             self.targets.append(msg)
             del self.targets[:-5]
+            self._cond.notify_all()
+
+    def _on_arm_state(self, msg: ArmState) -> None:
+        with self._cond:
+            self.arm_state = msg
             self._cond.notify_all()
 
     def _tick(self) -> None:
@@ -231,6 +239,18 @@ class CellSequencer(Node):
                            self.p["step_timeout_s"])
         if not reply.success:
             raise JobAborted(f"camera move to {np.round(xyz, 3).tolist()} m refused: {reply.message}")
+        # The camera's pose comes from /arm/state: shoot only once a state from after the move
+        # is out (two, so the camera node has surely seen one), or the shot uses a stale pose.
+        arrived = self.get_clock().now().nanoseconds
+        seen: set[int] = set()
+
+        def settled():
+            st = self.arm_state
+            if st is not None and ros_io.stamp_to_ns(st.header.stamp) > arrived and st.mode != ArmState.MODE_MOVING:
+                seen.add(ros_io.stamp_to_ns(st.header.stamp))
+            return len(seen) >= 2
+
+        self._wait_for(settled, self.p["step_timeout_s"], "/arm/state after the move")
 
     def _shoot(self) -> int:
         """One triggered shot; returns the ROS time (ns) taken just before it."""
@@ -302,6 +322,7 @@ class CellSequencer(Node):
         for station in plan.stations:
             self.status.station = station.index
             self._run_station(station, layout.ids)
+        self._weld_leftovers()
         welded = sum(r["welded"] for r in self.stud_report.values())
         failed = len(layout.ids) - welded
         state = CellStatus.STATE_DONE
@@ -332,6 +353,7 @@ class CellSequencer(Node):
                     raise
         if view is None:
             raise JobAborted(f"station {station.index}: no weld targets for any of {p['shot_retries']} shots")
+        self._remember_best(view)
         usable = []
         for t in view.targets:
             if t.stud_id not in wanted:
@@ -347,6 +369,36 @@ class CellSequencer(Node):
             self.get_logger().warn(f"station {station.index}: no usable target among {len(wanted)} assigned studs")
             return
         self._set(CellStatus.STATE_WELDING, f"station {station.index}/{n}: welding {len(usable)} stud(s)")
+        self._weld(usable)
+
+    def _remember_best(self, view: WeldTargetArray) -> None:
+        """Keep, per stud, the usable target seen nearest an image centre over all views (targets are in
+        `world`, so one matched from any station can be welded from anywhere)."""
+        for t in view.targets:
+            if t.status_text != "ok":
+                continue
+            # distance from the image centre, in pixels of a 1280x960-like image: smaller is better
+            score = float(np.hypot(t.pixel_u - 640.0, t.pixel_v - 480.0))
+            if t.stud_id not in self.best or score < self.best[t.stud_id][0]:
+                self.best[t.stud_id] = (score, t)
+
+    def _weld_leftovers(self) -> None:
+        """Studs their own station did not give a usable target for, but another view did."""
+        left = [self.best[sid][1] for sid, r in self.stud_report.items() if not r["welded"] and sid in self.best]
+        if not left:
+            return
+        self.get_logger().info(f"welding {len(left)} stud(s) matched on another station's view: "
+                               f"{', '.join(t.stud_id for t in left)}")
+        for t in left:
+            r = self.stud_report[t.stud_id]
+            r.update(status="ok", position_m=[t.pose.position.x, t.pose.position.y, t.pose.position.z],
+                     normal=[t.normal.x, t.normal.y, t.normal.z], pixel=[t.pixel_u, t.pixel_v],
+                     iterations=int(t.iterations), xy_error_mm=t.xy_error * 1e3, inclination_deg=t.inclination)
+        self._set(CellStatus.STATE_WELDING, f"welding {len(left)} stud(s) from other views")
+        self._weld(left)
+
+    def _weld(self, usable: list) -> None:
+        p = self.p
         self._checkpoint()
         if not self.weld.wait_for_server(timeout_sec=min(p["step_timeout_s"], 10.0)):
             raise JobAborted("the arm driver's /arm/weld_job action is not available")
