@@ -16,21 +16,13 @@ from pathlib import Path
 
 import pytest
 
+from launch_helpers import alive
 from rosproc import wait_for
 from stud_planner.launcher import ChildSpec, LaunchError, Launcher, describe_returncode, group_members
 
 HERE = Path(__file__).resolve().parent
 CHILD = HERE / "child.py"
 RUNNER = HERE / "run_launcher.py"
-
-
-def alive(pid: int) -> bool:
-    """Running (a zombie waiting for its reaper does not count)."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return False
-    return stat[stat.rfind(")") + 2] not in "ZX"
 
 
 def child(name: str, state: Path, *flags: str, **spec) -> dict:

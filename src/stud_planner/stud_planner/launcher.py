@@ -62,8 +62,9 @@ class ChildSpec:
     most ``max_respawns`` times (-1: no limit); only when its respawns are used up does ``required``
     apply. ``exit_on``: its exit ends the launch (exit code 0 if it exited with 0, else 1), e.g. a
     sequencer that finished the job. ``ready_pattern``: a regular expression; a matching output line
-    marks the child ready. ``start_after``: the name of a child whose ready line this one waits for
-    before it starts (at most ``start_timeout_s`` seconds; then it starts anyway, with a warning).
+    marks the child ready. ``start_after``: the name(s) of children whose ready lines this one waits
+    for before it starts (at most ``start_timeout_s`` seconds; then it starts anyway, with a warning;
+    a child without a ``ready_pattern`` counts as ready once started).
     """
 
     name: str
@@ -76,7 +77,7 @@ class ChildSpec:
     respawn_delay_s: float = 1.0
     exit_on: bool = False
     ready_pattern: str | None = None
-    start_after: str | None = None
+    start_after: str | Sequence[str] | None = None
     start_timeout_s: float = 30.0
 
     def __post_init__(self) -> None:
@@ -86,6 +87,10 @@ class ChildSpec:
             raise LaunchError(f"child {self.name}: argv must be a non-empty list of strings, got {self.argv!r}")
         if self.max_respawns < -1 or self.respawn_delay_s < 0 or self.start_timeout_s < 0:
             raise LaunchError(f"child {self.name}: max_respawns >= -1, respawn_delay_s >= 0, start_timeout_s >= 0")
+        if isinstance(self.start_after, str):
+            object.__setattr__(self, "start_after", (self.start_after,))
+        elif self.start_after is not None:
+            object.__setattr__(self, "start_after", tuple(self.start_after) or None)
         if self.ready_pattern is not None:
             try:
                 re.compile(self.ready_pattern)
@@ -184,10 +189,11 @@ class Launcher:
         if dupes:
             raise LaunchError(f"duplicate child names: {', '.join(dupes)}")
         for s in specs:
-            if s.start_after is not None and s.start_after not in names:
-                raise LaunchError(f"child {s.name}: start_after names '{s.start_after}', which is not in this launch")
-            if s.start_after == s.name:
-                raise LaunchError(f"child {s.name}: cannot start after itself")
+            for dep in s.start_after or ():
+                if dep not in names:
+                    raise LaunchError(f"child {s.name}: start_after names '{dep}', which is not in this launch")
+                if dep == s.name:
+                    raise LaunchError(f"child {s.name}: cannot start after itself")
         if "launch" in names:
             raise LaunchError("'launch' is reserved for the launcher's own log")
         self.out_dir = Path(out_dir)
@@ -299,17 +305,19 @@ class Launcher:
             time.sleep(self.tick_s)
 
     def _maybe_start_waiting(self, child: _Child, now: float) -> None:
-        dep = self._children[child.spec.start_after]
-        if dep.ready.is_set() or dep.ready_rx is None:
+        deps = [self._children[n] for n in child.spec.start_after]
+        not_ready = [d for d in deps if not (d.ready.is_set() or (d.ready_rx is None and d.state == "running"))]
+        gone = [d for d in not_ready if d.state in ("exited", "skipped")]
+        if not not_ready:
             self._start(child)
-        elif dep.state in ("exited", "skipped"):
-            child.state, child.note = "skipped", f"not started: {dep.spec.name} ended before it was ready"
+        elif gone:
+            child.state, child.note = "skipped", f"not started: {gone[0].spec.name} ended before it was ready"
             self._say(f"{child.spec.name} {child.note}")
             if child.spec.required:
                 self._end(f"required {child.spec.name} could not start", 1)
         elif now >= child.wait_deadline:
-            self._say(f"{dep.spec.name} not ready after {child.spec.start_timeout_s:.0f} s: "
-                      f"starting {child.spec.name} anyway")
+            self._say(f"{', '.join(d.spec.name for d in not_ready)} not ready after "
+                      f"{child.spec.start_timeout_s:g} s: starting {child.spec.name} anyway")
             self._start(child)
 
     def _end(self, reason: str, code: int) -> None:

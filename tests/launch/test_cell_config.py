@@ -1,0 +1,172 @@
+"""The `cell` command without starting anything: the shipped cell.yaml, the plan per mode, overrides,
+parameter files and the one-line errors (exit code 2)."""
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import pytest
+import yaml
+
+from rosproc import REPO
+from stud_planner import cell_launch
+from stud_planner.cell_launch import CellConfigError, load_config, plan_cell, write_params_file
+
+CELL_YAML = REPO / "src" / "stud_planner" / "config" / "cell.yaml"
+
+
+@pytest.fixture(scope="module")
+def cfg() -> dict:
+    return load_config(CELL_YAML)
+
+
+def plan(cfg, mode, **kw):
+    nodes, notes = plan_cell(cfg, mode, out_dir="/out", check_installed=False, **kw)
+    return {n.name: n for n in nodes}, notes
+
+
+def test_shipped_modes_run_the_documented_nodes(cfg):
+    sim, _ = plan(cfg, "sim")
+    assert list(sim) == ["drawing", "camera", "registration", "matcher", "arm_simulator", "arm_driver",
+                         "cell_sequencer", "hmi"]
+    assert sim["camera"].params["pose_source"] == "arm"
+    assert sim["arm_driver"].params["tcp_port"] == 8080 and sim["arm_driver"].start_after == ("arm_simulator",)
+    assert sim["arm_simulator"].argv[-4:] == ["--port", "8080", "--time-scale", "1.0"]  # typed vars in a string list
+    assert sim["arm_driver"].params["journal_file"] == "/out/weld_journal.jsonl"
+    assert sim["cell_sequencer"].exit_on and sim["drawing"].required
+    replay, _ = plan(cfg, "replay", cli_vars={"bag": "/bags/run1"})
+    assert list(replay) == ["bag_play", "drawing", "registration", "matcher", "hmi"]
+    assert replay["bag_play"].argv == ["ros2", "bag", "play", "/bags/run1", "--delay", "2.0"]
+    assert replay["bag_play"].start_after == ("registration", "matcher")
+    hw, _ = plan(cfg, "hardware")
+    assert "camera" not in hw and "arm_simulator" not in hw
+    assert hw["arm_driver"].params["arm_ip"] == "192.168.1.18" and hw["arm_driver"].params["publish_camera_pose"]
+    assert hw["arm_driver"].start_after == ()  # the simulator is not part of this launch
+
+
+def test_command_line_overrides_beat_mode_and_node_params(cfg):
+    nodes, notes = plan(cfg, "sim", sets=["matcher.algorithm=fpm", "camera.depth_noise_m=0.001",
+                                          "camera.hand_eye_xyz_m=[0.05, 0, 0.1]"],
+                        cli_vars={"drawing": "/parts/p.dxf", "arm_port": 9000}, without_nodes=["hmi"],
+                        respawn_driver=True)
+    assert nodes["matcher"].params["algorithm"] == "fpm"
+    assert nodes["camera"].params["depth_noise_m"] == 0.001
+    assert nodes["camera"].params["hand_eye_xyz_m"] == [0.05, 0.0, 0.1]  # mixed ints/floats -> doubles
+    assert nodes["drawing"].params["drawing_file"] == "/parts/p.dxf"
+    assert nodes["arm_driver"].params["tcp_port"] == 9000 and nodes["arm_simulator"].argv[-3] == "9000"
+    assert nodes["arm_driver"].respawn and "hmi" not in nodes and not notes
+    hw, _ = plan(cfg, "hardware", sets=["arm_driver.arm_ip=10.0.0.7"])
+    assert hw["arm_driver"].params["arm_ip"] == "10.0.0.7"
+    replay, notes = plan(cfg, "replay", cli_vars={"bag": "/b"}, with_nodes=["arm_simulator", "arm_driver"],
+                         respawn_driver=False)
+    assert list(replay)[-2:] == ["arm_simulator", "arm_driver"] and replay["arm_driver"].start_after == ("arm_simulator",)
+
+
+@pytest.mark.parametrize("mode, kw, message", [
+    ("weld", {}, "unknown mode 'weld' (this cell has: sim, replay, hardware)"),
+    ("replay", {}, "--mode replay needs --bag DIR"),
+    ("sim", {"sets": ["matcher=fpm"]}, "expected NODE.PARAM=VALUE"),
+    ("sim", {"sets": ["ghost.x=1"]}, "unknown node 'ghost'"),
+    ("hardware", {"sets": ["camera.seed=1"]}, "node 'camera' is not part of mode hardware"),
+    ("sim", {"with_nodes": ["ghost"]}, "unknown node 'ghost'"),
+    ("sim", {"sets": ["camera.hand_eye_xyz_m=[]"]}, "an empty list has no ROS parameter type"),
+    ("sim", {"sets": ["camera.hand_eye_xyz_m=[1, a]"]}, "list elements must be all numbers"),
+])
+def test_bad_requests_are_one_line_errors(cfg, mode, kw, message):
+    with pytest.raises(CellConfigError) as info:
+        plan(cfg, mode, **kw)
+    assert message in str(info.value) and "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("nodes: {a: {package: p, executable: e}}\nmodes: {sim: {nodes: [a, b]}}", "modes.sim.nodes: unknown node 'b'"),
+    ("nodes: {a: {package: p, executable: e, parms: {}}}\nmodes: {sim: {nodes: [a]}}",
+     "nodes.a: unknown key 'parms'"),
+    ("nodes: {a: {package: p}}\nmodes: {sim: {nodes: [a]}}", "package and executable must both be strings"),
+    ("nodes: {a: {cmd: [x], package: p, executable: e}}\nmodes: {sim: {nodes: [a]}}", "either package + executable"),
+    ("nodes: {a: {cmd: [x], required: yes-please}}\nmodes: {sim: {nodes: [a]}}", "nodes.a.required: must be true"),
+    ("nodes: {a: {cmd: [x], start_after: b}}\nmodes: {sim: {nodes: [a]}}", "start_after: unknown node 'b'"),
+    ("nodes: {a: {cmd: [x], start_after: [a]}}\nmodes: {sim: {nodes: [a]}}", "cannot wait for itself"),
+    ("nodes: {a: {cmd: [x]}}\nmodes: {sim: {nodes: [a], params: {z: {}}}}", "modes.sim.params: unknown node 'z'"),
+    ("nodes: {a: {cmd: [x]}}\nmodes: {sim: {nodes: [a]}}\nlaunch: {sigint_timeout_s: -1}", "launch.sigint_timeout_s"),
+    ("nodes: {a: {cmd: [x]}}\nmode: {}", "top level: unknown key 'mode'"),
+    ("nodes: [a: 1", "not valid YAML"),
+])
+def test_bad_cell_yaml_is_a_one_line_error_naming_the_key(tmp_path, text, message):
+    path = tmp_path / "cell.yaml"
+    path.write_text(text)
+    with pytest.raises(CellConfigError) as info:
+        load_config(path)
+    assert message in str(info.value) and str(path) in str(info.value) and "\n" not in str(info.value)
+
+
+def test_missing_executables_skip_optional_nodes_and_stop_required_ones(tmp_path):
+    path = tmp_path / "cell.yaml"
+    path.write_text(textwrap.dedent("""\
+        nodes:
+          real: {cmd: [python3, -c, "pass"]}
+          later: {package: stud_planner, executable: not_written_yet, optional: true}
+          broken: {cmd: [/nonexistent/tool]}
+        modes:
+          ok: {nodes: [real, later]}
+          bad: {nodes: [real, broken]}
+        """))
+    cfg = load_config(path)
+    nodes, notes = plan_cell(cfg, "ok", out_dir=str(tmp_path))
+    assert notes == ["skipping later: stud_planner/not_written_yet is not installed"]
+    assert nodes[1].skip and nodes[0].skip is None
+    with pytest.raises(CellConfigError, match="cannot launch broken: command '/nonexistent/tool' is not installed"):
+        plan_cell(cfg, "bad", out_dir=str(tmp_path))
+
+
+def test_params_file_is_a_ros2_params_file_with_types_kept(cfg, tmp_path):
+    nodes, _ = plan(cfg, "sim", sets=["camera.seed=7", "camera.mark_depth_dropout=true", "drawing.mark_layer=007"])
+    path = write_params_file(nodes["camera"], tmp_path)
+    data = yaml.safe_load(path.read_text())
+    params = data["/**"]["ros__parameters"]
+    assert params["seed"] == 7 and params["mark_depth_dropout"] is True and params["depth_noise_m"] == 0.0005
+    assert params["hand_eye_rpy_deg"] == [0.0, 0.0, 0.0]
+    drawing = yaml.safe_load(write_params_file(nodes["drawing"], tmp_path).read_text())["/**"]["ros__parameters"]
+    assert drawing["mark_layer"] == 7  # YAML reads 007 as a number: documented, say "'007'" for a string
+    cmd = nodes["camera"].command(str(path))
+    assert cmd[-3:] == ["--ros-args", "--params-file", str(path)]
+    assert nodes["hmi"].command(None) == nodes["hmi"].argv  # no parameters: no --ros-args at all
+
+
+def test_remaps_become_ros_args(tmp_path):
+    path = tmp_path / "cell.yaml"
+    path.write_text("nodes: {m: {cmd: [python3], remaps: {/camera/depth/image_raw: /cam/aligned_depth}}}\n"
+                    "modes: {hw: {nodes: [m], remaps: {m: {/camera/color/image_raw: /cam/color}}}}\n")
+    nodes, _ = plan_cell(load_config(path), "hw", out_dir=str(tmp_path))
+    assert nodes[0].command(None)[-5:] == ["--ros-args", "-r", "/camera/depth/image_raw:=/cam/aligned_depth",
+                                            "-r", "/camera/color/image_raw:=/cam/color"]
+
+
+def run_main(capsys, *argv) -> tuple[int, str, str]:
+    code = cell_launch.main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--mode", "weld"], "unknown mode 'weld'"),
+    (["--mode", "replay"], "--mode replay needs --bag DIR"),
+    (["--mode", "replay", "--bag", "/nonexistent/bag"], "--bag /nonexistent/bag: no such bag"),
+    (["--mode", "sim", "--drawing", "/nonexistent.dxf"], "--drawing /nonexistent.dxf: no such file"),
+    (["--mode", "sim", "--params", "/nonexistent/cell.yaml"], "cannot read /nonexistent/cell.yaml"),
+    (["--bag", "x"], "the following arguments are required: --mode"),
+    (["--mode", "sim", "--var", "novalue"], "--var 'novalue': expected KEY=VALUE"),
+])
+def test_main_usage_errors_exit_2_with_one_line(capsys, argv, message):
+    code, out, err = run_main(capsys, *argv)
+    assert code == 2 and message in err and err.count("\n") == 1 and err.startswith("cell")
+    assert out == ""
+
+
+def test_main_dry_run_prints_commands_with_params_files(capsys, tmp_path):
+    code, out, err = run_main(capsys, "--mode", "sim", "--dry-run", "--params", str(CELL_YAML), "--out",
+                              str(tmp_path), "--no-hmi", "--set", "matcher.algorithm=bfs")
+    assert code == 0, err
+    assert f"--params-file {tmp_path}/params/matcher.yaml" in out and "{algorithm: bfs}" in out
+    assert "# hmi" not in out and "--port 8080" in out
+    assert not (tmp_path / "params").exists()  # a dry run writes nothing

@@ -1,0 +1,182 @@
+"""`ros2 run stud_planner cell` as a user runs it. Sim: the graph comes up (a probe node sees the layout
+and the camera's trigger service, and a shot posed by the simulated arm succeeds). Replay: the committed
+bag goes through registration and matcher. Both: Ctrl-C stops every process, exit code 0, no orphans."""
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import socket
+import subprocess
+
+import pytest
+
+from rosproc import REPO, wait_for
+from stud_planner.launcher import group_members
+from launch_helpers import alive
+
+DEMO_DXF = REPO / "src" / "stud_planner" / "data" / "dome_demo.dxf"
+DEMO_BAG = REPO / "bags" / "dome_demo"
+STARTED = re.compile(r"^\[launch\] started (\S+?)(?: \(respawn \d+\))?: pid (\d+)$", re.M)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture()
+def probe():
+    import rclpy
+    from rclpy.node import Node
+
+    rclpy.init()
+    node = Node("cell_probe")
+    node.spin = lambda: rclpy.spin_once(node, timeout_sec=0.05)
+    try:
+        yield node
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+class CellRun:
+    """`ros2 run stud_planner cell ...` in a session of its own, like a shell job: the test plays the
+    terminal and signals the whole foreground group (the `ros2` wrapper and the launcher)."""
+
+    def __init__(self, tmp_path, *args: str):
+        self.out_dir = tmp_path / "run"
+        self.log_path = tmp_path / "cell.out"
+        with open(self.log_path, "w") as log:
+            self.popen = subprocess.Popen(["ros2", "run", "stud_planner", "cell", "--out", str(self.out_dir), *args],
+                                          stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        self.started: dict[str, int] = {}
+
+    def output(self) -> str:
+        return self.log_path.read_text()
+
+    def wait(self, condition, timeout_s: float, what: str, spin=None) -> None:
+        """rosproc.wait_for, with the cell's output (as of the time-out) in the failure message."""
+        try:
+            wait_for(condition, timeout_s, spin=spin, what=what)
+        except AssertionError as exc:
+            raise AssertionError(f"{exc}\n{self.output()}") from None
+
+    def running(self) -> bool:
+        return self.popen.poll() is None
+
+    def record_pids(self) -> dict[str, int]:
+        self.started = {name: int(pid) for name, pid in STARTED.findall(self.output())}
+        return self.started
+
+    def ctrl_c_stops_everything(self, timeout_s: float = 40.0) -> None:
+        os.killpg(self.popen.pid, signal.SIGINT)
+        try:
+            code = self.popen.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            raise AssertionError(f"cell still running {timeout_s:.0f} s after Ctrl-C\n{self.output()}") from None
+        assert code == 0, self.output()
+        for name, pid in self.started.items():
+            assert not alive(pid), f"{name} (pid {pid}) outlived the launch"
+            assert group_members(pid) == [], f"{name} left processes behind"
+        assert "[launch] summary: SIGINT received; exit code 0" in self.output()
+        assert "FAILED" not in self.output()
+
+    def cleanup(self) -> None:
+        if self.running():
+            os.killpg(self.popen.pid, signal.SIGKILL)
+            self.popen.wait()
+        for pid in self.record_pids().values():
+            if alive(pid):
+                os.killpg(pid, signal.SIGKILL)
+
+
+@pytest.fixture()
+def cell_run(tmp_path):
+    runs = []
+
+    def start(*args: str) -> CellRun:
+        runs.append(CellRun(tmp_path, *args))
+        return runs[-1]
+
+    yield start
+    for run in runs:
+        run.cleanup()
+
+
+def test_sim_cell_comes_up_and_ctrl_c_stops_everything_cleanly(probe, cell_run):
+    from std_srvs.srv import Trigger
+    from stud_welding_msgs.msg import Registration, StudLayout
+
+    from stud_perception import ros_io
+
+    cell = cell_run("--mode", "sim", "--no-hmi", "--drawing", str(DEMO_DXF), "--var", f"arm_port={free_port()}",
+                    "--set", "camera.depth_noise_m=0.0")
+    layouts, regs = [], []
+    probe.create_subscription(StudLayout, "/drawing/layout", layouts.append, ros_io.LATCHED_QOS)
+    probe.create_subscription(Registration, "/registration/result", regs.append, ros_io.LATCHED_QOS)
+    trigger = probe.create_client(Trigger, "/camera/trigger")
+    cell.wait(lambda: cell.running() and layouts and trigger.service_is_ready(), 60,
+              "/drawing/layout and /camera/trigger", spin=probe.spin)
+    assert layouts[-1].source_file == str(DEMO_DXF)  # the parameter file reached the drawing node
+    assert len(layouts[-1].studs) > 0
+
+    # pose_source=arm: the camera shoots once the driver, connected to the simulator, publishes /arm/state;
+    # registration answers a shot (valid or not) once it has the layout. Waiting for that answer also keeps
+    # Ctrl-C away from images in flight: an rclpy node interrupted taking a message exits 1 (docs/LAUNCH.md).
+    def shot_is_answered() -> bool:
+        future = trigger.call_async(Trigger.Request())
+        wait_for(future.done, 20, spin=probe.spin, what="a /camera/trigger reply")
+        if future.result().success:
+            try:
+                wait_for(lambda: regs, 5, spin=probe.spin)
+            except AssertionError:
+                pass
+        return bool(regs)
+    cell.wait(shot_is_answered, 60, "/registration/result for a shot posed by the arm")
+
+    started = cell.record_pids()
+    assert {"drawing", "camera", "registration", "matcher", "arm_simulator", "arm_driver"} <= set(started)
+    assert "hmi" not in started
+    assert all(alive(pid) for pid in started.values()), cell.output()
+    assert (cell.out_dir / "params" / "arm_driver.yaml").is_file() and (cell.out_dir / "camera.log").is_file()
+    cell.ctrl_c_stops_everything()
+
+
+@pytest.mark.skipif(not (DEMO_BAG / "metadata.yaml").is_file(), reason="needs the recorded bag bags/dome_demo")
+def test_replay_cell_registers_and_matches_the_bag_then_stops_cleanly(probe, cell_run):
+    from stud_welding_msgs.msg import Registration, WeldTargetArray
+
+    from stud_perception import ros_io
+
+    regs, targets = [], []
+    probe.create_subscription(Registration, "/registration/result", regs.append, ros_io.LATCHED_QOS)
+    probe.create_subscription(WeldTargetArray, "/weld_targets", targets.append, ros_io.RESULT_QOS)
+    cell = cell_run("--mode", "replay", "--no-hmi", "--bag", str(DEMO_BAG), "--drawing", str(DEMO_DXF))
+    cell.wait(lambda: cell.running() and any(r.valid for r in regs) and targets, 60,
+              "a valid registration and /weld_targets from the bag", spin=probe.spin)
+    assert any(t.status_text == "ok" for arr in targets for t in arr.targets)
+    cell.wait(lambda: "bag_play exited (exit code 0" in cell.output(), 30, "the end of the bag", spin=probe.spin)
+    assert cell.running()  # the cell outlives its bag
+    assert "not ready after" not in cell.output()  # the bag waited for the layout lines, not for a time-out
+    cell.record_pids()
+    assert set(cell.started) == {"bag_play", "drawing", "registration", "matcher"}
+    cell.ctrl_c_stops_everything()
+
+
+def test_sim_cell_welds_a_headless_job_and_the_sequencers_exit_ends_the_launch(cell_run):
+    """auto_start + exit_when_done: the sequencer (exit_on) finishing the job ends the launch with 0."""
+    cell = cell_run("--mode", "sim", "--no-hmi", "--var", f"arm_port={free_port()}", "--var", "arm_time_scale=0.1",
+                    "--set", "cell_sequencer.auto_start=true", "--set", "cell_sequencer.exit_when_done=true",
+                    "--set", "arm_driver.pulse_s=0.02", "--set", "arm_driver.dwell_s=0.02")
+    cell.wait(lambda: not cell.running(), 90, "the job to end the launch")
+    assert cell.popen.returncode == 0, cell.output()
+    started = cell.record_pids()
+    assert not any(alive(pid) or group_members(pid) for pid in started.values())
+    out = cell.output()
+    assert "cell_sequencer exited (exit code 0" in out and "[launch] summary: cell_sequencer finished; exit code 0" in out
+    report = json.loads((cell.out_dir / "weld_report.json").read_text())
+    assert report["targets"] and all(t["welded"] for t in report["targets"]), report["message"]
+    assert len((cell.out_dir / "weld_journal.jsonl").read_text().splitlines()) >= len(report["targets"])
