@@ -64,7 +64,7 @@ class ChildSpec:
     sequencer that finished the job. ``ready_pattern``: a regular expression; a matching output line
     marks the child ready. ``start_after``: the name(s) of children whose ready lines this one waits
     for before it starts (at most ``start_timeout_s`` seconds; then it starts anyway, with a warning;
-    a child without a ``ready_pattern`` counts as ready once started).
+    a child without a ``ready_pattern`` counts as ready once it has been started).
     """
 
     name: str
@@ -279,7 +279,7 @@ class Launcher:
         return self._exit_code
 
     def _supervise(self) -> None:
-        while True:
+        while not self._stop_reason:  # (a required child may have failed to start already)
             if self._signals:
                 signum = self._signals.pop(0)
                 self._end(f"{signal.Signals(signum).name} received", 0)
@@ -306,7 +306,8 @@ class Launcher:
 
     def _maybe_start_waiting(self, child: _Child, now: float) -> None:
         deps = [self._children[n] for n in child.spec.start_after]
-        not_ready = [d for d in deps if not (d.ready.is_set() or (d.ready_rx is None and d.state == "running"))]
+        # without a ready pattern a dependency is ready once started (it may be a one-shot step that has ended)
+        not_ready = [d for d in deps if not (d.ready.is_set() or (d.ready_rx is None and d.popen is not None))]
         gone = [d for d in not_ready if d.state in ("exited", "skipped")]
         if not not_ready:
             self._start(child)
