@@ -30,6 +30,7 @@ setup(
             "hmi = stud_planner.hmi_node:main",
             "cell_sequencer = stud_planner.cell_sequencer:main",
             "plan = stud_planner.offline_plan:main",
+            "demo = stud_planner.demo:main",
             "cell = stud_planner.cell_launch:main",
         ],
     },

@@ -59,6 +59,8 @@ PARAMS = [
     Param("camera_yaw_deg", 90.0, "image rotation about the optical axis [deg]", min=-360.0, max=360.0),
     Param("camera_tilt_deg", 0.0, "viewing direction tilt from straight down [deg]", min=0.0, max=60.0),
     Param("camera_tilt_azimuth_deg", 0.0, "azimuth the camera leans toward [deg]", min=-360.0, max=360.0),
+    Param("max_pose_age_s", 1.0, "pose_source=arm: refuse a shot when the last /arm/state is older [s]",
+          min=0.01, max=60.0),
     Param("hand_eye_xyz_m", [0.0, 0.0, 0.0], "optical frame origin in the tool frame [m] (pose_source=arm)",
           validate=_three("hand_eye_xyz_m")),
     Param("hand_eye_rpy_deg", [0.0, 0.0, 0.0], "optical frame orientation in the tool frame, roll-pitch-yaw [deg]",
@@ -127,6 +129,7 @@ class CameraNode(Node):
     # -- pose -----------------------------------------------------------------------------------
     def _on_arm_state(self, msg) -> None:
         self._arm_tool_pose = ros_io.pose_to_rt(msg.tool_pose)
+        self._arm_pose_time = self.get_clock().now()
 
     def camera_model(self) -> CameraModel | None:
         p = self.p
@@ -139,6 +142,8 @@ class CameraNode(Node):
             return template.with_pose(template.R_wc, np.asarray(p["camera_xyz_m"], dtype=float))
         if self._arm_tool_pose is None:
             return None
+        if (self.get_clock().now() - self._arm_pose_time).nanoseconds * 1e-9 > p["max_pose_age_s"]:
+            return None  # a stale pose would put the picture somewhere else than the pose says
         R_wt, t_wt = self._arm_tool_pose
         R_tc = rpy_to_matrix(*np.radians(p["hand_eye_rpy_deg"]))
         t_tc = np.asarray(p["hand_eye_xyz_m"], dtype=float)
@@ -149,8 +154,8 @@ class CameraNode(Node):
         with self._lock:
             camera = self.camera_model()
             if camera is None:
-                self.get_logger().warn("no shot: waiting for /arm/state (pose_source=arm)", throttle_duration_sec=5.0)
-                return False, "no camera pose yet: waiting for /arm/state"
+                self.get_logger().warn("no shot: no fresh /arm/state (pose_source=arm)", throttle_duration_sec=5.0)
+                return False, "no fresh camera pose: waiting for /arm/state"
             view = render(self.scene, camera, seed=self.p["seed"] + self._shots,
                           depth_noise_m=self.p["depth_noise_m"], hole_fraction=self.p["hole_fraction"],
                           mark_depth_dropout=self.p["mark_depth_dropout"])

@@ -316,6 +316,11 @@ def spin_node(node_factory: Callable[[], Node], args: list[str] | None = None) -
         pass
     except SystemExit as exc:
         code = int(exc.code or 0)
+    except RuntimeError:
+        # Ctrl-C shuts the context down under a take in progress (a large image arriving):
+        # rclpy then raises from the middle of it. That is a shutdown, not a failure.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()

@@ -254,11 +254,18 @@ class CellSequencer(Node):
 
     def _shoot(self) -> int:
         """One triggered shot; returns the ROS time (ns) taken just before it."""
-        t0 = self.get_clock().now().nanoseconds
-        reply = self._call(self.cli_shot, Trigger.Request(), self.p["step_timeout_s"])
-        if not reply.success:
-            raise JobAborted(f"camera shot failed: {reply.message}")
-        return t0
+        deadline = time.monotonic() + self.p["step_timeout_s"]
+        while True:  # a camera that has no (fresh) pose yet says so: ask again shortly
+            t0 = self.get_clock().now().nanoseconds
+            reply = self._call(self.cli_shot, Trigger.Request(), self.p["step_timeout_s"])
+            if reply.success:
+                return t0
+            if time.monotonic() > deadline:
+                raise JobAborted(f"camera shot failed: {reply.message}")
+            self.get_logger().warn(f"camera refused the shot ({reply.message}); retrying",
+                                   throttle_duration_sec=5.0)
+            self._checkpoint()
+            time.sleep(0.2)
 
     # -- the job --------------------------------------------------------------------------------
     def _run_job(self) -> None:
