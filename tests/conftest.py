@@ -22,3 +22,33 @@ SHARED_DATA = (REPO.parent / "shared" / "data").resolve()
 # runs on one machine (or a developer's running cell) do not see each other.
 os.environ.setdefault("ROS_DOMAIN_ID", str(10 + os.getpid() % 90))  # 0..101 are safe on Linux
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+# Multi-process ROS tests share these (tests/ros/rosproc.py has the process helpers).
+sys.path.insert(0, str(REPO / "tests" / "ros"))
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture()
+def ros_node():
+    """An rclpy context and a probe node for one test; ``node.spin()`` spins it once briefly."""
+    import rclpy
+    from rclpy.node import Node
+
+    rclpy.init()
+    node = Node("pytest_probe")
+    node.spin = lambda: rclpy.spin_once(node, timeout_sec=0.02)
+    try:
+        yield node
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+@pytest.fixture()
+def procs():
+    """Processes (rosproc.Proc) started by a test; all stopped (SIGINT to the group, then SIGKILL) at its end."""
+    started = []
+    yield started
+    for p in reversed(started):
+        p.stop()

@@ -28,18 +28,8 @@ def free_port() -> int:
 
 
 @pytest.fixture()
-def probe():
-    import rclpy
-    from rclpy.node import Node
-
-    rclpy.init()
-    node = Node("cell_probe")
-    node.spin = lambda: rclpy.spin_once(node, timeout_sec=0.05)
-    try:
-        yield node
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+def probe(ros_node):
+    return ros_node
 
 
 class CellRun:
