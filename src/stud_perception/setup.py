@@ -24,6 +24,7 @@ setup(
         "console_scripts": [
             "camera = stud_perception.camera_node:main",
             "registration = stud_perception.registration_node:main",
+            "shot = stud_perception.shot_node:main",
         ],
     },
 )

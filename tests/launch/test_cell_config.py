@@ -40,7 +40,10 @@ def test_shipped_modes_run_the_documented_nodes(cfg):
     assert replay["bag_play"].start_after == ("registration", "matcher")
     hw, _ = plan(cfg, "hardware")
     assert "camera" not in hw and "arm_simulator" not in hw
-    assert hw["arm_driver"].params["arm_ip"] == "192.168.1.18" and hw["arm_driver"].params["publish_camera_pose"]
+    assert hw["arm_driver"].params["arm_ip"] == "192.168.1.18"
+    # a streaming vendor camera becomes triggered shots posed by the arm (the shot node, not the driver)
+    assert "shot" in hw and not hw["arm_driver"].params.get("publish_camera_pose", False)
+    assert hw["shot"].params["hand_eye_xyz_m"] == hw["arm_driver"].params["hand_eye_xyz_m"]
     assert hw["arm_driver"].start_after == ()  # the simulator is not part of this launch
 
 

@@ -68,6 +68,12 @@ PARAMS = [
 ]
 
 
+def camera_pose_from_tool(R_wt: np.ndarray, t_wt: np.ndarray, hand_eye_xyz_m, hand_eye_rpy_deg):
+    """Optical frame in `world` from the weld-tool pose and the hand-eye transform (tool -> optical)."""
+    R_tc = rpy_to_matrix(*np.radians(hand_eye_rpy_deg))
+    return R_wt @ R_tc, R_wt @ np.asarray(hand_eye_xyz_m, dtype=float) + t_wt
+
+
 def depth_image(view, encoding: str, noise_m: float, seed: int) -> np.ndarray:
     """The depth image of a rendered view: 16UC1 mm as rendered, or 32FC1 metres (the exact depth
     with the same holes and Gaussian noise of ``noise_m``, without mm quantisation)."""
@@ -144,10 +150,8 @@ class CameraNode(Node):
             return None
         if (self.get_clock().now() - self._arm_pose_time).nanoseconds * 1e-9 > p["max_pose_age_s"]:
             return None  # a stale pose would put the picture somewhere else than the pose says
-        R_wt, t_wt = self._arm_tool_pose
-        R_tc = rpy_to_matrix(*np.radians(p["hand_eye_rpy_deg"]))
-        t_tc = np.asarray(p["hand_eye_xyz_m"], dtype=float)
-        return template.with_pose(R_wt @ R_tc, R_wt @ t_tc + t_wt)
+        return template.with_pose(*camera_pose_from_tool(*self._arm_tool_pose, p["hand_eye_xyz_m"],
+                                                          p["hand_eye_rpy_deg"]))
 
     # -- shots ------------------------------------------------------------------------------------
     def shoot(self) -> tuple[bool, str]:

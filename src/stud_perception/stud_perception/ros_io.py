@@ -301,17 +301,18 @@ class StampSync:
             self._sets.popitem(last=False)
 
 
-def spin_node(node_factory: Callable[[], Node], args: list[str] | None = None) -> int:
-    """`main()` body shared by our nodes: init, spin, clean shutdown on Ctrl-C (no traceback)."""
+def spin_node(node_factory: Callable[[], Node], args: list[str] | None = None, multithreaded: bool = False) -> int:
+    """`main()` body shared by our nodes: init, spin (``multithreaded`` for nodes whose service
+    callbacks wait on their own subscriptions), clean shutdown on Ctrl-C (no traceback)."""
     import rclpy
-    from rclpy.executors import ExternalShutdownException
+    from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 
     rclpy.init(args=args if args is not None else sys.argv)
     node = None
     code = 0
     try:
         node = node_factory()
-        rclpy.spin(node)
+        rclpy.spin(node, executor=MultiThreadedExecutor(num_threads=4) if multithreaded else None)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except SystemExit as exc:
