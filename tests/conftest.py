@@ -6,6 +6,7 @@ workspace (``source ros2_ws/setup.bash``).
 """
 from __future__ import annotations
 
+import itertools
 import os
 import sys
 from pathlib import Path
@@ -18,15 +19,23 @@ for pkg in ("stud_perception", "stud_planner", "rm65_driver"):
 
 SHARED_DATA = (REPO.parent / "shared" / "data").resolve()
 
-# Keep DDS traffic of this test run on loopback and in a domain of its own, so two
-# runs on one machine (or a developer's running cell) do not see each other.
-os.environ.setdefault("ROS_DOMAIN_ID", str(10 + os.getpid() % 90))  # 0..101 are safe on Linux
+# Keep DDS traffic on loopback, and give every test a domain of its own (below): a node still
+# shutting down from one test must not answer the next, and two runs on one machine (or a
+# developer's running cell) must not see each other.
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+_DOMAIN_BASE = int(os.environ.get("ROS_DOMAIN_ID", str(os.getpid())))
+_domains = itertools.count()
 
 # Multi-process ROS tests share these (tests/ros/rosproc.py has the process helpers).
 sys.path.insert(0, str(REPO / "tests" / "ros"))
 
 import pytest  # noqa: E402
+
+
+@pytest.fixture(autouse=True)
+def _own_dds_domain(monkeypatch):
+    """A fresh ROS_DOMAIN_ID (10..99; 0..101 are safe on Linux) for each test and its child processes."""
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(10 + (_DOMAIN_BASE + next(_domains)) % 90))
 
 
 @pytest.fixture()

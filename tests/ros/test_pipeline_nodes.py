@@ -23,7 +23,7 @@ DEMO_SCENE = REPO / "src" / "stud_perception" / "config" / "dome_scene.json"
 @pytest.mark.parametrize("algorithm, yaw_deg, tilt_deg, height_m, encoding, noise_m, normal_tol_deg", [
     ("batch", 90.0, 0.0, 0.60, "32FC1", 0.0, 1.0),
     ("fpm", 90.0, 0.0, 0.60, "32FC1", 0.0, 1.0),
-    ("batch", 137.0, 10.0, 0.65, "16UC1", 0.0005, 1.5),
+    ("batch", 137.0, 10.0, 0.65, "16UC1", 0.0005, 2.0),
 ])
 def test_targets_from_the_node_graph_match_the_scene_truth(ros_node, procs, tmp_path, algorithm, yaw_deg, tilt_deg,
                                                            height_m, encoding, noise_m, normal_tol_deg):

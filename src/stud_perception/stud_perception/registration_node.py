@@ -45,6 +45,7 @@ class RegistrationNode(Node):
         self.p = ros_io.declare_params(self, PARAMS)
         self.layout: StudLayout | None = None
         self.armed = True  # register on the next complete view
+        self._pending: dict | None = None  # the last view that came before the layout
         self._last_reason = ""
         self.pub_result = self.create_publisher(Registration, "/registration/result", ros_io.LATCHED_QOS)
         self.pub_overlay = self.create_publisher(Image, "/registration/overlay", ros_io.RESULT_QOS)
@@ -65,6 +66,9 @@ class RegistrationNode(Node):
         self.armed = True  # a new drawing needs a new registration
         self.get_logger().info(f"layout '{msg.source_file}': marks |OA|={msg.mark_a.x * 1e3:.1f} mm, "
                                f"mark diameter {msg.mark_diameter * 1e3:.1f} mm")
+        if self._pending is not None:  # the board view may have come first (bag replay, slow drawing node)
+            view, self._pending = self._pending, None
+            self._on_view(view)
 
     def _on_trigger(self, _req, resp):
         self.armed = True
@@ -74,6 +78,7 @@ class RegistrationNode(Node):
     def _on_view(self, view: dict) -> None:
         if self.layout is None:
             self.get_logger().info("view received, waiting for /drawing/layout", throttle_duration_sec=10.0)
+            self._pending = view
             return
         if not (self.armed or self.p["continuous"]):
             return

@@ -67,6 +67,7 @@ class MatcherNode(Node):
         self.layout: StudLayout | None = None
         self.registration: Registration | None = None
         self.view_index = 0
+        self._pending: dict | None = None  # the last view that came before the layout or registration
         self._arrivals: dict[str, deque] = {k: deque(maxlen=20) for k in ("color", "depth", "info", "pose")}
         self.pub_targets = self.create_publisher(WeldTargetArray, "/weld_targets", ros_io.RESULT_QOS)
         self.pub_poses = self.create_publisher(PoseArray, "/weld_targets/poses", ros_io.RESULT_QOS)
@@ -93,6 +94,10 @@ class MatcherNode(Node):
         self.registration = msg
         if not msg.valid:
             self.get_logger().warn(f"registration not valid: {msg.message}", throttle_duration_sec=10.0)
+            return
+        if self._pending is not None:  # a view that came just before its registration
+            view, self._pending = self._pending, None
+            self._on_view(view)
 
     def _on_input(self, name: str, msg) -> None:
         self._arrivals[name].append(time.monotonic())
@@ -126,7 +131,9 @@ class MatcherNode(Node):
         if reason:
             self.get_logger().info(reason, throttle_duration_sec=5.0)
             self.diag.set(self.diag.WARN, reason)
+            self._pending = view
             return
+        self._pending = None
         try:
             camera = ros_io.camera_model_from_msgs(view["info"], view["pose"].pose)
             depth = ros_io.depth_to_metres(view["depth"])
