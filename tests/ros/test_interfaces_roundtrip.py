@@ -80,6 +80,11 @@ def test_weld_job_action_goal_feedback_and_result_round_trip(echo_process):
         client = ActionClient(node, WeldJob, "/rt/weld_job")
         spin = lambda: rclpy.spin_once(node, timeout_sec=0.05)  # noqa: E731
         wait_for(lambda: client.server_is_ready(), 30, spin=spin, what="WeldJob server")
+        # A warm-up goal: "server ready" means its services are matched, not yet the feedback topic.
+        warm = client.send_goal_async(WeldJob.Goal(targets=[_target(9)]))
+        wait_for(warm.done, 30, spin=spin, what="warm-up goal")
+        warm_result = warm.result().get_result_async()
+        wait_for(warm_result.done, 30, spin=spin, what="warm-up result")
         feedback: list[WeldJob.Feedback] = []
         goal = WeldJob.Goal(targets=[_target(1), _target(2), _target(3)], resume=True)
         future = client.send_goal_async(goal, feedback_callback=lambda fb: feedback.append(fb.feedback))
