@@ -31,7 +31,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from stud_perception import ros_io
 from stud_perception.ros_io import Param
-from stud_planner.msg_convert import layout_from_msg, registration_from_msg, weld_target_msg
+from stud_planner.msg_convert import layout_from_msg, registration_from_msg, weld_target_msgs
 from stud_planner.view_planning import (ALGORITHMS, STATUS_BGR, STATUS_OUT_OF_VIEW, PlannerConfig,
                                         draw_targets_overlay, plan_view)
 
@@ -154,13 +154,7 @@ class MatcherNode(Node):
         out = WeldTargetArray(algorithm=targets.algorithm, match_time=float(targets.match_time_s),
                               total_iterations=int(targets.matches.total_iterations), view_index=self.view_index)
         out.header.stamp, out.header.frame_id = stamp, "world"
-        texts = targets.status_text
-        for i, sid in enumerate(targets.ids):
-            out.targets.append(weld_target_msg(
-                sid, targets.drawing_xy_m[i], targets.position_w[i], targets.normal_w[i], _quat(targets.quat_xyzw[i]),
-                targets.matches.pixel_uv[i], self.view_index, targets.matches.iterations[i],
-                targets.matches.xy_residual_m[i], targets.inclination_deg[i], targets.normal_rms_m[i],
-                targets.status[i], texts[i]))
+        out.targets = weld_target_msgs(targets, self.view_index)
         self.pub_targets.publish(out)  # first: it is what the cell waits for
         # Visualisation topics are built only when somebody listens (a MarkerArray of 100 arrows
         # costs more than the matching itself).
@@ -208,10 +202,6 @@ class MatcherNode(Node):
             else:
                 self.diag.values[f"{name}_age_s"] = "never received"
         self.diag.publish()
-
-
-def _quat(q: np.ndarray) -> np.ndarray:
-    return q if np.all(np.isfinite(q)) else np.array([0.0, 0.0, 0.0, 1.0])
 
 
 def main(args=None) -> int:

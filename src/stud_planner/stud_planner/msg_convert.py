@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from geometry_msgs.msg import Point, Pose, PoseArray, Quaternion, Vector3
+from geometry_msgs.msg import Point, Pose, PoseArray, Quaternion
 from stud_welding_msgs.msg import Registration, Stud, StudLayout, WeldTarget
 
 from stud_planner import dxf_layout
@@ -64,24 +64,28 @@ def registration_from_msg(msg: Registration) -> np.ndarray:
     return np.asarray(msg.m_local2world, dtype=np.float64).reshape(3, 3)
 
 
-def weld_target_msg(stud_id: str, drawing_xy_m, position_w, normal_w, quat_xyzw, pixel_uv, view_index: int,
-                    iterations: int, xy_error_m: float, inclination_deg: float, normal_rms_m: float,
-                    status: int, status_text: str) -> WeldTarget:
-    """One WeldTarget; NaN positions (no match) are sent as NaN so nobody mistakes them for 0."""
-    t = WeldTarget()
-    t.stud_id = stud_id
-    t.drawing_x, t.drawing_y = float(drawing_xy_m[0]), float(drawing_xy_m[1])
-    p = [float(v) for v in position_w]
-    n = [float(v) for v in normal_w]
-    q = [float(v) for v in quat_xyzw]
-    t.pose = Pose(position=Point(x=p[0], y=p[1], z=p[2]), orientation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3]))
-    t.normal = Vector3(x=n[0], y=n[1], z=n[2])
-    t.pixel_u, t.pixel_v = float(pixel_uv[0]), float(pixel_uv[1])
-    t.view_index = int(view_index)
-    t.iterations = int(iterations)
-    t.xy_error = float(xy_error_m)
-    t.inclination = float(inclination_deg)
-    t.normal_rms = float(normal_rms_m)
-    t.status = int(status)
-    t.status_text = status_text
-    return t
+def weld_target_msgs(targets, view_index: int) -> list[WeldTarget]:
+    """All WeldTargets of a view_planning.ViewTargets, in stud order. NaN positions (no match) are
+    sent as NaN so nobody mistakes them for 0; a NaN orientation becomes the identity.
+
+    The hot path of the matcher node: arrays become Python lists once, and each message's own
+    nested fields are filled in place (creating Pose/Point/... objects per stud cost more than the
+    matching itself)."""
+    quat = targets.quat_xyzw.copy()
+    quat[~np.all(np.isfinite(quat), axis=1)] = (0.0, 0.0, 0.0, 1.0)
+    columns = zip(targets.ids, targets.drawing_xy_m.tolist(), targets.position_w.tolist(),
+                  targets.normal_w.tolist(), quat.tolist(), targets.matches.pixel_uv.tolist(),
+                  targets.matches.iterations.tolist(), targets.matches.xy_residual_m.tolist(),
+                  targets.inclination_deg.tolist(), targets.normal_rms_m.tolist(), targets.status.tolist(),
+                  targets.status_text)
+    out = []
+    for sid, dxy, p, n, q, uv, it, err, incl, rms, status, text in columns:
+        t = WeldTarget(stud_id=sid, drawing_x=dxy[0], drawing_y=dxy[1], pixel_u=uv[0], pixel_v=uv[1],
+                       view_index=view_index, iterations=it, xy_error=err, inclination=incl, normal_rms=rms,
+                       status=status, status_text=text)
+        pos, ori, nrm = t.pose.position, t.pose.orientation, t.normal
+        pos.x, pos.y, pos.z = p
+        ori.x, ori.y, ori.z, ori.w = q
+        nrm.x, nrm.y, nrm.z = n
+        out.append(t)
+    return out
