@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stud_perception.rotations import rpy_to_matrix
+
 # --------------------------------------------------------------------------------------------
 # Model data (RM65_PROTOCOL.md §4.1 / §4.2)
 # --------------------------------------------------------------------------------------------
@@ -71,17 +73,9 @@ class DHModel:
 
 
 def euler_zyx_to_matrix(rx: float, ry: float, rz: float) -> np.ndarray:
-    """``Rz(rz) · Ry(ry) · Rx(rx)`` (3x3) — the RealMan ``[rx, ry, rz]`` convention."""
-    cx, sx = np.cos(rx), np.sin(rx)
-    cy, sy = np.cos(ry), np.sin(ry)
-    cz, sz = np.cos(rz), np.sin(rz)
-    return np.array(
-        [
-            [cz * cy, cz * sy * sx - sz * cx, cz * sy * cx + sz * sx],
-            [sz * cy, sz * sy * sx + cz * cx, sz * sy * cx - cz * sx],
-            [-sy, cy * sx, cy * cx],
-        ]
-    )
+    """``Rz(rz) · Ry(ry) · Rx(rx)`` (3x3) — the RealMan ``[rx, ry, rz]`` convention, which is
+    REP 103's roll-pitch-yaw (one implementation: stud_perception.rotations)."""
+    return rpy_to_matrix(rx, ry, rz)
 
 
 def matrix_to_euler_zyx(R: np.ndarray) -> np.ndarray:

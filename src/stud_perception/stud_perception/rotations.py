@@ -22,25 +22,34 @@ def quaternion_to_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
     ])
 
 
-def matrix_to_quaternion(R: np.ndarray) -> tuple[float, float, float, float]:
-    """Rotation matrix -> (x, y, z, w) with w >= 0 (Shepperd's method, stable for all angles)."""
+def matrix_to_quaternion(R: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) -> unit quaternions (..., 4) as (x, y, z, w), w >= 0.
+
+    Shepperd's method: pick the largest of w, x, y, z to divide by, so it is stable everywhere.
+    """
     R = np.asarray(R, dtype=np.float64)
-    t = np.trace(R)
-    if t > 0:
-        s = math.sqrt(t + 1.0) * 2
-        w, x, y, z = 0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s
-    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
-        s = math.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2]) * 2
-        w, x, y, z = (R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s
-    elif R[1, 1] > R[2, 2]:
-        s = math.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2]) * 2
-        w, x, y, z = (R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s
-    else:
-        s = math.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1]) * 2
-        w, x, y, z = (R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s
-    if w < 0:
-        x, y, z, w = -x, -y, -z, -w
-    return float(x), float(y), float(z), float(w)
+    m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
+    tr = m00 + m11 + m22
+    cand = np.stack([tr, m00, m11, m22], axis=-1)
+    k = np.argmax(cand, axis=-1)
+    q = np.empty(R.shape[:-2] + (4,))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # w largest
+        s = np.sqrt(np.maximum(1.0 + tr, 0.0)) * 2
+        qw = np.stack([(R[..., 2, 1] - R[..., 1, 2]) / s, (R[..., 0, 2] - R[..., 2, 0]) / s,
+                       (R[..., 1, 0] - R[..., 0, 1]) / s, 0.25 * s], axis=-1)
+        s = np.sqrt(np.maximum(1.0 + m00 - m11 - m22, 0.0)) * 2
+        qx = np.stack([0.25 * s, (R[..., 0, 1] + R[..., 1, 0]) / s, (R[..., 0, 2] + R[..., 2, 0]) / s,
+                       (R[..., 2, 1] - R[..., 1, 2]) / s], axis=-1)
+        s = np.sqrt(np.maximum(1.0 - m00 + m11 - m22, 0.0)) * 2
+        qy = np.stack([(R[..., 0, 1] + R[..., 1, 0]) / s, 0.25 * s, (R[..., 1, 2] + R[..., 2, 1]) / s,
+                       (R[..., 0, 2] - R[..., 2, 0]) / s], axis=-1)
+        s = np.sqrt(np.maximum(1.0 - m00 - m11 + m22, 0.0)) * 2
+        qz = np.stack([(R[..., 0, 2] + R[..., 2, 0]) / s, (R[..., 1, 2] + R[..., 2, 1]) / s, 0.25 * s,
+                       (R[..., 1, 0] - R[..., 0, 1]) / s], axis=-1)
+    q = np.choose(k[..., None], [qw, qx, qy, qz])
+    q = np.where(q[..., 3:4] < 0, -q, q)
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
 def rpy_to_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:

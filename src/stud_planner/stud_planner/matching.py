@@ -258,6 +258,17 @@ def _depth_at_subpixel(
 # ---------------------------------------------------------------------------------------------
 # BFS: the paper's baseline
 # ---------------------------------------------------------------------------------------------
+def _store_best_pixel(out: dict, k: int, best: tuple, camera: CameraModel) -> None:
+    """Write the best pixel a per-pixel search found for stud ``k`` (BFS and FPM): its pixel, its
+    Eq. 1 point, XY residual and hole rule. ``best`` = (dist, u, v, z, rule), u < 0 when none."""
+    dist, u, v, z, rule = best
+    if u >= 0:
+        out["pixel_uv"][k] = (u, v)
+        out["point_w"][k] = camera.pixel_to_world(u, v, z)
+        out["xy_residual_m"][k] = dist
+        out["hole_rule"][k] = rule
+
+
 def match_bfs(
     targets_xy_w,
     depth_m: np.ndarray,
@@ -314,12 +325,7 @@ def match_bfs(
             if found or evaluated >= limit:
                 break
         out["iterations"][k] = evaluated
-        dist, u, v, z, rule = best
-        if u >= 0:
-            out["pixel_uv"][k] = (u, v)
-            out["point_w"][k] = camera.pixel_to_world(u, v, z)
-            out["xy_residual_m"][k] = dist
-            out["hole_rule"][k] = rule
+        _store_best_pixel(out, k, best, camera)
         if found:
             out["status"][k] = MatchStatus.OK
         elif lo[k] > hi[k]:
@@ -466,12 +472,7 @@ def match_fpm(
                     found = True
                     break
         out["iterations"][k] = iterations
-        dist, u, v, z, rule = best
-        if u >= 0:
-            out["pixel_uv"][k] = (u, v)
-            out["point_w"][k] = camera.pixel_to_world(u, v, z)
-            out["xy_residual_m"][k] = dist
-            out["hole_rule"][k] = rule
+        _store_best_pixel(out, k, best, camera)
         if found:
             out["status"][k] = MatchStatus.OK
         elif lo[k] > hi[k]:

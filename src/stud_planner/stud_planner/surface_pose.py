@@ -21,6 +21,7 @@ from enum import IntEnum
 import numpy as np
 
 from stud_perception.camera_model import CameraModel
+from stud_perception.rotations import matrix_to_quaternion as quaternion_from_matrix
 
 #: Paper: M16x150 shear stud, tool-top offset along the normal.
 M16X150_TOP_OFFSET_M = 0.013
@@ -103,36 +104,6 @@ def frame_from_normal(normal_w: np.ndarray) -> np.ndarray:
     x = x / np.linalg.norm(x, axis=-1, keepdims=True)
     y = np.cross(n, x)
     return np.stack([x, y, n], axis=-1)
-
-
-def quaternion_from_matrix(R: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) -> unit quaternions (..., 4) as (x, y, z, w), w >= 0.
-
-    Shepperd's method: pick the largest of w, x, y, z to divide by, so it is stable everywhere.
-    """
-    R = np.asarray(R, dtype=np.float64)
-    m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
-    tr = m00 + m11 + m22
-    cand = np.stack([tr, m00, m11, m22], axis=-1)
-    k = np.argmax(cand, axis=-1)
-    q = np.empty(R.shape[:-2] + (4,))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        # w largest
-        s = np.sqrt(np.maximum(1.0 + tr, 0.0)) * 2
-        qw = np.stack([(R[..., 2, 1] - R[..., 1, 2]) / s, (R[..., 0, 2] - R[..., 2, 0]) / s,
-                       (R[..., 1, 0] - R[..., 0, 1]) / s, 0.25 * s], axis=-1)
-        s = np.sqrt(np.maximum(1.0 + m00 - m11 - m22, 0.0)) * 2
-        qx = np.stack([0.25 * s, (R[..., 0, 1] + R[..., 1, 0]) / s, (R[..., 0, 2] + R[..., 2, 0]) / s,
-                       (R[..., 2, 1] - R[..., 1, 2]) / s], axis=-1)
-        s = np.sqrt(np.maximum(1.0 - m00 + m11 - m22, 0.0)) * 2
-        qy = np.stack([(R[..., 0, 1] + R[..., 1, 0]) / s, 0.25 * s, (R[..., 1, 2] + R[..., 2, 1]) / s,
-                       (R[..., 0, 2] - R[..., 2, 0]) / s], axis=-1)
-        s = np.sqrt(np.maximum(1.0 - m00 - m11 + m22, 0.0)) * 2
-        qz = np.stack([(R[..., 0, 2] + R[..., 2, 0]) / s, (R[..., 1, 2] + R[..., 2, 1]) / s, 0.25 * s,
-                       (R[..., 1, 0] - R[..., 0, 1]) / s], axis=-1)
-    q = np.choose(k[..., None], [qw, qx, qy, qz])
-    q = np.where(q[..., 3:4] < 0, -q, q)
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
 def quaternion_from_normal(normal_w: np.ndarray) -> np.ndarray:
