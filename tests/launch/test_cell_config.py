@@ -36,7 +36,12 @@ def test_shipped_modes_run_the_documented_nodes(cfg):
     assert sim["cell_sequencer"].exit_on and sim["drawing"].required
     replay, _ = plan(cfg, "replay", cli_vars={"bag": "/bags/run1"})
     assert list(replay) == ["bag_play", "drawing", "registration", "matcher", "hmi"]
-    assert replay["bag_play"].argv == ["ros2", "bag", "play", "/bags/run1", "--delay", "2.0"]
+    assert replay["bag_play"].argv[:7] == ["ros2", "bag", "play", "/bags/run1", "--delay", "1.0",
+                                           "--wait-for-subscribers"]
+    # only the sensor topics: the cell's own drawing and registration nodes publish the rest
+    played = replay["bag_play"].argv[replay["bag_play"].argv.index("--topics") + 1:]
+    assert sorted(played) == ["/camera/color/camera_info", "/camera/color/image_raw", "/camera/depth/image_raw",
+                              "/camera/pose"]
     assert replay["bag_play"].start_after == ("registration", "matcher")
     hw, _ = plan(cfg, "hardware")
     assert "camera" not in hw and "arm_simulator" not in hw
