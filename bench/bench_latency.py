@@ -11,6 +11,7 @@ Run: source ros2_ws/setup.bash && python bench/bench_latency.py [--studs 100] [-
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import subprocess
 import sys
@@ -39,7 +40,8 @@ def main() -> int:
     ap.add_argument("--studs", type=int, default=100)
     ap.add_argument("--frames", type=int, default=200)
     ap.add_argument("--algorithm", default="batch", choices=("batch", "fpm"))
-    ap.add_argument("--overlay", action="store_true", help="let the matcher publish its overlay image too")
+    ap.add_argument("--overlay", action="store_true",
+                    help="subscribe to /weld_targets/overlay (as an open HMI does): the matcher then takes colour too")
     args = ap.parse_args()
     os.environ.setdefault("ROS_DOMAIN_ID", str(10 + os.getpid() % 90))
 
@@ -48,8 +50,7 @@ def main() -> int:
     cam = cam.with_pose(cam.R_wc, np.array([0.28, 0.10, 0.5]))
     view = render(scene, cam, seed=1, depth_noise_m=0.0005)
     matcher = subprocess.Popen(["ros2", "run", "stud_planner", "matcher", "--ros-args", "-p",
-                                f"algorithm:={args.algorithm}", "-p", f"publish_overlay:={str(args.overlay).lower()}",
-                                "--log-level", "warn"], start_new_session=True)
+                                f"algorithm:={args.algorithm}", "--log-level", "warn"], start_new_session=True)
     rclpy.init()
     node = Node("bench_latency")
     try:
@@ -68,13 +69,20 @@ def main() -> int:
         node.create_subscription(WeldTargetArray, "/weld_targets",
                                  lambda m: arrivals.setdefault(ros_io.stamp_to_ns(m.header.stamp),
                                                                (time.perf_counter(), m)), ros_io.RESULT_QOS)
+        overlays = []
+        if args.overlay:
+            from sensor_msgs.msg import Image
+            node.create_subscription(Image, "/weld_targets/overlay", overlays.append, ros_io.RESULT_QOS)
         deadline = time.monotonic() + 30
-        while node.count_subscribers("/camera/depth/image_raw") < 1 or node.count_publishers("/weld_targets") < 1:
+        while (node.count_subscribers("/camera/depth/image_raw") < 1 or node.count_publishers("/weld_targets") < 1
+               or (args.overlay and node.count_subscribers("/camera/color/image_raw") < 1)):
             rclpy.spin_once(node, timeout_sec=0.1)
             if time.monotonic() > deadline:
                 print("matcher did not come up", file=sys.stderr)
                 return 1
         template = shot_messages(view, "16UC1", ros_io.ns_to_stamp(0))
+        gc.collect()
+        gc.freeze()  # the measuring subscriber's own full collections are not the matcher's latency
         latencies, compute = [], []
         warmup = 5
         for k in range(args.frames + warmup):
@@ -102,6 +110,8 @@ def main() -> int:
               f"{len(lat)} frames (after {warmup} warm-up), overlay {'on' if args.overlay else 'off'}:")
         print(f"  depth published -> /weld_targets received: p50 {np.percentile(lat, 50):.1f} ms, "
               f"p90 {np.percentile(lat, 90):.1f} ms, p99 {np.percentile(lat, 99):.1f} ms, max {lat.max():.1f} ms")
+        if args.overlay:
+            print(f"  overlays received: {len(overlays)} of {args.frames + warmup} frames")
         print(f"  of which matching (match_time): p50 {np.percentile(compute, 50):.2f} ms, "
               f"p99 {np.percentile(compute, 99):.2f} ms   (target: p99 <= 30 ms)")
         return 0

@@ -117,12 +117,16 @@ class CameraModel:
 
         Invalid depth (NaN) propagates as NaN.
         """
-        P_c = self.pixel_to_camera(u, v, depth_m)
-        return P_c @ self.R_wc.T + self.t_wc
+        u, v, z = np.broadcast_arrays(np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64),
+                                      np.asarray(depth_m, dtype=np.float64))
+        x = (u - self.cx) * (z / self.fx)
+        y = (v - self.cy) * (z / self.fy)
+        return _rotate_translate(self.R_wc, (x, y, z), self.t_wc)
 
     def world_to_camera(self, P_w) -> np.ndarray:
         P_w = np.asarray(P_w, dtype=np.float64)
-        return (P_w - self.t_wc) @ self.R_wc
+        d = [P_w[..., i] - self.t_wc[i] for i in range(3)]
+        return _rotate_translate(self.R_wc.T, d, np.zeros(3))
 
     def world_to_pixel(self, P_w) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """World points (..., 3) -> (u, v, z_cam). Points behind the camera give NaN u, v."""
@@ -146,6 +150,18 @@ class CameraModel:
             & (u >= margin) & (v >= margin)
             & (u <= self.width - 1 - margin) & (v <= self.height - 1 - margin)
         )
+
+
+def _rotate_translate(R: np.ndarray, xyz, t: np.ndarray) -> np.ndarray:
+    """``R @ [x y z]^T + t`` for component arrays x, y, z of one shape -> (..., 3).
+
+    Written out per component: for many points this is several times faster than a matmul of an
+    (..., 3) stack with a 3x3 matrix, which numpy does not hand to BLAS as one call."""
+    x, y, z = xyz
+    out = np.empty(np.shape(x) + (3,))
+    for i in range(3):
+        out[..., i] = R[i, 0] * x + R[i, 1] * y + R[i, 2] * z + t[i]
+    return out
 
 
 def nadir_rotation(yaw_rad: float = 0.0) -> np.ndarray:

@@ -1,8 +1,8 @@
 """FPM matcher node: `ros2 run stud_planner matcher`.
 
-For every synchronised RGB-D view (colour, depth, camera info, ``/camera/pose``; images with
-sensor-data QoS so best-effort camera drivers work) with a layout (``/drawing/layout``) and a
-valid registration (``/registration/result``): drawing -> world XY (Eq. 2), match each stud
+For every synchronised view (depth, camera info, ``/camera/pose``; images with sensor-data QoS so
+best-effort camera drivers work) with a layout (``/drawing/layout``) and a valid registration
+(``/registration/result``): drawing -> world XY (Eq. 2), match each stud
 with the ``algorithm`` parameter (``batch`` default, ``fpm``, ``bfs`` the paper's baselines),
 estimate the surface pose, and publish
 
@@ -12,6 +12,12 @@ estimate the surface pose, and publish
 * ``/weld_targets/overlay`` (the colour image with matched pixels and ids, the paper's Fig. 11),
 * ``/diagnostics`` (input ages and rates, last match time, counts by status).
 
+Colour is needed only for the overlay, so the node subscribes to ``/camera/color/image_raw`` only
+while ``/weld_targets/overlay`` has a subscriber (and ``publish_overlay`` is true), and the colour
+never holds back ``/weld_targets``: the overlay of a view follows when its colour image (same stamp)
+arrives. A 1280x960 colour frame costs as much transport as the matching (the lazy subscription of
+ROS image pipelines).
+
 Missing inputs give a throttled "waiting for ..." log; a registration older than
 ``max_registration_age_s`` (measured between stamps) is stale: nothing is published and
 the reason is logged.
@@ -19,10 +25,11 @@ the reason is logged.
 from __future__ import annotations
 
 import time
-from collections import deque
+from collections import OrderedDict, deque
 
 import numpy as np
 from geometry_msgs.msg import Point, PoseArray, PoseStamped, Vector3
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import ColorRGBA
@@ -63,25 +70,31 @@ class MatcherNode(Node):
         params = [p if p.name not in _ODD else Param(p.name, p.default, p.description, p.min, p.max,
                                                      validate=lambda v, n=p.name: None if v % 2 else f"{n}={v}: must be odd")
                   for p in PARAMS]
-        self.p = ros_io.declare_params(self, params)
+        self.p = ros_io.declare_params(self, params, on_change=lambda _changes: self._update_color_subscription())
         self.layout: StudLayout | None = None
         self.registration: Registration | None = None
         self.view_index = 0
         self._pending: dict | None = None  # the last view that came before the layout or registration
         self._arrivals: dict[str, deque] = {k: deque(maxlen=20) for k in ("color", "depth", "info", "pose")}
+        self._color_sub = None  # only while the overlay has a subscriber
+        self._colors: OrderedDict[int, Image] = OrderedDict()  # stamp ns -> colour image, newest last
+        self._overlays_due: OrderedDict[int, tuple] = OrderedDict()  # stamp ns -> (targets, camera) awaiting colour
         self.pub_targets = self.create_publisher(WeldTargetArray, "/weld_targets", ros_io.RESULT_QOS)
         self.pub_poses = self.create_publisher(PoseArray, "/weld_targets/poses", ros_io.RESULT_QOS)
         self.pub_markers = self.create_publisher(MarkerArray, "/weld_targets/markers", ros_io.RESULT_QOS)
-        self.pub_overlay = self.create_publisher(Image, "/weld_targets/overlay", ros_io.RESULT_QOS)
+        self.pub_overlay = self.create_publisher(
+            Image, "/weld_targets/overlay", ros_io.RESULT_QOS,
+            event_callbacks=PublisherEventCallbacks(matched=lambda _info: self._update_color_subscription()))
         self.diag = ros_io.Diagnostics(self)
         self.diag.set(self.diag.WARN, "waiting for inputs")
         self.create_timer(1.0, self._publish_diagnostics)
         self.create_subscription(StudLayout, "/drawing/layout", self._on_layout, ros_io.LATCHED_QOS)
         self.create_subscription(Registration, "/registration/result", self._on_registration, ros_io.LATCHED_QOS)
-        self.sync = ros_io.StampSync(list(self._arrivals), self._on_view, slop_ns=int(self.p["sync_slop_s"] * 1e9))
-        for name, topic, typ in (("color", "/camera/color/image_raw", Image), ("depth", "/camera/depth/image_raw", Image),
+        self.sync = ros_io.StampSync(["depth", "info", "pose"], self._on_view, slop_ns=int(self.p["sync_slop_s"] * 1e9))
+        for name, topic, typ in (("depth", "/camera/depth/image_raw", Image),
                                  ("info", "/camera/color/camera_info", CameraInfo), ("pose", "/camera/pose", PoseStamped)):
             self.create_subscription(typ, topic, lambda m, n=name: self._on_input(n, m), ros_io.SENSOR_QOS)
+        self._update_color_subscription()
         self.get_logger().info(f"matcher '{self.p['algorithm']}' waiting for /drawing/layout, /registration/result "
                                "and synchronised RGB-D views")
 
@@ -102,6 +115,37 @@ class MatcherNode(Node):
     def _on_input(self, name: str, msg) -> None:
         self._arrivals[name].append(time.monotonic())
         self.sync.add(name, msg)
+
+    def _update_color_subscription(self) -> None:
+        """Subscribe to colour while the overlay is wanted and watched; unsubscribe otherwise."""
+        wanted = bool(self.p["publish_overlay"]) and self.pub_overlay.get_subscription_count() > 0
+        if wanted and self._color_sub is None:
+            self._color_sub = self.create_subscription(Image, "/camera/color/image_raw", self._on_color,
+                                                       ros_io.SENSOR_QOS)
+            self.get_logger().info("/weld_targets/overlay has a subscriber: subscribing to /camera/color/image_raw")
+        elif not wanted and self._color_sub is not None:
+            self.destroy_subscription(self._color_sub)
+            self._color_sub = None
+            self._colors.clear()
+            self._overlays_due.clear()
+            self.get_logger().info("no overlay wanted: unsubscribed from /camera/color/image_raw")
+
+    def _on_color(self, msg: Image) -> None:
+        self._arrivals["color"].append(time.monotonic())
+        stamp = ros_io.stamp_to_ns(msg.header.stamp)
+        due = self._pop_near(self._overlays_due, stamp)
+        if due is not None:
+            self._publish_overlay(*due, msg)
+            return
+        self._colors[stamp] = msg
+        while len(self._colors) > 5:
+            self._colors.popitem(last=False)
+
+    def _pop_near(self, items: OrderedDict, stamp_ns: int):
+        """Remove and return the entry whose stamp is within ``sync_slop_s`` of ``stamp_ns`` (or None)."""
+        slop = int(self.p["sync_slop_s"] * 1e9)
+        key = next((k for k in items if abs(k - stamp_ns) <= slop), None)
+        return None if key is None else items.pop(key)
 
     def planner_config(self) -> PlannerConfig:
         p = self.p
@@ -164,10 +208,15 @@ class MatcherNode(Node):
             self.pub_poses.publish(poses)
         if self.pub_markers.get_subscription_count():
             self.pub_markers.publish(self._markers(out))
-        if self.p["publish_overlay"] and self.pub_overlay.get_subscription_count():
-            color = ros_io.color_to_bgr(view["color"])
-            self.pub_overlay.publish(ros_io.numpy_to_image(draw_targets_overlay(color, targets, camera), "bgr8",
-                                                           stamp, view["color"].header.frame_id))
+        if self._color_sub is not None:  # the overlay, now or when the view's colour image arrives
+            stamp_ns = ros_io.stamp_to_ns(stamp)
+            color = self._pop_near(self._colors, stamp_ns)
+            if color is not None:
+                self._publish_overlay(targets, camera, color)
+            else:
+                self._overlays_due[stamp_ns] = (targets, camera)
+                while len(self._overlays_due) > 5:
+                    self._overlays_due.popitem(last=False)
         counts = targets.counts()
         summary = (f"view {self.view_index}: {counts.get('ok', 0)}/{len(targets.ids)} ok "
                    f"({', '.join(f'{k} {v}' for k, v in sorted(counts.items()) if k != 'ok') or 'no failures'}), "
@@ -175,6 +224,15 @@ class MatcherNode(Node):
         self.get_logger().info(summary)
         self.diag.set(self.diag.OK, summary, last_match_time_ms=f"{targets.match_time_s * 1e3:.2f}",
                       **{f"count_{k}": v for k, v in counts.items()})
+
+    def _publish_overlay(self, targets, camera, color_msg: Image) -> None:
+        try:
+            color = ros_io.color_to_bgr(color_msg)
+        except (ros_io.MessageError, ValueError) as exc:
+            self.get_logger().warn(f"no overlay: unusable colour image: {exc}", throttle_duration_sec=10.0)
+            return
+        self.pub_overlay.publish(ros_io.numpy_to_image(draw_targets_overlay(color, targets, camera), "bgr8",
+                                                       color_msg.header.stamp, color_msg.header.frame_id))
 
     @staticmethod
     def _markers(arr: WeldTargetArray) -> MarkerArray:
@@ -193,6 +251,7 @@ class MatcherNode(Node):
         return markers
 
     def _publish_diagnostics(self) -> None:
+        self._update_color_subscription()  # in case a matched event was missed
         now = time.monotonic()
         for name, times in self._arrivals.items():
             if times:
@@ -200,7 +259,8 @@ class MatcherNode(Node):
                 self.diag.values[f"{name}_age_s"] = f"{now - times[-1]:.2f}"
                 self.diag.values[f"{name}_rate_hz"] = f"{rate:.2f}"
             else:
-                self.diag.values[f"{name}_age_s"] = "never received"
+                self.diag.values[f"{name}_age_s"] = ("not subscribed (no overlay subscriber)"
+                                                     if name == "color" and self._color_sub is None else "never received")
         self.diag.publish()
 
 
