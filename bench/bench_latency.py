@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import gc
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -83,6 +84,9 @@ def main() -> int:
         template = shot_messages(view, "16UC1", ros_io.ns_to_stamp(0))
         gc.collect()
         gc.freeze()  # the measuring subscriber's own full collections are not the matcher's latency
+        # this process stands in for a camera driver, which reuses its image buffers (the matcher
+        # does the same through ros_io.spin_node)
+        ros_io.keep_freed_memory()
         latencies, compute = [], []
         warmup = 5
         for k in range(args.frames + warmup):
@@ -118,8 +122,13 @@ def main() -> int:
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
-        os.killpg(matcher.pid, 2)
-        matcher.wait(timeout=15)
+        os.killpg(matcher.pid, signal.SIGINT)
+        try:
+            matcher.wait(timeout=15)
+        except subprocess.TimeoutExpired:  # never leave a matcher behind to skew the next run
+            print("matcher did not stop within 15 s of SIGINT: killed", file=sys.stderr)
+            os.killpg(matcher.pid, signal.SIGKILL)
+            matcher.wait()
 
 
 if __name__ == "__main__":
