@@ -8,6 +8,9 @@
 3. per station: move, one shot, wait for the ``/weld_targets`` of that shot, weld its
    assigned usable targets through the ``/arm/weld_job`` action (``resume=true``: the arm
    driver's journal is the truth of what is welded, so a restarted job never welds twice).
+   Should the driver crash mid-job and come back (``--respawn-driver``), its ``/arm/state``
+   pauses and returns without a job: the station's targets are sent again (``weld_resends``),
+   and the journal skips what is welded and holds back what the crash left uncertain.
 
 Progress goes to ``/cell/status`` (CellStatus); ``/cell/start|pause|resume|stop`` (Trigger)
 drive it (``auto_start`` starts at once). With ``report_file`` a JSON report of every stud
@@ -61,6 +64,10 @@ PARAMS = [
           min=1.0, max=3600.0),
     Param("weld_timeout_s", 1800.0, "longest wait for one station's weld job [s]", min=1.0, max=86400.0),
     Param("shot_retries", 3, "shots tried per station before giving up", min=1, max=20),
+    Param("driver_lost_s", 1.5, "a gap this long in /arm/state during a weld job, after which the driver "
+          "reports no job, means it was restarted and lost the job [s]", min=0.3, max=600.0),
+    Param("weld_resends", 3, "times a station's weld job is sent again to a restarted driver (resume: its "
+          "journal skips what is welded)", min=0, max=20),
 ]
 
 STATE_TEXT = {CellStatus.STATE_IDLE: "idle", CellStatus.STATE_REGISTERING: "registering",
@@ -73,6 +80,10 @@ class JobAborted(Exception):
     """The job cannot go on (stop requested, a step failed): the message says why."""
 
 
+class DriverLost(JobAborted):
+    """The arm driver's action server vanished while a weld job ran (crash, restart)."""
+
+
 class CellSequencer(Node):
     def __init__(self) -> None:
         super().__init__("cell_sequencer")
@@ -82,6 +93,8 @@ class CellSequencer(Node):
         self.registration: Registration | None = None
         self.targets: list[WeldTargetArray] = []
         self.arm_state: ArmState | None = None
+        self._arm_state_time: float | None = None  # monotonic arrival of the last /arm/state
+        self._state_gap = False  # /arm/state paused during the running weld job
         self.best: dict[str, tuple[float, object]] = {}  # stud id -> (distance from image centre, ok target)
         self._cond = threading.Condition()
         self._stop = threading.Event()
@@ -132,6 +145,7 @@ class CellSequencer(Node):
     def _on_arm_state(self, msg: ArmState) -> None:
         with self._cond:
             self.arm_state = msg
+            self._arm_state_time = time.monotonic()
             self._cond.notify_all()
 
     def _tick(self) -> None:
@@ -193,15 +207,23 @@ class CellSequencer(Node):
         if self._stop.is_set():
             raise JobAborted("stopped by the operator")
 
-    def _wait_future(self, future, timeout_s: float, what: str):
+    def _wait_future(self, future, timeout_s: float, what: str, alive=None):
+        """The future's result; JobAborted on stop or time-out, DriverLost when ``alive()`` has been
+        false for ``driver_lost_s``."""
         done = threading.Event()
         future.add_done_callback(lambda _f: done.set())
         deadline = time.monotonic() + timeout_s
+        gone_since = None
         while not done.wait(0.05):
             if self._stop.is_set():
                 raise JobAborted(f"stopped by the operator while waiting for {what}")
-            if time.monotonic() > deadline:
+            now = time.monotonic()
+            if now > deadline:
                 raise JobAborted(f"no answer from {what} within {timeout_s:.0f} s")
+            if alive is not None:
+                gone_since = None if alive() else (gone_since or now)
+                if gone_since is not None and now - gone_since >= self.p["driver_lost_s"]:
+                    raise DriverLost(f"no {what}")
         return future.result()
 
     def _call(self, client, request, timeout_s: float):
@@ -405,16 +427,55 @@ class CellSequencer(Node):
         self._weld(left)
 
     def _weld(self, usable: list) -> None:
+        """One station's weld job. Should the driver die mid-job, the same targets go again (resume)
+        to its restarted self, whose journal skips what is welded and refuses what is uncertain."""
         p = self.p
-        self._checkpoint()
-        if not self.weld.wait_for_server(timeout_sec=min(p["step_timeout_s"], 10.0)):
-            raise JobAborted("the arm driver's /arm/weld_job action is not available")
+        for attempt in range(p["weld_resends"] + 1):
+            self._checkpoint()
+            if not self.weld.wait_for_server(timeout_sec=min(p["step_timeout_s"], 10.0)):
+                raise JobAborted("the arm driver's /arm/weld_job action is not available")
+            try:
+                result = self._weld_once(usable)
+                break
+            except DriverLost as exc:
+                why = f"the arm driver lost the weld job ({exc}: restarted, or silent for {p['step_timeout_s']:g} s)"
+                if attempt == p["weld_resends"]:
+                    raise JobAborted(f"{why}; gave up after {attempt} resend(s) -- the driver's journal keeps what "
+                                     "was welded: restart it and start the job again") from None
+                self.get_logger().warn(f"{why}: sending the station's {len(usable)} target(s) again (resume: its "
+                                       f"journal skips what is welded; resend {attempt + 1}/{p['weld_resends']})")
+                # its /arm/state is back; give discovery a moment to match its action server as well
+                # (a killed one can linger in the graph, so wait_for_server proves nothing)
+                time.sleep(1.0)
+        self._record_weld_result(result)
+
+    def _weld_once(self, usable: list):
+        p = self.p
         goal = self._wait_future(self.weld.send_goal_async(WeldJob.Goal(targets=usable, resume=True),
                                                            feedback_callback=self._on_feedback),
                                  p["step_timeout_s"], "/arm/weld_job goal")
         if not goal.accepted:
             raise JobAborted("the arm driver rejected the weld job (e-stop or another job running?)")
-        result = self._wait_future(goal.get_result_async(), p["weld_timeout_s"], "/arm/weld_job result").result
+        self._state_gap = False
+        return self._wait_future(goal.get_result_async(), p["weld_timeout_s"], "/arm/weld_job result",
+                                 alive=self._driver_still_on_the_job).result
+
+    def _driver_still_on_the_job(self) -> bool:
+        """False once the driver looks restarted: its /arm/state stream paused for ``driver_lost_s``
+        (a crash; the graph may show a killed server for many seconds more, so its presence there
+        proves nothing) and came back with no job running, or has not come back within
+        ``step_timeout_s``. A driver that only stalled comes back still on the job: keep waiting."""
+        if self._arm_state_time is None:
+            return True
+        silent_s = time.monotonic() - self._arm_state_time
+        if silent_s >= self.p["driver_lost_s"]:
+            self._state_gap = True
+            return silent_s < self.p["step_timeout_s"]
+        if self._state_gap and self.arm_state is not None and self.arm_state.total > 0:
+            self._state_gap = False  # the same driver, still welding this job
+        return not self._state_gap
+
+    def _record_weld_result(self, result) -> None:
         for sid in result.welded:
             if sid in self.stud_report:
                 self.stud_report[sid]["welded"] = True
