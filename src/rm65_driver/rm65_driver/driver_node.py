@@ -438,30 +438,22 @@ class DriverNode(Node):
         return resp
 
     def _on_pause(self, _req, resp):
-        try:
-            seq = self.sequence
-            if seq is not None and seq.running:
-                seq.pause()
-            else:
-                self.client.pause()
-            resp.success, resp.message = True, "paused"
-        except ArmError as exc:
-            resp.success, resp.message = False, f"pause failed: {exc}"
-        return resp
+        return self._pause_or_resume("pause", resp)
 
     def _on_resume(self, _req, resp):
         if self._estop:
             resp.success, resp.message = False, "e-stop engaged: publish false on /arm/estop first"
             return resp
+        return self._pause_or_resume("resume", resp)
+
+    def _pause_or_resume(self, verb: str, resp):
+        """``verb`` ("pause"/"resume") the running weld job, or the arm itself when no job runs."""
         try:
             seq = self.sequence
-            if seq is not None and seq.running:
-                seq.resume()
-            else:
-                self.client.resume()
-            resp.success, resp.message = True, "resumed"
+            getattr(seq if seq is not None and seq.running else self.client, verb)()
+            resp.success, resp.message = True, f"{verb}d"
         except ArmError as exc:
-            resp.success, resp.message = False, f"resume failed: {exc}"
+            resp.success, resp.message = False, f"{verb} failed: {exc}"
         return resp
 
     def _engage_estop(self, source: str) -> tuple[bool, str]:

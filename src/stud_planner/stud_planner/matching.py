@@ -269,6 +269,15 @@ def _store_best_pixel(out: dict, k: int, best: tuple, camera: CameraModel) -> No
         out["hole_rule"][k] = rule
 
 
+def _closer(camera: CameraModel, u: int, v: int, z: float, rule, xt: float, yt: float, best: tuple) -> tuple:
+    """One brute-force evaluation (BFS, FPM's window): Eq. 1 for pixel (u, v) at depth z, one pixel
+    at a time (the baselines' cost), and its XY distance to the target. Returns (dist, best), best
+    replaced by this pixel when it is closer."""
+    P = camera.pixel_to_world(u, v, z)
+    dist = math.hypot(P[0] - xt, P[1] - yt)
+    return dist, ((dist, u, v, z, rule) if dist < best[0] else best)
+
+
 def match_bfs(
     targets_xy_w,
     depth_m: np.ndarray,
@@ -315,10 +324,7 @@ def match_bfs(
                     if not math.isfinite(z):
                         continue
                 any_depth = True
-                P = camera.pixel_to_world(u, v, z)  # Eq. 1, one pixel at a time (the baseline's cost)
-                dist = math.hypot(P[0] - xt, P[1] - yt)
-                if dist < best[0]:
-                    best = (dist, u, v, z, rule)
+                dist, best = _closer(camera, u, v, z, rule, xt, yt, best)
                 if dist < tol_m:
                     found = True
                     break
@@ -464,10 +470,7 @@ def match_fpm(
                 if not math.isfinite(z):
                     continue
                 window_depth = True
-                P = camera.pixel_to_world(u, v, z)  # Eq. 1, one pixel at a time (the baseline's cost)
-                dist = math.hypot(P[0] - xt, P[1] - yt)
-                if dist < best[0]:
-                    best = (dist, u, v, z, rule)
+                dist, best = _closer(camera, u, v, z, rule, xt, yt, best)
                 if dist < tol_m:
                     found = True
                     break
