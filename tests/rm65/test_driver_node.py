@@ -141,11 +141,14 @@ def test_driver_node_runs_a_weld_job_and_publishes_state(sim, probe, tmp_path):
         spin_until(probe, fut.done, 20, "goal acceptance", proc)
         handle = fut.result()
         assert handle.accepted
+        welded = [t.stud_id for t in targets if t.stud_id != targets[3].stud_id]
+        # The last feedback before the result: rclpy drops a goal's feedback once its result is in.
+        spin_until(probe, lambda: any(f.stud_id == welded[-1] and f.phase == "retract" for f in feedback), 60,
+                   "feedback of the last stud", proc)
         rfut = handle.get_result_async()
         spin_until(probe, rfut.done, 60, "job result", proc)
         res = rfut.result().result
         assert res.success, res.message
-        welded = [t.stud_id for t in targets if t.stud_id != targets[3].stud_id]
         assert list(res.welded) == welded
         assert list(res.skipped) == [targets[3].stud_id, "TILT"]
         assert "no_depth" in res.messages[0] and "inclination 9.0" in res.messages[1]
