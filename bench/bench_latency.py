@@ -75,8 +75,9 @@ def main() -> int:
             from sensor_msgs.msg import Image
             node.create_subscription(Image, "/weld_targets/overlay", overlays.append, ros_io.RESULT_QOS)
         deadline = time.monotonic() + 30
-        while (node.count_subscribers("/camera/depth/image_raw") < 1 or node.count_publishers("/weld_targets") < 1
-               or (args.overlay and node.count_subscribers("/camera/color/image_raw") < 1)):
+        # Matched by DDS (not only seen in the graph), or the first frames go nowhere.
+        needed = ("depth", "info", "pose") + (("color",) if args.overlay else ())
+        while (any(pubs[k].get_subscription_count() < 1 for k in needed) or node.count_publishers("/weld_targets") < 1):
             rclpy.spin_once(node, timeout_sec=0.1)
             if time.monotonic() > deadline:
                 print("matcher did not come up", file=sys.stderr)

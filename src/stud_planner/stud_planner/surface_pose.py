@@ -114,13 +114,13 @@ def quaternion_from_normal(normal_w: np.ndarray) -> np.ndarray:
 _MOMENT_PAIRS = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
 
-def _moment_features(Pl: np.ndarray) -> np.ndarray:
-    """(n, 9, M) per-point features [x, y, z, xx, xy, xz, yy, yz, zz] of Pl (n, M, 3), so that every
-    weighted plane fit over the same points is one weighted sum (laid out feature-major so each
-    feature row is contiguous)."""
-    F = np.empty((Pl.shape[0], 9, Pl.shape[1]))
-    for k in range(3):
-        F[:, k] = Pl[..., k]
+def _window_features(camera: CameraModel, u0, v0, du, dv, depth, p_stud) -> np.ndarray:
+    """(n, 9, M) per-sample features [x, y, z, xx, xy, xz, yy, yz, zz] of the window points
+    relative to the stud, so that every weighted plane fit over the same points is one weighted
+    sum (feature-major: each feature row is contiguous; Eq. 1 writes x, y, z in place)."""
+    n, M = depth.shape
+    F = np.empty((n, 9, M))
+    camera.window_to_world(u0, v0, du, dv, depth, minus_w=p_stud, out=F[:, :3].transpose(1, 0, 2))
     for k, (i, j) in enumerate(_MOMENT_PAIRS):
         np.multiply(F[:, i], F[:, j], out=F[:, 3 + k])
     return F
@@ -187,7 +187,7 @@ def estimate_surface_poses(
     The window is a square of side ``window_m`` on the surface, converted to pixels at the point's
     optical depth (f * window / z), sampled on a grid of at most ``max_samples_per_side`` per side
     (the normal's accuracy comes from the window's extent; more samples add little and cost memory).
-    Every valid sample is back-projected with Eq. 1 (:meth:`CameraModel.pixel_to_world`). Seeded by
+    Every valid sample is back-projected with Eq. 1 (:meth:`CameraModel.window_to_world`). Seeded by
     a least-squares height plane, up to ``robust_passes`` times the points farther than
     max(outlier_k * 1.4826 * MAD, outlier_floor_m) from the current plane are dropped (flying
     pixels, a sliver of floor behind a part's edge) and a PCA (total least squares) plane is
@@ -228,20 +228,25 @@ def estimate_surface_poses(
         step = np.maximum(1, np.ceil(2 * half_px / max(k - 1, 1))).astype(np.int64)
         u0 = np.rint(uv[idx, 0]).astype(np.int64)
         v0 = np.rint(uv[idx, 1]).astype(np.int64)
-        off_u = np.rint(gi[None, :] * step[:, None]).astype(np.int64)
-        off_v = np.rint(gj[None, :] * step[:, None]).astype(np.int64)
-        in_window = (np.abs(off_u) <= half_px[:, None] + 0.5 * step[:, None]) & (
-            np.abs(off_v) <= half_px[:, None] + 0.5 * step[:, None])
+        # Offsets from a table per distinct step (a handful), not arithmetic on (n, M) arrays.
+        steps, which = np.unique(step, return_inverse=True)
+        off_u = np.rint(gi[None, :] * steps[:, None]).astype(np.int64)[which]
+        off_v = np.rint(gj[None, :] * steps[:, None]).astype(np.int64)[which]
+        reach = half_px + 0.5 * step
+        in_window = (np.abs(off_u) <= reach[:, None]) & (np.abs(off_v) <= reach[:, None])
         U = u0[:, None] + off_u
         V = v0[:, None] + off_v
-        in_window &= (U >= 0) & (U < W) & (V >= 0) & (V < H)
-        d = depth[np.clip(V, 0, H - 1), np.clip(U, 0, W - 1)].astype(np.float64)
+        ext = np.rint(np.abs(grid).max() * step)  # the grid's farthest offset, either axis
+        edge = (u0 - ext < 0) | (u0 + ext >= W) | (v0 - ext < 0) | (v0 + ext >= H)
+        if edge.any():  # samples of windows that cross the image border are not in the window
+            in_window[edge] &= (U[edge] >= 0) & (U[edge] < W) & (V[edge] >= 0) & (V[edge] < H)
+            U, V = np.clip(U, 0, W - 1), np.clip(V, 0, H - 1)
+        d = np.take(depth.reshape(-1), V * W + U).astype(np.float64)
         good = in_window & np.isfinite(d)
         p_stud = P0[idx]
-        # Eq. 1 on the window, relative to the stud, zeros where invalid: (n, M, 3)
-        Pl = camera.pixel_to_world(U, V, np.where(good, d, 0.0)) - p_stud[:, None, :]
-        Pl[~good] = 0.0
-        F = _moment_features(Pl)
+        # Eq. 1 on the window, relative to the stud. Invalid samples get depth 0, a finite point
+        # that weight 0 keeps out of every fit and the median.
+        F = _window_features(camera, u0, v0, off_u, off_v, np.where(good, d, 0.0), p_stud)
 
         c, nrm_pca, evals, wsum, C = _fit_planes(F, good.astype(np.float64))
         nrm = _height_regression_normals(C) if robust_passes > 0 else nrm_pca
@@ -253,10 +258,11 @@ def estimate_surface_poses(
         rows = np.arange(idx.size)
         for _ in range(robust_passes):
             g = good[rows]
-            r = np.abs(np.matmul(Pl[rows], nrm[rows, :, None])[..., 0] - np.einsum("ni,ni->n", c[rows], nrm[rows])[:, None])
+            r = np.abs(np.matmul(nrm[rows, None, :], F[rows, :3])[:, 0]
+                       - np.einsum("ni,ni->n", c[rows], nrm[rows])[:, None])
             # Median over the valid entries of each row: sort with invalid = +inf, take the middle.
             mid = np.maximum(g.sum(axis=1) - 1, 0) // 2
-            kth = np.unique(mid)
+            kth = np.flatnonzero(np.bincount(mid))  # the distinct median positions, sorted
             # A partition at the (few) distinct median positions gives the same medians as a full
             # sort at a fraction of the cost; rows with many different hole counts fall back to sort.
             r_masked = np.where(g, r, np.inf)
