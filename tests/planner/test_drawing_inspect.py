@@ -82,6 +82,9 @@ def test_stud_and_mark_layer_options(tmp_path, capsys):
     assert "no studs found" in one_error_line(capsys, main([str(path)]))
     assert main([str(path), "--stud-layers", "shear-*", "--mark-layer", "DATUM"]) == 0
     assert "stud layers:  Shear-Studs-M19 (15)" in capsys.readouterr().out
+    # an option before the file takes one value, not the file name too; repeat it for more
+    assert main(["--stud-layers", "nothing", "--stud-layers", "shear-*", "--mark-layer", "datum", str(path)]) == 0
+    assert "stud layers:  Shear-Studs-M19 (15)" in capsys.readouterr().out
 
 
 def test_drawing_errors_are_one_line_with_exit_code_2(tmp_path, capsys):
@@ -95,6 +98,8 @@ def test_drawing_errors_are_one_line_with_exit_code_2(tmp_path, capsys):
     ([], "the following arguments are required: file"),
     (["x.dxf", "--bogus"], "unrecognized arguments: --bogus"),
     (["x.dxf", "--min-spacing-mm", "lots"], "argument --min-spacing-mm: invalid float value: 'lots'"),
+    (["x.dxf", "--units-if-unitless", "furlong"], "argument --units-if-unitless: unknown unit 'furlong'"),
+    (["x.dxf", "--png", "out/preview"], "argument --png: out/preview: the preview is a PNG, name it *.png"),
 ])
 def test_usage_errors_are_one_line_with_exit_code_2(capsys, argv, expected):
     assert expected in one_error_line(capsys, main(argv))

@@ -37,9 +37,12 @@ STUDS = np.array([(0.05 + 0.1 * i, 0.05 + 0.08 * j) for j in range(3) for i in r
 
 
 def expected_order(xy: np.ndarray) -> np.ndarray:
-    """The documented id order for one layer: y, then x, on a 0.1 mm grid."""
-    q = np.round(np.asarray(xy) / 1e-4).astype(np.int64)
-    return np.lexsort((q[:, 0], q[:, 1]))
+    """The documented id order for one layer: rows of y (values < 0.1 mm apart), then x."""
+    xy = np.asarray(xy)
+    by_y = np.argsort(xy[:, 1], kind="stable")
+    row = np.empty(len(xy), dtype=np.int64)
+    row[by_y] = np.cumsum(np.concatenate([[0], np.diff(xy[by_y, 1]) >= 1e-4]))
+    return np.lexsort((xy[:, 0], row))
 
 
 def assert_studs(layout: StudLayout, xy: np.ndarray, diameter_m: float = 0.019, tol: float = 1e-9) -> None:
@@ -318,6 +321,120 @@ def test_ids_order_uses_a_tenth_of_a_millimetre_grid(tmp_path):
     doc.saveas(tmp_path / "row.dxf")
     layout = read_layout(tmp_path / "row.dxf")
     assert [round(s.x_m, 3) for s in layout.studs] == [0.1, 0.2, 0.3]
+
+
+@pytest.mark.parametrize("shift_mm", [0.0, 0.05])
+def test_ids_do_not_change_with_the_placement_of_the_drawing(tmp_path, shift_mm):
+    # Rows on odd quarter inches sit on half of a 0.1 mm grid (2.25 in = 571.5 x 0.1 mm): a
+    # rotated copy's float noise must not move a stud across a row or column boundary.
+    rows_in = np.array([2.25, 5.25, 8.25])
+    local = np.array([(x, y) for y in rows_in for x in (5.5, 1.0, 4.0, 2.5)]) * 25.4 + shift_mm  # mm
+    marks = {"O": (0.0, 0.0), "A": (0.4, 0.0), "B": (0.0, 0.3)}
+    ids = []
+    rng = np.random.default_rng(11)
+    placements = [(0.0, (0, 0))] + [(a, tuple(o)) for a, o in zip(rng.uniform(-180, 180, 9), rng.uniform(-3e5, 3e5, (9, 2)))]
+    for k, (angle, off) in enumerate(placements):
+        c, sn = math.cos(math.radians(angle)), math.sin(math.radians(angle))
+        R = np.array([[c, -sn], [sn, c]])
+        doc = ezdxf.new("R2010")
+        doc.header["$INSUNITS"] = 4
+        msp = doc.modelspace()
+        for p in local @ R.T + off:
+            msp.add_circle(tuple(p), 6.35, dxfattribs={"layer": "STUDS"})
+        for name, (x, y) in marks.items():
+            q = R @ (np.array([x, y]) * 1e3) + off
+            msp.add_circle(tuple(q), 15, dxfattribs={"layer": "MARKS"})
+            msp.add_text(name, height=20, dxfattribs={"insert": tuple(q + R @ (20.0, 20.0))})
+        doc.saveas(tmp_path / f"p{k}.dxf")
+        layout = read_layout(tmp_path / f"p{k}.dxf")
+        ids.append([(s.id, round(s.x_m * 1e3, 3), round(s.y_m * 1e3, 3)) for s in layout.studs])
+    assert all(placed == ids[0] for placed in ids[1:])
+    xs = [x for _, x, _ in ids[0]]
+    assert xs[:4] == sorted(xs[:4]) and xs[4:8] == sorted(xs[4:8])  # along x within each row
+
+
+def test_what_cad_does_not_show_is_skipped_and_said(tmp_path):
+    doc = _plain_doc(STUDS * 1e3)
+    msp = doc.modelspace()
+    msp.add_circle((400, 400), 9.5, dxfattribs={"layer": "STUDS", "invisible": 1})
+    doc.layers.add("STUDS_OLD").freeze()
+    doc.layers.add("STUDS_OFF").off()
+    msp.add_circle((410, 500), 9.5, dxfattribs={"layer": "STUDS_OLD"})
+    msp.add_circle((420, 600), 9.5, dxfattribs={"layer": "STUDS_OFF"})
+    block = doc.blocks.new("STUD")
+    block.add_circle((0, 0), 9.5)  # layer 0: takes the INSERT's layer
+    block.add_circle((0, 50), 9.5, dxfattribs={"layer": "STUDS"})
+    msp.add_blockref("STUD", (700, 100), dxfattribs={"layer": "STUDS_OLD"})  # frozen: both circles hidden
+    msp.add_blockref("STUD", (800, 100), dxfattribs={"layer": "STUDS_OFF"})  # off: only the layer-0 circle
+    doc.saveas(tmp_path / "hidden.dxf")
+    layout = read_layout(tmp_path / "hidden.dxf", stud_layers=["STUDS*"])
+    assert len(layout.studs) == len(STUDS) + 1
+    assert [round(s.x_m, 3) for s in layout.studs if s.y_m > 0.1 and s.x_m > 0.75] == [0.8]
+    text = " | ".join(layout.warnings)
+    assert "invisible entities (DXF group 60) skipped" in text and "1 CIRCLE" in text
+    assert "STUDS_OFF (off): 2 CIRCLE" in text and "STUDS_OLD (frozen): 1 CIRCLE, 1 INSERT" in text
+    everything = read_layout(tmp_path / "hidden.dxf", stud_layers=["STUDS*"], include_hidden_layers=True)
+    assert len(everything.studs) == len(STUDS) + 6  # the invisible circle stays out
+
+
+def test_a_hidden_stud_layer_is_named_in_the_error(tmp_path):
+    doc = _plain_doc(STUDS * 1e3)
+    doc.layers.add("STUDS").off()
+    doc.saveas(tmp_path / "off.dxf")
+    message = _error(tmp_path / "off.dxf")
+    assert "no studs found" in message and f"{len(STUDS)} circles (frozen or off layer)" in message
+    assert len(read_layout(tmp_path / "off.dxf", include_hidden_layers=True).studs) == len(STUDS)
+
+
+def test_the_exact_layer_name_wins_over_its_glob_reading(tmp_path):
+    doc = _plain_doc(STUDS * 1e3, ["STUDS[M16]"] * len(STUDS))
+    doc.saveas(tmp_path / "brackets.dxf")
+    assert len(read_layout(tmp_path / "brackets.dxf", stud_layers=["studs[m16]"]).studs) == len(STUDS)
+
+
+def test_no_studs_error_says_why_circles_were_skipped(tmp_path):
+    doc = _plain_doc([])
+    block = doc.blocks.new("STUD")
+    block.add_circle((0, 0), 9.5)
+    for k in range(5):
+        doc.modelspace().add_blockref("STUD", (100 + 150 * k, 100), dxfattribs={"layer": "STUDS", "yscale": 1.2})
+    doc.saveas(tmp_path / "ellipses.dxf")
+    message = _error(tmp_path / "ellipses.dxf")
+    assert "no studs found" in message and "skipped while reading: 5 circles (non-uniform scale)" in message
+
+
+def test_a_long_formatted_mtext_label_names_its_mark(tmp_path):
+    doc = _plain_doc(STUDS * 1e3, marks=None)
+    msp = doc.modelspace()
+    for name, (x, y) in {**MARKS, "X": (0.5, 0.5)}.items():
+        msp.add_circle((x * 1e3, y * 1e3), 15, dxfattribs={"layer": "MARKS"})
+    raw = "{\\fArial Unicode MS|b1|i0|c0|p34;\\C1;\\H1.5x;\\W0.9;\\T1.1;\\Q0;\\pxqc;O}"
+    assert len(raw) > 64
+    msp.add_mtext(raw, dxfattribs={"insert": (20, 20), "char_height": 20})
+    for name in "AB":
+        x, y = MARKS[name]
+        msp.add_text(name, height=20, dxfattribs={"insert": (x * 1e3 + 20, y * 1e3 + 20)})
+    doc.saveas(tmp_path / "mtext.dxf")
+    layout = read_layout(tmp_path / "mtext.dxf")
+    assert layout.marks_rule == "labels"
+    assert_marks(layout)
+
+
+def test_classic_mac_line_ends_are_read(tmp_path):
+    _plain_doc(STUDS * 1e3).saveas(tmp_path / "lf.dxf")
+    data = (tmp_path / "lf.dxf").read_bytes().replace(b"\r\n", b"\n").replace(b"\n", b"\r")
+    (tmp_path / "cr.dxf").write_bytes(data)
+    assert_studs(read_layout(tmp_path / "cr.dxf"), STUDS)
+    (tmp_path / "cut.dxf").write_bytes(data[: len(data) // 2])
+    assert "truncated or corrupt" in _error(tmp_path / "cut.dxf")
+
+
+def test_a_stud_on_a_mark_is_reported(tmp_path):
+    doc = _plain_doc(STUDS * 1e3)
+    doc.modelspace().add_circle((600, 0), 25, dxfattribs={"layer": "STUDS"})  # a ring around mark A
+    doc.saveas(tmp_path / "ring.dxf")
+    layout = read_layout(tmp_path / "ring.dxf")
+    assert any("lie(s) on mark A" in w for w in layout.warnings), layout.warnings
 
 
 def test_stud_layers_are_case_insensitive_glob_patterns(tmp_path):
@@ -629,12 +746,19 @@ def test_corpus_file_parses_or_fails_with_a_clear_message(name):
         with pytest.raises(DrawingError):
             read_circles(path)
         return
-    assert "no studs found: no circles on layer(s) STUDS; layers: " in message
-    circles = read_circles(path)
+    assert re.search(r"no studs found: no circles on layer\(s\) STUDS(; skipped while reading: [^;]+)?; layers: ",
+                     message), message
+    circles = read_circles(path, include_hidden_layers=True)
     assert circles.dxf_version == row["version"]
     assert circles.read_mode == row["mode"]
     # ezdxf counts CIRCLE entities with radius <= 0 too; we skip (and report) them
     assert len(circles) + circles.skipped["radius<=0"] == row["expanded"], circles.warnings
+    # by default what CAD hides is skipped, and said
+    shown = read_circles(path)
+    hidden = shown.skipped["frozen or off layer"] + shown.skipped["invisible"]
+    assert len(shown) + hidden == len(circles)
+    assert (hidden > 0) == any("frozen or off layers skipped" in w or "invisible" in w for w in shown.warnings)
+    circles = shown
     if row["units"] in ("–", "-", "0") or b"$INSUNITS" not in path.read_bytes():
         # header-less files: ezdxf reports its default $INSUNITS 6 (m); the file says nothing, so unitless
         assert circles.units_assumed
@@ -655,5 +779,8 @@ def test_corpus_degenerate_insert_is_skipped_and_the_rest_kept():
 def test_corpus_real_drawing_as_a_layout_with_globbed_layers():
     # Prusa's frame plate: M3 holes as "studs", the four marks on layers znaceniA/B (ambiguous: 4 circles)
     path = CORPUS / "prusa_MK3v8b.dxf"
-    message = _error(path, stud_layers=["m3"], mark_layer=["znaceni*"])
+    message = _error(path, stud_layers=["m3"], mark_layer=["znaceni*"], include_hidden_layers=True)
     assert "found 4 mark circles on layer znaceni*" in message
+    # ... and both znaceni layers are frozen: by default they are not read at all, and the error says so
+    message = _error(path, stud_layers=["m3"], mark_layer=["znaceni*"])
+    assert "marks missing: found 0 mark circles" in message and "4 circles (frozen or off layer)" in message

@@ -20,7 +20,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .dxf_layout import DrawingError, StudLayout, read_layout
+from .dxf_layout import DrawingError, StudLayout, read_layout, units_to_metres
 
 PROG = "drawing_inspect"
 
@@ -34,17 +34,35 @@ class _Parser(argparse.ArgumentParser):
         raise _UsageError(message)
 
 
+def _unit(text: str) -> str:
+    try:
+        units_to_metres(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def _png_path(text: str) -> Path:
+    path = Path(text)
+    if path.suffix.lower() != ".png":
+        raise argparse.ArgumentTypeError(f"{text}: the preview is a PNG, name it *.png")
+    return path
+
+
 def _build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog=PROG, description="Inspect a stud-layout DXF drawing (studs, marks O/A/B, frame).")
     p.add_argument("file", type=Path, help="the DXF drawing")
-    p.add_argument("--png", type=Path, help="write a preview image (studs, ids, marks, frame axes)")
+    p.add_argument("--png", type=_png_path, help="write a preview image (studs, ids, marks, frame axes)")
     p.add_argument("--json", type=Path, help="write the layout as JSON (drawing frame, metres)")
-    p.add_argument("--stud-layers", nargs="+", default=["STUDS"], metavar="PATTERN",
-                   help="stud layer names or fnmatch patterns, case-insensitive (default: STUDS)")
-    p.add_argument("--mark-layer", nargs="+", default=["MARKS"], metavar="PATTERN",
-                   help="layer(s) of the mark circles O, A, B (default: MARKS)")
-    p.add_argument("--units-if-unitless", default="mm",
+    # one value per option use (repeat it for more), so a file name after it is not swallowed
+    p.add_argument("--stud-layers", action="extend", nargs=1, metavar="PATTERN",
+                   help="stud layer name or fnmatch pattern, case-insensitive; repeat for more (default: STUDS)")
+    p.add_argument("--mark-layer", action="extend", nargs=1, metavar="PATTERN",
+                   help="layer of the mark circles O, A, B; repeat for more (default: MARKS)")
+    p.add_argument("--units-if-unitless", default="mm", type=_unit,
                    help="unit of a drawing without $INSUNITS: mm, cm, m, in, ft ... (default: mm)")
+    p.add_argument("--include-hidden-layers", action="store_true",
+                   help="also read frozen or off layers (skipped by default, as CAD does not show them)")
     p.add_argument("--min-diameter-mm", type=float, help="ignore stud circles smaller than this")
     p.add_argument("--max-diameter-mm", type=float, help="ignore stud circles larger than this")
     p.add_argument("--min-spacing-mm", type=float,
@@ -155,9 +173,10 @@ def _run(argv: Sequence[str] | None) -> int:
         return None if v is None else v * 1e-3
 
     layout = read_layout(
-        args.file, stud_layers=args.stud_layers, mark_layer=args.mark_layer,
+        args.file, stud_layers=args.stud_layers or ["STUDS"], mark_layer=args.mark_layer or ["MARKS"],
         units_if_unitless=args.units_if_unitless, min_diameter_m=mm(args.min_diameter_mm),
         max_diameter_m=mm(args.max_diameter_mm), min_spacing_m=mm(args.min_spacing_mm),
+        include_hidden_layers=args.include_hidden_layers,
     )
     print(summary(layout))
     if args.json:

@@ -29,6 +29,7 @@ PARAMS = [
     Param("max_diameter_m", 0.0, "ignore stud circles larger than this [m] (0: no limit)", min=0.0, max=1.0),
     Param("min_spacing_m", -1.0, "warn about studs closer than this [m]; -1: 2.5 x median diameter; 0: off",
           min=-1.0, max=10.0),
+    Param("include_hidden_layers", False, "also read frozen or off layers (skipped by default, as CAD hides them)"),
 ]
 
 
@@ -54,7 +55,8 @@ class DrawingNode(Node):
                 path, stud_layers=list(p["stud_layers"]), mark_layer=p["mark_layer"],
                 units_if_unitless=p["units_if_unitless"],
                 min_diameter_m=p["min_diameter_m"] or None, max_diameter_m=p["max_diameter_m"] or None,
-                min_spacing_m=None if p["min_spacing_m"] < 0 else p["min_spacing_m"])
+                min_spacing_m=None if p["min_spacing_m"] < 0 else p["min_spacing_m"],
+                include_hidden_layers=p["include_hidden_layers"])
         except dxf_layout.DrawingError as exc:
             self.get_logger().error(str(exc))
             self.diag.set(self.diag.ERROR, str(exc), file=path)

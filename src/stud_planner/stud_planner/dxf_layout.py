@@ -26,6 +26,11 @@ Decisions (each one is reported as a warning when it applies)
     * ezdxf reports ``$INSUNITS`` 6 (metres) for a file without a HEADER section; such a file
       is treated as unitless, since it says nothing about its units.
     * Circles with radius <= 0 are skipped.
+    * What CAD does not show is not part of the drawing: entities flagged invisible (group
+      60) and entities on layers that are frozen or off are skipped (a frozen INSERT hides its
+      whole block, an off one what inherits its layer), with a warning per layer;
+      ``include_hidden_layers`` reads hidden layers all the same. An old revision's studs on a
+      frozen ``STUDS_OLD`` must not be welded because a pattern ``STUDS*`` matches it.
     * A degenerate INSERT (zero scale, a transform that raises in ezdxf) is skipped; the rest
       of the drawing is kept.
     * Unitless drawings (``$INSUNITS`` 0 or absent) use ``units_if_unitless`` (default mm).
@@ -49,8 +54,10 @@ Drawing frame (INTERFACES.md, frame ``drawing``)
     gives the angle.
 
 Stud order and ids
-    Studs are sorted by (layer name, case-folded), then drawing y, then drawing x, both
-    rounded to 0.1 mm, then diameter and the exact coordinates; ids are ``S0001``, ``S0002``,
+    Studs are sorted by (layer name, case-folded), then row (drawing y), then drawing x in the
+    row, then diameter and the exact coordinates; a row holds the studs whose y differ by less
+    than 0.1 mm (chained), and x within a row is compared the same way, so the float noise of a
+    rotated or shifted placement never reorders studs. Ids are ``S0001``, ``S0002``,
     ... in that order (4 digits; all ids get 5 digits from 10 000 studs on, so that text order
     stays id order). The key depends only on the geometry, so ids do not change when a CAD
     program reorders entities in the file. Duplicates (centres within ``duplicate_tol_m``, any
@@ -282,7 +289,7 @@ class CircleSet:
     ``centers_wcs`` (N, 2) and ``radii`` (N,) are in drawing units; ``layers`` the effective
     layer of each circle. ``layer_entities`` counts modelspace entities per layer (direct, not
     expanded); ``skipped`` counts circles left out by reason (``"radius<=0"``,
-    ``"non-uniform scale"``, ``"not parallel to XY"``).
+    ``"non-uniform scale"``, ``"not parallel to XY"``, ``"invisible"``, ``"frozen or off layer"``).
     """
 
     source_file: str
@@ -303,6 +310,12 @@ class CircleSet:
     def __len__(self) -> int:
         return int(self.radii.shape[0])
 
+    def skipped_summary(self) -> str:
+        """``"; skipped while reading: 5 circles (non-uniform scale)"`` or "" -- for an error that
+        would otherwise hide why the circles a user expected are not there."""
+        parts = [f"{n} circle{'s' if n != 1 else ''} ({why})" for why, n in self.skipped.items() if n]
+        return "; skipped while reading: " + ", ".join(parts) if parts else ""
+
     def layer_summary(self, limit: int = 30) -> str:
         """``"0 (12 entities, 3 circles), WALLS (40 entities)"``: layers that hold anything."""
         circles = Counter(self.layers)
@@ -322,9 +335,12 @@ class CircleSet:
 
 # -- reading the file ------------------------------------------------------------------------------
 _BINARY_SENTINEL = b"AutoCAD Binary DXF\r\n\x1a\x00"
-_ASCII_EOF = re.compile(rb"(?:^|\n)[ \t]*0[ \t]*\r?\n[ \t]*EOF[ \t]*(?:\r?\n|$)")
-_ASCII_HEAD = re.compile(rb"^(?:\xef\xbb\xbf)?\s*(?:999\s*\r?\n[^\n]*\n\s*)*0\s*\r?\n\s*SECTION\b")
-_ASCII_TAIL_ENDSEC = re.compile(rb"\n[ \t]*0[ \t]*\r?\n[ \t]*ENDSEC\s*$")
+# Line ends: CR LF (DOS), LF (Unix) and a lone CR (classic Mac OS), all of which ezdxf reads.
+_EOL = rb"(?:\r\n|\r|\n)"
+_ASCII_EOF = re.compile(rb"(?:^|[\r\n])[ \t]*0[ \t]*" + _EOL + rb"[ \t]*EOF[ \t]*(?:[\r\n]|$)")
+_ASCII_HEAD = re.compile(rb"^(?:\xef\xbb\xbf)?\s*(?:999\s*" + _EOL + rb"[^\r\n]*" + _EOL + rb"\s*)*0\s*" + _EOL
+                         + rb"\s*SECTION\b")
+_ASCII_TAIL_ENDSEC = re.compile(rb"[\r\n][ \t]*0[ \t]*" + _EOL + rb"[ \t]*ENDSEC\s*$")
 
 
 def _one_line(text: object) -> str:
@@ -462,7 +478,8 @@ def _label_letter(e: Any, dxftype: str) -> str | None:
         raw = e.dxf.text if dxftype in ("TEXT", "ATTRIB") else e.text
     except Exception:
         return None
-    if not raw or len(raw) > 64:
+    # A label is one letter, but MTEXT formatting codes may wrap it in a long raw string.
+    if not raw or len(raw) > 4096:
         return None
     if dxftype == "MTEXT":
         raw = e.plain_text()
@@ -484,11 +501,20 @@ def _label_position(e: Any, dxftype: str) -> tuple[float, float, float]:
 class _Collector:
     """Walks modelspace and block definitions; caches each block's flattened content."""
 
-    def __init__(self, doc: Any) -> None:
+    def __init__(self, doc: Any, include_hidden_layers: bool = False) -> None:
         self.doc = doc
         self.cache: dict[str, _Content] = {}
         self.skipped_inserts: Counter = Counter()
         self.layer_entities: Counter = Counter()
+        # What CAD does not show is not part of the drawing: invisible entities (group 60) and
+        # layers that are frozen or off are left out (and counted for a warning).
+        self.hidden_layers: dict[str, str] = {}
+        for lay in doc.layers if not include_hidden_layers else ():
+            state = "frozen" if lay.is_frozen() else "off" if lay.is_off() else None
+            if state:
+                self.hidden_layers[lay.dxf.name.casefold()] = state
+        self.invisible: Counter = Counter()  # entity type -> count
+        self.on_hidden_layer: Counter = Counter()  # (layer, entity type) -> count
 
     def skip_insert(self, name: str, reason: str, count: int = 1) -> None:
         self.skipped_inserts[(name, reason)] += count
@@ -530,6 +556,16 @@ class _Collector:
                 layer = "0"
             if not in_block:
                 self.layer_entities[layer] += 1
+            if t in ("CIRCLE", "TEXT", "MTEXT", "INSERT"):
+                if e.dxf.get("invisible", 0):
+                    self.invisible[t] += 1
+                    continue
+                # A frozen INSERT hides all of its block; an off one only what inherits its layer
+                # (layer "0" inside), which is checked once layers are resolved.
+                state = self.hidden_layers.get(layer.casefold())
+                if state and (t != "INSERT" or state == "frozen") and not (in_block and layer == "0"):
+                    self.on_hidden_layer[(layer, t)] += 1
+                    continue
             eff_layer = None if (in_block and layer == "0") else layer
             if t == "CIRCLE":
                 dxf = e.dxf
@@ -631,6 +667,7 @@ def collect_circles(
     *,
     read_mode: str = "read",
     units_if_unitless: str = "mm",
+    include_hidden_layers: bool = False,
     warnings: Sequence[str] = (),
 ) -> CircleSet:
     """All circles of ``doc``'s modelspace with INSERTs expanded, in WCS (drawing units).
@@ -654,10 +691,15 @@ def collect_circles(
             what = f"unsupported $INSUNITS code {insunits}"
         warns.append(f"{path.name}: {what}: coordinates taken as {unit_name} (units_if_unitless)")
 
-    collector = _Collector(doc)
+    collector = _Collector(doc, include_hidden_layers)
     content = collector.scan(doc.modelspace(), (), in_block=False)
 
     layers = np.array(["0" if lay is None else lay for lay in content.layers], dtype=object)
+    hidden_names = {lay for lay in set(layers.tolist()) if lay.casefold() in collector.hidden_layers}
+    hidden = np.array([lay in hidden_names for lay in layers], dtype=bool) if hidden_names else \
+        np.zeros(len(layers), dtype=bool)
+    for lay in hidden_names:  # circles that inherit a hidden layer (layer "0" in a block)
+        collector.on_hidden_layer[(lay, "CIRCLE")] += int(np.count_nonzero(layers == lay))
     u, v = content.u, content.v
     nu, nv = np.linalg.norm(u, axis=1), np.linalg.norm(v, axis=1)
     normal = np.cross(u, v)
@@ -667,12 +709,15 @@ def collect_circles(
             np.abs(np.einsum("ij,ij->i", u, v)) <= _SHAPE_TOL * nu * nv
         )
         planar = np.abs(normal[:, 2]) >= (1.0 - _SHAPE_TOL) * nn
-    ok = uniform & planar & (nu > 0)
+    ok = uniform & planar & (nu > 0) & ~hidden
     radii = np.sqrt(nu * nv)  # equal to nu within _SHAPE_TOL for the circles kept
+    uniform, planar = uniform | hidden, planar | hidden  # a hidden circle is counted once, as hidden
     skipped = {
         "radius<=0": int(sum(content.nonpositive.values())),
         "non-uniform scale": int(np.count_nonzero(~uniform & (nu > 0))),
         "not parallel to XY": int(np.count_nonzero(uniform & ~planar & (nu > 0))),
+        "invisible": int(collector.invisible["CIRCLE"]),
+        "frozen or off layer": int(sum(n for (_, t), n in collector.on_hidden_layer.items() if t == "CIRCLE")),
     }
     if skipped["radius<=0"]:
         on = sorted({"0" if k is None else k for k in content.nonpositive}, key=str.casefold)
@@ -685,6 +730,17 @@ def collect_circles(
         on = sorted(set(layers[uniform & ~planar & (nu > 0)]), key=str.casefold)
         warns.append(f"{path.name}: {skipped['not parallel to XY']} circles not parallel to the XY plane skipped "
                      f"(layers: {', '.join(on)})")
+    if collector.invisible:
+        what = ", ".join(f"{n} {t}" for t, n in sorted(collector.invisible.items()))
+        warns.append(f"{path.name}: invisible entities (DXF group 60) skipped, as CAD does not show them: {what}")
+    if collector.on_hidden_layer:
+        per_layer: dict[str, Counter] = {}
+        for (lay, t), n in collector.on_hidden_layer.items():
+            per_layer.setdefault(lay, Counter())[t] += n
+        what = "; ".join(f"{lay} ({collector.hidden_layers[lay.casefold()]}): "
+                         + ", ".join(f"{n} {t}" for t, n in sorted(c.items()))
+                         for lay, c in sorted(per_layer.items(), key=lambda kv: kv[0].casefold()))
+        warns.append(f"{path.name}: entities on frozen or off layers skipped, as CAD does not show them: {what}")
     for (name, reason), count in sorted(collector.skipped_inserts.items()):
         times = f"{count} references" if count > 1 else "1 reference"
         warns.append(f"{path.name}: INSERT of block {name!r}: {reason}; {times} skipped, rest of the drawing kept")
@@ -701,12 +757,13 @@ def collect_circles(
     )
 
 
-def read_circles(path: str | Path, *, units_if_unitless: str = "mm") -> CircleSet:
+def read_circles(path: str | Path, *, units_if_unitless: str = "mm", include_hidden_layers: bool = False) -> CircleSet:
     """Open ``path`` and return every usable circle (INSERTs expanded); no stud/mark logic."""
     path = Path(path)
     doc, mode, warns = load_document(path)
     try:
-        return collect_circles(doc, path, read_mode=mode, units_if_unitless=units_if_unitless, warnings=warns)
+        return collect_circles(doc, path, read_mode=mode, units_if_unitless=units_if_unitless,
+                               include_hidden_layers=include_hidden_layers, warnings=warns)
     except DrawingError:
         raise
     except Exception as exc:  # a file ezdxf loads but cannot walk: never a traceback for the user
@@ -777,7 +834,8 @@ def _layer_matcher(patterns: str | Sequence[str]):
 
     def match(layer: str) -> bool:
         lay = layer.casefold()
-        return any(fnmatch.fnmatchcase(lay, p) for p in pats)
+        # the exact name first: AutoCAD allows [ ] in layer names, which fnmatch reads as a class
+        return any(lay == p or fnmatch.fnmatchcase(lay, p) for p in pats)
 
     return match, pats
 
@@ -786,7 +844,7 @@ def _fmt_pats(patterns: str | Sequence[str]) -> str:
     return ", ".join([patterns] if isinstance(patterns, str) else list(patterns))
 
 
-def _merge_concentric(idx: np.ndarray, xy: np.ndarray, r: np.ndarray, tol: float) -> np.ndarray:
+def _merge_concentric(path: Path, idx: np.ndarray, xy: np.ndarray, r: np.ndarray, tol: float) -> np.ndarray:
     """Indices of mark circles with concentric duplicates merged (the largest circle is kept)."""
     if idx.size < 2:
         return idx
@@ -795,7 +853,7 @@ def _merge_concentric(idx: np.ndarray, xy: np.ndarray, r: np.ndarray, tol: float
     try:
         i, j, _ = close_pairs(xy[order], tol)
     except _TooDense:
-        raise DrawingError("too many coincident circles on the mark layer") from None
+        raise DrawingError(f"{path}: marks ambiguous: too many coincident circles on the mark layer") from None
     for a, b in sorted(zip(i.tolist(), j.tolist())):
         if alive[a]:
             alive[b] = False
@@ -822,13 +880,13 @@ def _identify_marks(
     xy, r = cs.centers_wcs, cs.radii
     hit = {lay: match(lay) for lay in set(cs.layers)}
     on_layer = np.array([k for k, lay in enumerate(cs.layers) if hit[lay]], dtype=np.int64)
-    cand = _merge_concentric(on_layer, xy, r, dup_tol_units)
+    cand = _merge_concentric(path, on_layer, xy, r, dup_tol_units)
     where = f"on layer {_fmt_pats(mark_layer)}"
     warns: list[str] = []
     if cand.size < 3:
         raise DrawingError(
             f"{path}: marks missing: found {cand.size} mark circle{'s' if cand.size != 1 else ''} {where}, "
-            f"need 3 (O, A, B); layers: {cs.layer_summary()}"
+            f"need 3 (O, A, B){cs.skipped_summary()}; layers: {cs.layer_summary()}"
         )
 
     # Labels: each candidate circle takes the letter of its nearest O/A/B label within reach.
@@ -914,6 +972,7 @@ def read_layout(
     perpendicular_tol_deg: float = 0.5,
     collinear_tol_deg: float = 1.0,
     right_angle_ambiguity_deg: float = 2.0,
+    include_hidden_layers: bool = False,
 ) -> StudLayout:
     """Read the stud layout of a DXF drawing (see the module docstring for every rule).
 
@@ -932,12 +991,14 @@ def read_layout(
         collinear_tol_deg: marks whose triangle has an angle below this are collinear (error).
         right_angle_ambiguity_deg: geometry rule: the right angle must be this much clearer
             than the runner-up, else the marks are ambiguous (error).
+        include_hidden_layers: also read layers that are frozen or off (by default their
+            entities are skipped with a warning, as CAD does not show them).
 
     Raises:
         DrawingError: one line naming the file and the problem.
     """
     path = Path(path)
-    cs = read_circles(path, units_if_unitless=units_if_unitless)
+    cs = read_circles(path, units_if_unitless=units_if_unitless, include_hidden_layers=include_hidden_layers)
     try:
         return _build_layout(
             path, cs, stud_layers, mark_layer, min_diameter_m, max_diameter_m, min_spacing_m,
@@ -955,6 +1016,23 @@ def _ids_list(ids: Sequence[str], limit: int = 5) -> str:
     return shown + (f", ... (+{len(ids) - limit})" if len(ids) > limit else "")
 
 
+ORDER_TOL_M = 1e-4  # studs whose y (x) differ by less are in one row (column) for the id order
+
+
+def _runs(values: np.ndarray, tol: float, within: np.ndarray | None = None) -> np.ndarray:
+    """Index of the run each value falls in: runs are maximal chains of sorted values with gaps
+    < ``tol`` (inside each group of ``within``, if given), so values equal within float noise
+    share an index however large they are, and no fixed grid boundary can split them."""
+    if values.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    groups = np.zeros(values.size, dtype=np.int64) if within is None else within
+    order = np.lexsort((values, groups))
+    new = (np.diff(values[order]) >= tol) | (np.diff(groups[order]) != 0)
+    run = np.empty(values.size, dtype=np.int64)
+    run[order] = np.cumsum(np.concatenate([[0], new.astype(np.int64)]))
+    return run
+
+
 def _build_layout(
     path: Path, cs: CircleSet, stud_layers, mark_layer, min_diameter_m, max_diameter_m, min_spacing_m,
     duplicate_tol_m, diameter_outlier_ratio, label_distance_factor, perpendicular_tol_deg,
@@ -968,7 +1046,8 @@ def _build_layout(
     is_stud = np.array([hit[lay] for lay in cs.layers], dtype=bool)
     if not is_stud.any():
         raise DrawingError(
-            f"{path}: no studs found: no circles on layer(s) {_fmt_pats(stud_layers)}; layers: {cs.layer_summary()}"
+            f"{path}: no studs found: no circles on layer(s) {_fmt_pats(stud_layers)}{cs.skipped_summary()}; "
+            f"layers: {cs.layer_summary()}"
         )
 
     marks_idx, rule, mark_warns, mark_members = _identify_marks(
@@ -1032,16 +1111,19 @@ def _build_layout(
     idx, diam = idx[keep], diam[keep]
     if idx.size == 0:
         raise DrawingError(
-            f"{path}: no studs found: no circles on layer(s) {_fmt_pats(stud_layers)} pass the diameter filter; "
-            f"layers: {cs.layer_summary()}"
+            f"{path}: no studs found: no circles on layer(s) {_fmt_pats(stud_layers)} pass the diameter filter"
+            f"{cs.skipped_summary()}; layers: {cs.layer_summary()}"
         )
     xy = to_drawing(cs.centers_wcs[idx])
     layer_arr = np.array([cs.layers[i] for i in idx], dtype=object)
 
-    # Deterministic order: layer, y, x (0.1 mm grid), then diameter and exact coordinates.
+    # Deterministic order: layer, row (y), column (x), then diameter and exact coordinates. Rows
+    # and columns are runs of values less than ORDER_TOL_M apart, so float noise from the CAD
+    # placement (a rotated or shifted copy) never moves a stud across a grid boundary.
     layer_key = np.array([lay.casefold() for lay in layer_arr])
-    q = np.round(xy / 1e-4).astype(np.int64)
-    order = np.lexsort((xy[:, 0], xy[:, 1], diam, q[:, 0], q[:, 1], layer_key))
+    row = _runs(xy[:, 1], ORDER_TOL_M)
+    col = _runs(xy[:, 0], ORDER_TOL_M, within=row)
+    order = np.lexsort((xy[:, 0], xy[:, 1], diam, col, row, layer_key))
     xy, diam, layer_arr = xy[order], diam[order], layer_arr[order]
 
     # Duplicates (any layer): keep the first in order.
@@ -1088,6 +1170,12 @@ def _build_layout(
         except _TooDense as exc:
             warns.append(f"{name}: spacing check skipped: {exc.args[0]} candidate pairs closer than "
                          f"{spacing * 1e3:.1f} mm (are the drawing units right?)")
+    for k in _LABEL_LETTERS:  # a ring of the mark symbol drawn on a stud layer?
+        m = marks[k]
+        on_mark = np.flatnonzero(np.hypot(xy[:, 0] - m.x_m, xy[:, 1] - m.y_m) < max(0.5 * m.diameter_m, duplicate_tol_m))
+        if on_mark.size:
+            warns.append(f"{name}: {_ids_list([ids[j] for j in on_mark])} on a stud layer lie(s) on mark {k}: part "
+                         f"of the mark symbol drawn on the wrong layer? (kept as studs)")
     outside = np.flatnonzero((xy[:, 0] < -1e-9) | (xy[:, 1] < -1e-9))
     if outside.size:
         warns.append(f"{name}: {outside.size} studs outside the marks' quadrant (negative x or y): "
