@@ -1,7 +1,7 @@
 """Drawing -> world registration from the marks O, A, B (paper Eq. 2-3) and least squares.
 
 Frames: the drawing frame has its origin at mark O, x toward A, y toward B (metres); `world`
-is the robot base frame, z up, with the working plane at z = 0. Registration is planar: the
+is the robot base frame, z up (the working plane at any height in it). Registration is planar: the
 3x3 homogeneous ``M_local2world`` maps drawing (x, y, 1) to world (x, y, 1) (Eq. 2); its
 rotation block is orthonormal and its last column is the translation in metres.
 

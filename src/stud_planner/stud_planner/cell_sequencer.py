@@ -338,8 +338,10 @@ class CellSequencer(Node):
         # 2. stations
         fov = footprint_m(p["fov_width_m"], p["fov_distance_m"], p["image_aspect"], p["camera_height_m"],
                           p["part_height_m"])
+        # the stations stand camera_height_m above the plane where the marks were measured
+        plane_z = registration.mark_o.z if math.isfinite(registration.mark_o.z) else 0.0
         plan = plan_stations(studs_w, fov, p["camera_height_m"], overlap=p["overlap"],
-                             yaw_rad=math.radians(p["camera_yaw_deg"]))
+                             yaw_rad=math.radians(p["camera_yaw_deg"]), plane_z_m=plane_z)
         for i in plan.unreachable:
             self.stud_report[layout.ids[i]]["status"] = "unreachable"
         self.status.unreachable = [layout.ids[i] for i in plan.unreachable]

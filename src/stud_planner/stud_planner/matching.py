@@ -14,7 +14,8 @@ seen in the depth image. Three matchers, one result type (:class:`MatchResults`)
   h(pi(x_w, y_w, z)) = z for z along L by a safeguarded secant iteration on bilinearly sampled
   depth, i.e. a handful of depth look-ups per stud, sub-pixel, any camera orientation.
 
-Frames and units: ``targets_xy_w`` (N, 2) metres in `world` (z up, the working plane z = 0);
+Frames and units: ``targets_xy_w`` (N, 2) metres in `world` (the arm's base frame, z up; the part
+may lie at any height in it: the heights searched come from the depth image, :func:`observed_z_range`);
 ``depth_m`` (H, W) float32 metres of optical-frame z, NaN = invalid (REP 118), indexed
 ``[v, u]``; pixels (u, v) are column/row. Eq. 1 and its inverse are only ever evaluated through
 :class:`stud_perception.camera_model.CameraModel`.
@@ -32,10 +33,28 @@ from stud_perception.camera_model import CameraModel
 from stud_perception.depth_image import FillRule, SampleStatus, fill_depth_at, sample_depth_bilinear
 
 
-#: Heights (m, world z) a stud's weld point may have: the range searched along its vertical line,
-#: and the range over which "out of view" is decided. Perspective makes any vertical line enter
-#: the image far enough below the plane, so the range must be finite.
-DEFAULT_Z_RANGE_M = (-0.1, 1.0)
+#: Margin (m) added around the heights the depth image shows (:func:`observed_z_range`).
+Z_RANGE_MARGIN_M = 0.05
+
+
+def observed_z_range(depth_m: np.ndarray, camera: CameraModel, stride: int = 8,
+                     margin_m: float = Z_RANGE_MARGIN_M) -> tuple[float, float, float]:
+    """(z_min, z_max, z_median) in world metres of the surfaces this depth image shows.
+
+    The heights a stud's weld point may have: the range searched along its vertical line, and the
+    range over which "out of view" is decided (perspective makes any vertical line enter the image
+    far enough below the plane, so the range must be finite). Taken from the view itself -- Eq. 1
+    on every ``stride``-th pixel with depth, plus ``margin_m`` -- so it holds wherever the world
+    frame is: a robot base on a pedestal puts the part well below z = 0, a floor-mounted one above.
+    An image without any depth gives a range around the camera's own height.
+    """
+    sub = depth_m[::stride, ::stride]
+    v, u = np.nonzero(np.isfinite(sub) & (sub > 0))
+    if v.size == 0:
+        z = float(camera.position_w[2])
+        return z - 10.0, z + 10.0, z
+    zw = camera.pixel_to_world(u * stride, v * stride, sub[v, u])[:, 2]
+    return float(zw.min()) - margin_m, float(zw.max()) + margin_m, float(np.median(zw))
 
 
 class MatchStatus(IntEnum):
@@ -285,7 +304,7 @@ def match_bfs(
     tol_m: float = 0.001,
     max_pixels: int | None = None,
     hole_window_px: int = 7,
-    z_range_m: tuple[float, float] = DEFAULT_Z_RANGE_M,
+    z_range_m: tuple[float, float] | None = None,
 ) -> MatchResults:
     """The paper's brute-force search (BFS): for each target, evaluate pixels in row-major order
     (v outer, u inner) until Eq. 1 of the pixel lands within ``tol_m`` of (x_w, y_w).
@@ -298,15 +317,19 @@ def match_bfs(
     ``max_pixels`` caps the pixels evaluated per target (for sampling in benchmarks); a capped
     search that has not met the tolerance reports NOT_CONVERGED with ``iterations == max_pixels``.
     Unmatched targets: OUT_OF_VIEW if the vertical line never enters the image for heights in
-    ``z_range_m``, NO_DEPTH if no pixel
-    had depth, else NOT_CONVERGED (best pixel reported).
+    ``z_range_m`` (default: :func:`observed_z_range`) -- decided before the scan, with 0
+    iterations, since no pixel can match such a target --, NO_DEPTH if no pixel had depth, else
+    NOT_CONVERGED (best pixel reported).
     """
     xy, depth = _check_inputs(targets_xy_w, depth_m, camera)
     out = _empty_results("bfs", xy.shape[0])
     H, W = depth.shape
     limit = H * W if max_pixels is None else min(int(max_pixels), H * W)
-    lo, hi = line_in_view_z_interval(camera, xy, *z_range_m)
+    lo, hi = line_in_view_z_interval(camera, xy, *(z_range_m or observed_z_range(depth, camera)[:2]))
     for k, (xt, yt) in enumerate(xy):
+        if lo[k] > hi[k]:
+            out["status"][k] = MatchStatus.OUT_OF_VIEW
+            continue
         best = (np.inf, -1, -1, np.nan, FillRule.NONE)
         evaluated = 0
         any_depth = False
@@ -334,8 +357,6 @@ def match_bfs(
         _store_best_pixel(out, k, best, camera)
         if found:
             out["status"][k] = MatchStatus.OK
-        elif lo[k] > hi[k]:
-            out["status"][k] = MatchStatus.OUT_OF_VIEW
         elif not any_depth and evaluated == H * W:
             out["status"][k] = MatchStatus.NO_DEPTH
         else:
@@ -386,7 +407,7 @@ def match_fpm(
     hole_window_px: int = 7,
     max_halvings: int | None = None,
     hole_fallback: bool = True,
-    z_range_m: tuple[float, float] = DEFAULT_Z_RANGE_M,
+    z_range_m: tuple[float, float] | None = None,
     quadrant_early_exit: bool = False,
     window_order: str = "row_major",
 ) -> MatchResults:
@@ -409,7 +430,7 @@ def match_fpm(
     with ``window_order="nearest_first"`` is the cheap variant (~9 per stud).
     Missing depth: the paper's 7x7 mean, then (``hole_fallback``) the plane-fit fallback.
     A stud not matched within tolerance: OUT_OF_VIEW if its vertical line never enters the image
-    (heights in ``z_range_m``), NO_DEPTH if no pixel of the final window had depth, else
+    (heights in ``z_range_m``, default :func:`observed_z_range`), NO_DEPTH if no pixel of the final window had depth, else
     NOT_CONVERGED (the best pixel evaluated is reported).
     """
     xy, depth = _check_inputs(targets_xy_w, depth_m, camera)
@@ -418,7 +439,7 @@ def match_fpm(
     if max_halvings is None:
         max_halvings = math.ceil(math.log(W * H, 4))
     win_du, win_dv = _window_order(window_px, window_order)
-    lo, hi = line_in_view_z_interval(camera, xy, *z_range_m)
+    lo, hi = line_in_view_z_interval(camera, xy, *(z_range_m or observed_z_range(depth, camera)[:2]))
 
     def depth_at(u: int, v: int) -> tuple[float, FillRule]:
         return _depth_at_pixel(depth, u, v, hole_window_px, "plane" if hole_fallback else "none")
@@ -497,8 +518,8 @@ def match_batch(
     tol_m: float = 0.001,
     *,
     converge_xy_m: float = 1e-4,
-    z_range_m: tuple[float, float] = DEFAULT_Z_RANGE_M,
-    z_init_m: float = 0.0,
+    z_range_m: tuple[float, float] | None = None,
+    z_init_m: float | None = None,
     max_lookups: int = 12,
     z_bracket_tol_m: float = 2e-5,
     hole_window_px: int = 7,
@@ -515,7 +536,8 @@ def match_batch(
     edge), the safeguarded secant does not, and it stops at ``converge_xy_m`` (well under the
     paper's 1 mm, near the depth noise's effect on XY). Bilinear depth makes g continuous, so the
     iteration converges on noisy depth too. Iterates are clipped to the heights at which the line
-    is in view (:func:`line_in_view_z_interval`) within ``z_range_m``.
+    is in view (:func:`line_in_view_z_interval`) within ``z_range_m``; by default the heights the
+    depth image shows (:func:`observed_z_range`), whose median is the first guess ``z_init_m``.
 
     Result per stud (``iterations`` = depth look-ups, each one bilinear sample):
     - OK: |XY(point_w) - target| < ``tol_m``; ``point_w`` is Eq. 1 of the sub-pixel ``pixel_uv``;
@@ -532,6 +554,10 @@ def match_batch(
     xy, depth = _check_inputs(targets_xy_w, depth_m, camera)
     n = xy.shape[0]
     out = _empty_results("batch", n)
+    if z_range_m is None or z_init_m is None:
+        z_min, z_max, z_mid = observed_z_range(depth, camera)
+        z_range_m = z_range_m or (z_min, z_max)
+        z_init_m = z_mid if z_init_m is None else z_init_m
     zlo, zhi = line_in_view_z_interval(camera, xy, z_range_m[0], z_range_m[1])
     in_view = zlo <= zhi
     out["status"][~in_view] = MatchStatus.OUT_OF_VIEW

@@ -44,11 +44,14 @@ class StationPlan:
 
 def plan_stations(studs_xy_w: np.ndarray, fov_m: tuple[float, float], camera_height_m: float,
                   overlap: float = 0.15, yaw_rad: float = 0.0,
-                  camera_reachable: Callable[[np.ndarray], bool] | None = None) -> StationPlan:
+                  camera_reachable: Callable[[np.ndarray], bool] | None = None,
+                  plane_z_m: float = 0.0) -> StationPlan:
     """Stations for studs at ``studs_xy_w`` (N, 2) with a nadir camera ``camera_height_m`` above
-    the plane whose footprint is ``fov_m`` = (width along image x, height along image y) at the
-    part (for a camera yawed by ``yaw_rad``). ``overlap`` in [0, 0.9): fraction of the footprint
-    kept free at the border. ``camera_reachable(xyz) -> bool``: can the arm put the camera there."""
+    the working plane (world height ``plane_z_m``, e.g. the registered marks' height: the world
+    is the arm's base frame, which need not lie in the plane) whose footprint is ``fov_m`` =
+    (width along image x, height along image y) at the part (for a camera yawed by ``yaw_rad``).
+    ``overlap`` in [0, 0.9): fraction of the footprint kept free at the border.
+    ``camera_reachable(xyz) -> bool``: can the arm put the camera there."""
     xy = np.asarray(studs_xy_w, dtype=np.float64).reshape(-1, 2)
     if not (0.0 <= overlap < 0.9):
         raise StationPlanningError(f"overlap={overlap}: expected 0 <= overlap < 0.9")
@@ -75,7 +78,7 @@ def plan_stations(studs_xy_w: np.ndarray, fov_m: tuple[float, float], camera_hei
                 continue
             centre_local = origin + (np.array([col, row]) + 0.5) * tile
             centre_w = R @ centre_local
-            xyz = np.array([centre_w[0], centre_w[1], camera_height_m])
+            xyz = np.array([centre_w[0], centre_w[1], plane_z_m + camera_height_m])
             if camera_reachable is not None and not camera_reachable(xyz):
                 unreachable.extend(int(i) for i in members)
                 continue

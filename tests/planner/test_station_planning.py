@@ -1,0 +1,49 @@
+"""Camera stations: every stud covered once, inside the footprint's inner part, at the right height."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from stud_planner.station_planning import StationPlanningError, footprint_m, plan_stations
+
+
+def _in_footprint(station, xy: np.ndarray, fov, overlap: float) -> np.ndarray:
+    c, s = math.cos(station.yaw_rad), math.sin(station.yaw_rad)
+    local = (xy - np.asarray(station.camera_xyz_w[:2])) @ np.array([[c, -s], [s, c]])
+    half = np.asarray(fov) * (1.0 - overlap) / 2 + 1e-9
+    return np.all(np.abs(local) <= half, axis=1)
+
+
+@pytest.mark.parametrize("yaw_deg", [0.0, 35.0, -90.0])
+@pytest.mark.parametrize("plane_z_m", [0.0, -0.62])
+def test_every_stud_is_assigned_once_to_a_station_that_sees_it(yaw_deg, plane_z_m):
+    rng = np.random.default_rng(5)
+    xy = rng.uniform((-0.2, 0.1), (0.55, 0.4), (300, 2))
+    fov = footprint_m(0.46, 0.5, 0.75, 0.3, 0.05)
+    plan = plan_stations(xy, fov, 0.3, overlap=0.15, yaw_rad=math.radians(yaw_deg), plane_z_m=plane_z_m)
+    assigned = np.concatenate([s.stud_indices for s in plan.stations])
+    assert sorted(assigned.tolist()) == list(range(len(xy))) and plan.unreachable == ()
+    for st in plan.stations:
+        assert _in_footprint(st, xy[list(st.stud_indices)], fov, 0.15).all()
+        # the world is the arm's base frame: the camera stands camera_height_m above the plane
+        assert st.camera_xyz_w[2] == pytest.approx(plane_z_m + 0.3)
+
+
+def test_unreachable_stations_report_their_studs():
+    xy = np.array([[0.0, 0.0], [0.01, 0.0], [1.0, 0.0]])
+    plan = plan_stations(xy, (0.2, 0.15), 0.3, camera_reachable=lambda p: p[0] < 0.5)
+    assert plan.unreachable == (2,) and plan.covered == 2
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(overlap=0.95), "overlap=0.95"),
+    (dict(camera_height_m=0.0), "must be positive"),
+])
+def test_bad_settings_are_named(kwargs, match):
+    args = dict(studs_xy_w=np.zeros((1, 2)), fov_m=(0.2, 0.15), camera_height_m=0.3) | kwargs
+    with pytest.raises(StationPlanningError, match=match):
+        plan_stations(**args)
+    with pytest.raises(StationPlanningError, match="not above the part top"):
+        footprint_m(0.46, 0.5, 0.75, 0.05, 0.05)
