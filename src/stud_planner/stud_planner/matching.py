@@ -444,14 +444,18 @@ def match_fpm(
     def depth_at(u: int, v: int) -> tuple[float, FillRule]:
         return _depth_at_pixel(depth, u, v, hole_window_px, "plane" if hole_fallback else "none")
 
+    sub = depth[::8, ::8]
+    sub = sub[np.isfinite(sub) & (sub > 0)]
+    z_typical = float(np.median(sub)) if sub.size else float(camera.position_w[2])
+
     for k, (xt, yt) in enumerate(xy):
         target = np.array([xt, yt])
         uc, vc = W / 2.0, H / 2.0
         su, sv = W / 4.0, H / 4.0
         iterations = 0
         best = (np.inf, -1, -1, np.nan, FillRule.NONE)
-        # Before any depth is read, assume the working plane's distance along the optical axis.
-        z_last = float(camera.position_w[2])
+        # Before any depth is read, assume the image's typical depth (only steers the first step).
+        z_last = z_typical
         found = False
         for _ in range(max_halvings):
             ui = int(min(max(round(uc), 0), W - 1))
