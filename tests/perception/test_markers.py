@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -10,12 +11,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from stud_perception.camera_model import CameraModel
 from stud_perception.depth_image import FillRule
-from stud_perception.markers import MarkDetectorConfig, MarkStatus, detect_marks
+from stud_perception.markers import MarkDetectorConfig, MarkStatus, _hough_candidates, detect_marks
 from stud_perception.registration import registration_from_marks
-from stud_perception.scene import MarkingBoard, Pose2D, demo_camera, demo_dome_scene, render, view_camera
+from stud_perception.scene import MarkingBoard, Pose2D, demo_camera, demo_dome_scene, load_scene, render, view_camera
 
 SCENE = demo_dome_scene()
+CELL_SCENE = load_scene(Path(__file__).resolve().parents[2] / "src" / "stud_perception" / "config" / "dome_scene.json")
 DRAWING = np.asarray(SCENE.board.marks_drawing_m)
 
 
@@ -132,3 +135,79 @@ def test_a_second_triangle_of_mark_sized_circles_is_reported_as_ambiguous():
     det = _detect(view)
     assert det.status is MarkStatus.AMBIGUOUS, det.message
     assert len(det.candidates_uv) == 6 and np.isnan(det.marks_world_m).all()
+
+
+def _camera_with_mark_at(mark: int, u_px: float, v_px: float, width: int, height: int, distance_m: float = 0.5):
+    """Nadir camera ``distance_m`` above the board that images mark ``mark`` (0 = O) at (u_px, v_px)."""
+    mark_w = SCENE.marks_world_m[mark]
+    centred = view_camera(mark_w, distance_m, width=width, height=height)
+    # Over a level board a nadir camera's shift is an image shift: aim at the point seen at the mirror pixel.
+    aim = centred.pixel_to_world(2 * centred.cx - u_px, 2 * centred.cy - v_px, distance_m)
+    return view_camera(aim, distance_m, width=width, height=height)
+
+
+def _assert_accurate(det, view, scene=SCENE):
+    assert det.ok, det.message
+    assert np.abs(det.marks_pixels_uv - view.marks_pixels_uv).max() < 0.05
+    assert np.linalg.norm(det.marks_world_m[:, :2] - view.marks_world_m[:, :2], axis=1).max() < 0.5e-3
+    drawing = np.asarray(scene.board.marks_drawing_m)
+    reg = registration_from_marks(*det.marks_world_m, drawing_marks=drawing)
+    yaw_err = math.degrees(math.remainder(reg.yaw_rad - scene.drawing_to_world.yaw_rad, 2 * math.pi))
+    assert abs(yaw_err) < 0.1
+    assert np.linalg.norm(reg.translation_m - scene.M_local2world[:2, 2]) < 0.5e-3
+
+
+@pytest.mark.parametrize("size", [(640, 480), (1280, 960), (1920, 1080)])
+@pytest.mark.parametrize("gap_px", [1.0, 4.0, 19.0])
+def test_whole_mark_close_to_the_border_is_measured_to_sub_pixel(size, gap_px):
+    # Mark O just inside the bottom-right corner: its refinement patch reaches past both borders.
+    width, height = size
+    fx = view_camera(SCENE.marks_world_m[0], 0.5, width=width, height=height).fx
+    r_px = fx * SCENE.board.mark_diameter_m / 2 / 0.5
+    camera = _camera_with_mark_at(0, width - 1 - r_px - gap_px, height - 1 - r_px - gap_px, width, height)
+    view = render(SCENE, camera, seed=1)
+    u, v = view.marks_pixels_uv[0]
+    assert gap_px - 0.5 < min(width - 1 - u, height - 1 - v) - r_px < gap_px + 0.5  # the scene is as intended
+    _assert_accurate(_detect(view), view)
+
+
+def test_audit_view_yawed_120_deg_finds_the_mark_near_the_border():
+    # The cell's registration station turned 120 deg about the optical axis: O's edge 19 px from the border.
+    K = np.array([[1391.3, 0.0, 639.5], [0.0, 1391.3, 479.5], [0.0, 0.0, 1.0]])
+    station = view_camera((0.345, -0.175, -0.02), 0.3, math.radians(120.0))
+    camera = CameraModel(K=K, width=1280, height=960, R_wc=station.R_wc, t_wc=station.t_wc)
+    view = render(CELL_SCENE, camera, seed=0)
+    det = detect_marks(view.color_bgr, view.depth_m, view.camera, np.asarray(CELL_SCENE.board.marks_drawing_m))
+    _assert_accurate(det, view, CELL_SCENE)
+
+
+@pytest.mark.parametrize("overlap_px", [3.0, 15.0])
+def test_mark_cut_by_the_border_is_rejected_and_counted(overlap_px):
+    # Mark A's disc runs past the top border (O and B lie below it): its centroid would be biased.
+    width, height = 1280, 960
+    r_px = view_camera(SCENE.marks_world_m[1], 0.5).fx * SCENE.board.mark_diameter_m / 2 / 0.5
+    view = render(SCENE, _camera_with_mark_at(1, width / 2, r_px - overlap_px, width, height), seed=0)
+    det = _detect(view)
+    assert det.status is MarkStatus.NO_CANDIDATES, det.message
+    assert "2 mark-sized circle(s) found, need 3" in det.message
+    assert "1 dark circle(s) cut by the image border" in det.message
+    assert np.isnan(det.marks_world_m).all()
+    # The two whole marks are still reported, at their true pixels.
+    found = np.sort(det.candidates_uv, axis=0)
+    np.testing.assert_allclose(found, np.sort(view.marks_pixels_uv[[0, 2]], axis=0), atol=0.05)
+
+
+def test_elliptical_mark_split_by_hough_counts_once_and_the_fallback_finds_all_three():
+    # fx != fy images the marks as ellipses; ALT then returns two circles for one mark, which
+    # used to make three "candidates" and skip the classic-Hough fallback.
+    K = np.array([[1300.0, 0.0, 639.5], [0.0, 1450.0, 479.5], [0.0, 0.0, 1.0]])
+    station = view_camera((0.345, -0.175, -0.02), 0.3)
+    camera = CameraModel(K=K, width=1280, height=960, R_wc=station.R_wc, t_wc=station.t_wc)
+    view = render(CELL_SCENE, camera, seed=0)
+    gray = cv2.cvtColor(view.color_bgr, cv2.COLOR_BGR2GRAY)
+    circles = _hough_candidates(gray, 7, 63)
+    d = np.linalg.norm(circles[:, None, :2] - circles[None, :, :2], axis=2) + np.diag(np.full(len(circles), np.inf))
+    assert d.min() >= np.minimum(circles[:, None, 2], circles[None, :, 2]).min()  # no mark counted twice
+    det = detect_marks(view.color_bgr, view.depth_m, view.camera, np.asarray(CELL_SCENE.board.marks_drawing_m))
+    assert det.ok, det.message
+    assert np.abs(det.marks_pixels_uv - view.marks_pixels_uv).max() < 0.05

@@ -4,10 +4,14 @@ Pipeline (paper Sec. on registration, made robust):
 
 1. Hough circles (``HOUGH_GRADIENT_ALT``, falling back to ``HOUGH_GRADIENT``) with a radius
    range derived from the mark diameter, the working depth range and the focal length.
+   Circles whose centres lie within a radius of a stronger one are one mark (ALT can split an
+   elliptical mark in two) and are merged before deciding whether to fall back.
 2. Sub-pixel centre per candidate: the darkness-weighted centroid of the dark blob (weights
    are the pixel's fraction of mark paint, from the blob's own dark and surround levels). A
    tilted circle images as an ellipse; the centroid is its centre, unlike the integer-edge
    Hough centre (~0.5 px bias). The blob's size must match the size its depth predicts.
+   A mark near the image border is measured in a patch clipped to the image; a blob that
+   touches the border is cut by it (biased centroid), dropped, and counted in the message.
 3. Depth from the board around the mark, not the mark: dark paint often returns no
    structured-light depth, so the mark discs are masked and
    :func:`~stud_perception.depth_image.fill_depth_at` grows its window into the board and fits
@@ -99,54 +103,88 @@ class MarkDetection:
 
 
 # -- stage 1: Hough ---------------------------------------------------------------------------------
+def _merge_close_circles(circles: np.ndarray) -> np.ndarray:
+    """(K, 3) circles with those whose centre lies within a radius of a stronger one dropped.
+
+    ``HOUGH_GRADIENT_ALT`` can return two circles for one elliptical mark (fx != fy, or a tilted
+    board); counted twice they would hide that a mark is missing. Input and output are
+    strongest first.
+    """
+    kept: list[np.ndarray] = []
+    for c in circles:
+        # min, not max: a spurious large circle must not swallow a real mark beside it.
+        if all(math.hypot(c[0] - k[0], c[1] - k[1]) >= min(c[2], k[2]) for k in kept):
+            kept.append(c)
+    return np.array(kept).reshape(-1, 3)
+
+
 def _hough_candidates(gray: np.ndarray, r_min: int, r_max: int) -> np.ndarray:
-    """(K, 3) circles (u, v, r) in pixels, ALT first; the classic method when ALT finds < 3."""
+    """(K, 3) distinct circles (u, v, r) in pixels, ALT first; the classic method when ALT finds < 3."""
     blurred = cv2.GaussianBlur(gray, (5, 5), 1.0)
     min_dist = max(2.0 * r_min, 4.0)
     found = cv2.HoughCircles(
         blurred, cv2.HOUGH_GRADIENT_ALT, dp=1.5, minDist=min_dist, param1=300, param2=0.8,
         minRadius=r_min, maxRadius=r_max,
     )
-    if found is None or found.shape[1] < 3:
+    circles = np.zeros((0, 3)) if found is None else _merge_close_circles(found[0].astype(np.float64))
+    if len(circles) < 3:
         # Classic gradient Hough: accumulator threshold a quarter of the smallest circumference.
         found = cv2.HoughCircles(
             blurred, cv2.HOUGH_GRADIENT, dp=1.0, minDist=min_dist, param1=100,
             param2=max(10.0, 0.25 * 2 * math.pi * r_min), minRadius=r_min, maxRadius=r_max,
         )
-    return np.zeros((0, 3)) if found is None else found[0].astype(np.float64)
+        circles = np.zeros((0, 3)) if found is None else _merge_close_circles(found[0].astype(np.float64))
+    return circles
 
 
 # -- stage 2: sub-pixel centre ------------------------------------------------------------------------
+class _Rejected(Enum):
+    """Why :func:`_refine_centre` found no mark at a Hough circle."""
+
+    NOT_A_MARK = "not_a_mark"      # too little contrast, or no closed dark disc around the centre
+    CUT_BY_BORDER = "cut_by_border"  # the dark blob reaches the image border: its centroid would be biased
+
+
 def _refine_centre(gray: np.ndarray, u0: float, v0: float, r: float, min_contrast: float):
     """Darkness-weighted centroid of the dark blob near (u0, v0).
 
-    Returns (u, v, r_eq_px, r_major_px, contrast) or None when the blob is not a closed dark
-    disc fully inside the image (a partial mark would give a biased centre).
+    Returns (u, v, r_eq_px, r_major_px, contrast), or a :class:`_Rejected` reason when the blob
+    is not a closed dark disc or touches the image border (a partial mark gives a biased centre).
+    The patch is clipped to the image, so a whole mark close to the border is still measured.
     """
     h, w = gray.shape
     half = int(math.ceil(1.8 * r)) + 2
-    c0, r0 = int(round(u0)) - half, int(round(v0)) - half
-    c1, r1 = c0 + 2 * half + 1, r0 + 2 * half + 1
-    if c0 < 0 or r0 < 0 or c1 > w or r1 > h:
-        return None
+    uc0, vc0 = int(round(u0)), int(round(v0))
+    c0, r0 = max(uc0 - half, 0), max(vc0 - half, 0)
+    c1, r1 = min(uc0 + half + 1, w), min(vc0 + half + 1, h)
+    if c1 - c0 < 3 or r1 - r0 < 3:
+        return _Rejected.NOT_A_MARK
     patch = gray[r0:r1, c0:c1].astype(np.float64)
     yy, xx = np.mgrid[r0:r1, c0:c1].astype(np.float64)
     dist = np.hypot(xx - u0, yy - v0)
-    bg = float(np.median(patch[(dist > 1.35 * r) & (dist < 1.75 * r)]))
-    fg = float(np.median(patch[dist < 0.5 * r]))
+    ring = patch[(dist > 1.35 * r) & (dist < 1.75 * r)]
+    centre = patch[dist < 0.5 * r]
+    if ring.size == 0 or centre.size == 0:
+        return _Rejected.NOT_A_MARK
+    bg = float(np.median(ring))
+    fg = float(np.median(centre))
     contrast = bg - fg
     if contrast < min_contrast:
-        return None
-    # The connected dark region at the centre must be closed within the patch.
+        return _Rejected.NOT_A_MARK
+    # The connected dark region at the centre must be closed within the patch, away from the image border.
     dark = (patch < 0.5 * (bg + fg)).astype(np.uint8)
     n_lab, labels = cv2.connectedComponents(dark, connectivity=8)
     core = labels[dist < 0.5 * r]
     core = core[core > 0]
     if core.size == 0:
-        return None
+        return _Rejected.NOT_A_MARK
     blob = labels == np.bincount(core).argmax()
-    if blob[0, :].any() or blob[-1, :].any() or blob[:, 0].any() or blob[:, -1].any():
-        return None
+    edges = (blob[0, :].any(), blob[-1, :].any(), blob[:, 0].any(), blob[:, -1].any())
+    at_border = (r0 == 0, r1 == h, c0 == 0, c1 == w)
+    if any(e and b for e, b in zip(edges, at_border)):
+        return _Rejected.CUT_BY_BORDER
+    if any(edges):
+        return _Rejected.NOT_A_MARK
     # Weights: fraction of paint per pixel, over the blob grown by two pixels (its anti-aliased rim).
     support = cv2.dilate(blob.astype(np.uint8), np.ones((3, 3), np.uint8), iterations=2).astype(bool)
     wgt = np.where(support, np.clip((bg - patch) / contrast, 0.0, 1.0), 0.0)
@@ -255,18 +293,29 @@ def detect_marks(
 
     # 2. Sub-pixel centres, duplicates merged (strongest Hough response first).
     refined = []
+    cut_by_border: list[tuple[float, float, float]] = []  # Hough circles of marks the border cuts
     for u0, v0, r in circles:
         res = _refine_centre(gray, u0, v0, r, config.min_contrast)
-        if res is None:
+        if res is _Rejected.CUT_BY_BORDER:
+            if all(math.hypot(u0 - q[0], v0 - q[1]) >= min(r, q[2]) for q in cut_by_border):
+                cut_by_border.append((u0, v0, r))
+            continue
+        if isinstance(res, _Rejected):
             continue
         if any(math.hypot(res[0] - q[0], res[1] - q[1]) < 0.5 * q[2] for q in refined):
             continue
         refined.append(res)
         if len(refined) >= config.max_candidates:
             break
+    border_note = (
+        f"; {len(cut_by_border)} dark circle(s) cut by the image border were left out "
+        "(move the camera so all three marks are fully in view)"
+        if cut_by_border else ""
+    )
     if not refined:
         return _failure(
-            MarkStatus.NO_CANDIDATES, f"no dark circular marks found (Hough radius {r_min}-{r_max} px)", *empty
+            MarkStatus.NO_CANDIDATES,
+            f"no dark circular marks found (Hough radius {r_min}-{r_max} px){border_note}", *empty,
         )
     cand = np.array(refined)
     uv, r_eq, r_major = cand[:, :2], cand[:, 2], cand[:, 3]
@@ -298,14 +347,15 @@ def detect_marks(
     if len(uv) < 3:
         return _failure(
             MarkStatus.NO_CANDIDATES,
-            f"{len(uv)} mark-sized circle(s) found, need 3 (mark diameter {config.mark_diameter_m * 1000:.0f} mm)",
+            f"{len(uv)} mark-sized circle(s) found, need 3 (mark diameter {config.mark_diameter_m * 1000:.0f} mm)"
+            f"{border_note}",
             *cand_info,
         )
     idx_depth = np.flatnonzero(has_depth)
     if idx_depth.size < 3:
         return _failure(
             MarkStatus.NO_DEPTH,
-            f"{n_nodepth} of {len(uv)} mark candidates have no depth on the board around them",
+            f"{n_nodepth} of {len(uv)} mark candidates have no depth on the board around them{border_note}",
             *cand_info,
         )
 
@@ -329,7 +379,7 @@ def detect_marks(
             status,
             f"no three of {idx_depth.size} candidates match |OA|, |OB|, |AB| = "
             f"{', '.join(f'{e * 1000:.1f}' for e in expected)} mm within {tol * 1000:.1f} mm "
-            f"(best error {best_any * 1000:.1f} mm){extra}",
+            f"(best error {best_any * 1000:.1f} mm){extra}{border_note}",
             *cand_info, distance_error_m=best_any,
         )
     same_marks = (np.sort(trip, axis=1) == np.sort(trip[best])).all(axis=1)
