@@ -38,3 +38,36 @@ def test_keep_freed_memory_keeps_a_freed_frame_in_the_process():
     assert kept_mb >= 18  # freed, but kept for the next frame: no fresh pages to fault in
     _, default_kept_mb = _run(tune=False)
     assert default_kept_mb < 5  # glibc's default: unmapped on free, faulted in again next time
+
+
+def test_color_to_bgr_takes_8_bit_images_only():
+    import numpy as np
+    import pytest
+
+    sys.path.insert(0, str(REPO / "src" / "stud_perception"))
+    from stud_perception import ros_io
+
+    grey = np.arange(12, dtype=np.uint8).reshape(3, 4)
+    bgr = ros_io.color_to_bgr(ros_io.numpy_to_image(grey, "mono8"))
+    assert bgr.shape == (3, 4, 3) and (bgr[:, :, 2] == grey).all()
+    for encoding, dtype in (("16UC1", np.uint16), ("mono16", np.uint16), ("32FC1", np.float32)):
+        msg = ros_io.numpy_to_image(grey.astype(dtype), encoding)
+        with pytest.raises(ros_io.MessageError, match=f"colour image encoding '{encoding}' is not supported"):
+            ros_io.color_to_bgr(msg)
+
+
+def test_pose_with_a_non_finite_value_is_a_message_error():
+    import numpy as np
+    import pytest
+    from geometry_msgs.msg import Pose
+
+    sys.path.insert(0, str(REPO / "src" / "stud_perception"))
+    from stud_perception import ros_io
+
+    pose = Pose()
+    pose.orientation.w = 1.0
+    R, t = ros_io.pose_to_rt(pose)
+    assert np.allclose(R, np.eye(3)) and not t.any()
+    pose.orientation.z = float("inf")
+    with pytest.raises(ros_io.MessageError, match=r"non-finite values \(orientation.z=inf\)"):
+        ros_io.pose_to_rt(pose)

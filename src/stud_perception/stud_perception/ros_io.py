@@ -93,8 +93,16 @@ def numpy_to_image(arr: np.ndarray, encoding: str, stamp: Time | None = None, fr
     return msg
 
 
+#: 8-bit colour and grey encodings: what OpenCV's detectors (HoughCircles, ...) take. A 16-bit or
+#: float image on a colour topic is almost always a depth or IR stream on the wrong topic.
+COLOR_ENCODINGS = ("rgb8", "bgr8", "rgba8", "bgra8", "mono8", "8UC1", "8UC3")
+
+
 def color_to_bgr(msg: Image) -> np.ndarray:
-    """Colour image -> BGR uint8 (H, W, 3) for OpenCV."""
+    """Colour image (8-bit: one of COLOR_ENCODINGS) -> BGR uint8 (H, W, 3) for OpenCV."""
+    if msg.encoding not in COLOR_ENCODINGS:
+        raise MessageError(f"colour image encoding '{msg.encoding}' is not supported; expected an 8-bit "
+                           f"colour or mono encoding, one of {list(COLOR_ENCODINGS)}")
     arr = image_to_numpy(msg)
     if msg.encoding in ("rgb8",):
         return arr[:, :, ::-1].copy()
@@ -147,6 +155,11 @@ def camera_info_from_model(camera: CameraModel, stamp: Time | None = None,
 
 def pose_to_rt(pose: Pose) -> tuple[np.ndarray, np.ndarray]:
     q = pose.orientation
+    values = {"position.x": pose.position.x, "position.y": pose.position.y, "position.z": pose.position.z,
+              "orientation.x": q.x, "orientation.y": q.y, "orientation.z": q.z, "orientation.w": q.w}
+    bad = [f"{k}={v}" for k, v in values.items() if not math.isfinite(v)]
+    if bad:
+        raise MessageError(f"pose has non-finite values ({', '.join(bad)}); expected finite metres and quaternion")
     try:
         R = quaternion_to_matrix(q.x, q.y, q.z, q.w)
     except ValueError:
