@@ -16,7 +16,7 @@ from ros2_lite.bag import BagWriter  # noqa: E402
 from stud_perception import ros_io  # noqa: E402
 from stud_perception.camera_node import shot_messages  # noqa: E402
 from stud_perception.scene import load_scene, render, view_camera  # noqa: E402
-from stud_planner.offline_plan import PlanError, plan  # noqa: E402
+from stud_planner.offline_plan import PlanError, main, plan, read_views  # noqa: E402
 from stud_planner.view_planning import PlannerConfig  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
@@ -131,3 +131,202 @@ def test_plan_cli_writes_report_csv_and_overlays_and_exits_2_on_errors(tmp_path)
     bad = subprocess.run(["ros2", "run", "stud_planner", "plan", "--drawing", str(DRAWING), "--bag",
                           str(tmp_path / "nope")], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and bad.stderr.startswith("plan: error:") and "Traceback" not in bad.stderr
+
+
+# -- damaged, mistyped and badly synchronised bags: one-line errors, no silent wrong results ----------
+TOPICS = {"color": "/camera/color/image_raw", "depth": "/camera/depth/image_raw",
+          "info": "/camera/color/camera_info", "pose": "/camera/pose"}
+
+
+@pytest.fixture(scope="module")
+def small_shots():
+    """The messages of two low-resolution shots of the demo scene (stamps 1 s and 2 s)."""
+    scene = load_scene(SCENE)
+    shots = []
+    for i, xyz in enumerate(((0.345, -0.175, 0.28), (0.28, 0.10, 0.42))):
+        c = view_camera((0, 0, 0), 1.0, width=240, height=180)
+        view = render(scene, c.with_pose(c.R_wc, np.array(xyz)), seed=i)
+        shots.append(shot_messages(view, "32FC1", ros_io.ns_to_stamp(1_000_000_000 * (i + 1))))
+    return shots
+
+
+def _write(path: Path, records, preset: str = "zstd_fast", declare: bool = True) -> Path:
+    """A bag of ``records`` = [(role, msg or CDR bytes, log_time_ns)] on the default topics."""
+    from ros2_lite.bag import type_name_of
+
+    with BagWriter(path, storage_preset_profile=preset) as bag:
+        if declare:
+            for role, msg, _t in records:
+                if not isinstance(msg, bytes):
+                    bag.add_topic(TOPICS[role], type_name_of(msg))
+        for role, msg, t in records:
+            bag.write(TOPICS[role], msg, t)
+    return path
+
+
+def _records(shots, order=("color", "depth", "info", "pose")):
+    return [(k, shot[k], 1_000_000_000 * (i + 1) + j) for i, shot in enumerate(shots) for j, k in enumerate(order)]
+
+
+def _shifted(msg, dt_ns: int):
+    import copy
+
+    out = copy.deepcopy(msg)
+    out.header.stamp = ros_io.ns_to_stamp(ros_io.stamp_to_ns(msg.header.stamp) + dt_ns)
+    return out
+
+
+def test_truncated_bag_is_an_error_naming_the_file_unless_allowed(tmp_path, small_shots):
+    bag = _write(tmp_path / "full", _records(small_shots), preset="fastwrite")
+    data = (bag / "full_0.mcap").read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.75)])  # view 0 whole, view 1 cut off
+    with pytest.raises(PlanError, match=r"cut\.mcap: damaged bag: .*ends in the middle of a record"):
+        read_views(cut, TOPICS)
+    warnings: list[str] = []
+    views = read_views(cut, TOPICS, warnings=warnings, allow_damaged=True)
+    assert len(views) == 1 and views[0].stamp_ns == 1_000_000_000
+    assert len(warnings) == 1 and "ends in the middle of a record" in warnings[0]
+    # the same cut inside a bag directory: metadata.yaml lists more messages than the file holds
+    (bag / "full_0.mcap").write_bytes(data[: int(len(data) * 0.75)])
+    with pytest.raises(PlanError, match=r"full: damaged bag: .*metadata.yaml disagrees.*message_count 8 vs"):
+        read_views(bag, TOPICS)
+
+
+def test_truncated_bag_without_the_topics_says_it_is_damaged(tmp_path, small_shots):
+    # topics declared on first write, as a recorder does: a cut after the first colour image leaves no
+    # depth/info/pose channel at all
+    bag = _write(tmp_path / "lazy", _records(small_shots), preset="fastwrite", declare=False)
+    data = (bag / "lazy_0.mcap").read_bytes()
+    cut = tmp_path / "lazy.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.3)])
+    with pytest.raises(PlanError, match=r"lazy\.mcap: topic\(s\) .*/camera/pose not in the bag \(the bag is "
+                                        r"damaged.*ends in the middle of a record"):
+        read_views(cut, TOPICS)
+
+
+@pytest.mark.parametrize("role, wrong", [("color", "CompressedImage"), ("pose", "TransformStamped"),
+                                         ("pose", "PoseWithCovarianceStamped")])
+def test_topic_of_the_wrong_type_is_named_with_the_expected_type(tmp_path, small_shots, role, wrong):
+    from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
+    from sensor_msgs.msg import CompressedImage
+
+    cls = {"CompressedImage": CompressedImage, "TransformStamped": TransformStamped,
+           "PoseWithCovarianceStamped": PoseWithCovarianceStamped}[wrong]
+    records = []
+    for k, msg, t in _records(small_shots):
+        if k == role:
+            other = cls()
+            other.header = msg.header
+            msg = other
+        records.append((k, msg, t))
+    bag = _write(tmp_path / "typed", records)
+    kind = "sensor_msgs" if wrong == "CompressedImage" else "geometry_msgs"
+    expected = "sensor_msgs/msg/Image" if role == "color" else "geometry_msgs/msg/PoseStamped"
+    with pytest.raises(PlanError, match=rf"topic {TOPICS[role]} is {kind}/msg/{wrong}, expected {expected}"):
+        read_views(bag, TOPICS)
+
+
+@pytest.mark.parametrize("encoding", ["16UC1", "mono16", "32FC1"])
+def test_colour_image_that_is_not_8_bit_is_an_error(tmp_path, small_shots, encoding):
+    import copy
+
+    records = []
+    for k, msg, t in _records(small_shots):
+        if k == "color":  # same bytes, relabelled: what a depth/IR stream on the colour topic looks like
+            msg = copy.deepcopy(msg)
+            msg.encoding = encoding
+            msg.step = msg.width * (4 if encoding == "32FC1" else 2)
+        records.append((k, msg, t))
+    bag = _write(tmp_path / "enc", records)
+    with pytest.raises(PlanError, match=rf"enc: view 0 \(depth stamp 1000000000 ns\): colour image encoding "
+                                        rf"'{encoding}' is not supported; expected an 8-bit"):
+        plan(DRAWING, bag)
+
+
+def test_cut_cdr_payload_names_topic_and_message_index(tmp_path, small_shots):
+    from ros2_lite.bag import serialize
+
+    records = _records(small_shots)
+    k, msg, t = records[6]
+    assert k == "info"  # the second shot's camera info
+    records[6] = (k, serialize(msg)[:40], t)
+    with pytest.raises(PlanError, match=r"topic /camera/color/camera_info message index 1 \(log time 2000000002 ns\) "
+                                        r"cannot be deserialised as sensor_msgs/msg/CameraInfo"):
+        read_views(_write(tmp_path / "cdr", records), TOPICS)
+
+
+def test_nan_in_the_pose_is_an_error(tmp_path, small_shots):
+    import copy
+
+    records = []
+    for k, msg, t in _records(small_shots):
+        if k == "pose":
+            msg = copy.deepcopy(msg)
+            msg.pose.position.x = float("nan")
+        records.append((k, msg, t))
+    with pytest.raises(PlanError, match=r"nan: view 0 \(depth stamp 1000000000 ns\): pose has non-finite values "
+                                        r"\(position.x=nan\)"):
+        plan(DRAWING, _write(tmp_path / "nan", records))
+
+
+def test_stamps_a_few_ms_apart_form_views_within_the_slop_and_distortion_is_warned(tmp_path, small_shots, capsys):
+    import copy
+
+    shift = {"color": 2_000_000, "depth": 0, "info": -3_000_000, "pose": 4_000_000}
+    records = []
+    for k, msg, t in _records(small_shots):
+        msg = _shifted(msg, shift[k])
+        if k == "info":
+            msg = copy.deepcopy(msg)
+            msg.d = [0.0, -0.12, 0.0, 0.0, 0.03]
+        records.append((k, msg, t))
+    bag = _write(tmp_path / "slop", records)
+    with pytest.raises(PlanError, match=r"no complete view .*within 0 ms.*color 2 messages, smallest stamp gap to "
+                                        r"depth 2\.000 ms; depth 2 messages; info 2 messages, smallest stamp gap "
+                                        r"to depth 3\.000 ms; pose 2 messages, smallest stamp gap to depth 4\.000 ms"):
+        plan(DRAWING, bag, sync_slop_ms=0)
+    out = tmp_path / "r.json"
+    assert main(["--drawing", str(DRAWING), "--bag", str(bag), "--out", str(out), "--quiet"]) == 0
+    report = json.loads(out.read_text())
+    assert report["views"] == 2
+    assert sum(t["status"] == "ok" for t in report["targets"]) >= 15
+    assert len(report["warnings"]) == 1 and "'plumb_bob', largest d[1] = -0.12" in report["warnings"][0]
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("plan: warning: camera_info (view 0) has non-zero distortion")
+
+
+def test_a_complete_view_logged_out_of_stamp_order_is_kept(tmp_path, small_shots):
+    first, second = small_shots
+    # shot 1 completes while shot 0 still lacks its pose: a live StampSync would evict shot 0
+    records = [("color", first["color"], 1), ("depth", first["depth"], 2), ("info", first["info"], 3),
+               *[(k, second[k], 4 + j) for j, k in enumerate(TOPICS)], ("pose", first["pose"], 9)]
+    views = read_views(_write(tmp_path / "order", records), TOPICS)
+    assert [v.stamp_ns for v in views] == [1_000_000_000, 2_000_000_000]
+    assert [ros_io.stamp_to_ns(v.pose.header.stamp) for v in views] == [1_000_000_000, 2_000_000_000]
+
+
+def test_one_topic_for_two_roles_is_rejected(small_bag):
+    bag, _ = small_bag
+    with pytest.raises(PlanError, match=r"topic /camera/depth/image_raw is given for color and depth"):
+        plan(DRAWING, bag, topics={**TOPICS, "color": TOPICS["depth"]})
+
+
+def test_cli_rejects_unknown_options_but_strips_ros_arguments(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--drawing", str(DRAWING), "--bag", str(BAG), "--algoritm", "bfs"])
+    assert exc.value.code == 2 and "unrecognized arguments: --algoritm bfs" in capsys.readouterr().err
+    code = main(["--drawing", str(DRAWING), "--bag", str(tmp_path / "nope"), "--ros-args", "-r", "__node:=plan"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("plan: error: Bag path") and "does not exist" in err
+
+
+def test_cli_turns_an_unexpected_exception_into_one_line(monkeypatch, capsys):
+    from stud_planner import offline_plan
+
+    def boom(*args, **kwargs):
+        raise RuntimeError("matcher\nexploded")
+
+    monkeypatch.setattr(offline_plan, "plan", boom)
+    assert main(["--drawing", str(DRAWING), "--bag", str(BAG)]) == 2
+    assert capsys.readouterr().err == "plan: error: unexpected RuntimeError: matcher exploded\n"
