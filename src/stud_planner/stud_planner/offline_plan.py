@@ -52,10 +52,12 @@ TOPIC_TYPES = {"color": "sensor_msgs/msg/Image", "depth": "sensor_msgs/msg/Image
 DEFAULT_SYNC_SLOP_MS = 5.0
 
 
-def _bag_damage(reader) -> list[str]:
-    """The reader's notes that mean messages are missing: a file cut short, or fewer/other messages
-    than metadata.yaml lists. (A bag directory without metadata.yaml is fine on its own.)"""
-    return [n for n in reader.notes if "ends in the middle of a record" in n or "metadata.yaml disagrees" in n]
+def _bag_damage(reader, messages_missing: str) -> list[str]:
+    """The reader's notes that mean messages are missing: a file cut short, or fewer messages than
+    metadata.yaml lists (``messages_missing`` starts that note). Other disagreements with
+    metadata.yaml -- times, which real rosbag2 bags often get wrong -- and a bag directory without
+    metadata.yaml are not damage."""
+    return [n for n in reader.notes if "ends in the middle of a record" in n or n.startswith(messages_missing)]
 
 
 def _group_views(stamped: dict[str, list[tuple[int, object]]], slop_ns: int) -> list[dict]:
@@ -109,7 +111,7 @@ def read_views(bag_path: Path, topics: dict[str, str], slop_ns: int = int(DEFAUL
         raise PlanError("; ".join(f"topic {t} is given for {' and '.join(names)}" for t, names in dup.items())
                         + ": each of --color-topic/--depth-topic/--info-topic/--pose-topic needs its own topic")
     try:
-        from ros2_lite.bag import BagError, open_bag
+        from ros2_lite.bag import MESSAGES_MISSING, BagError, open_bag
     except ImportError as exc:  # pragma: no cover - setup.sh installs it
         raise PlanError(f"the bag reader (tools/ros2_lite) is not installed: {exc}; run bash tools/setup.sh") from None
     try:
@@ -117,7 +119,7 @@ def read_views(bag_path: Path, topics: dict[str, str], slop_ns: int = int(DEFAUL
     except BagError as exc:
         raise PlanError(str(exc)) from None
     try:
-        damage = _bag_damage(reader)
+        damage = _bag_damage(reader, MESSAGES_MISSING)
         missing = [t for t in topics.values() if t not in reader.topics]
         if missing:
             have = ", ".join(f"{n} ({s.type}, {s.message_count})" for n, s in reader.topics.items()) or "none"

@@ -28,6 +28,7 @@ from ros2_lite.bag_io import (  # noqa: F401  (the library API, re-exported)
     BagMessage,
     BagReader,
     BagWriter,
+    MESSAGES_MISSING,
     TopicSummary,
     deserialize,
     message_class,

@@ -148,6 +148,10 @@ def _split_index(path: Path) -> tuple[int, str]:
     return (int(match.group(1)) if match else 1 << 30, path.name)
 
 
+#: Start of the note a reader leaves when the files hold fewer messages than metadata.yaml lists.
+MESSAGES_MISSING = "metadata.yaml lists more messages than the MCAP files hold"
+
+
 class BagReader:
     """A rosbag2 bag directory or a single MCAP file, opened for reading.
 
@@ -365,23 +369,32 @@ class BagReader:
     def _compare_with_metadata(self, meta_topics: dict[str, TopicInfo]) -> None:
         md = self.metadata
         assert md is not None
-        diffs = []
+        diffs, lost = [], []
         if self.message_count:
             if md.starting_time_ns != self.start_time_ns:
                 diffs.append(f"starting_time {md.starting_time_ns} ns vs {self.start_time_ns} ns")
             if md.duration_ns != self.duration_ns:
                 diffs.append(f"duration {md.duration_ns} ns vs {self.duration_ns} ns")
         if md.message_count != self.message_count:
-            diffs.append(f"message_count {md.message_count} vs {self.message_count}")
+            (lost if md.message_count > self.message_count else diffs).append(
+                f"message_count {md.message_count} vs {self.message_count}")
         for name, topic in self.topics.items():
             meta = meta_topics.get(name)
             if meta is None:
                 diffs.append(f"topic '{name}' not listed")
             else:
                 if meta.message_count != topic.message_count:
-                    diffs.append(f"'{name}' count {meta.message_count} vs {topic.message_count}")
+                    (lost if meta.message_count > topic.message_count else diffs).append(
+                        f"'{name}' count {meta.message_count} vs {topic.message_count}")
                 if topic.type and meta.type != topic.type:
                     diffs.append(f"'{name}' type {meta.type} vs {topic.type}")
+        lost += [f"topic '{name}' ({meta.message_count} messages) missing" for name, meta in meta_topics.items()
+                 if name not in self.topics and meta.message_count]
+        # Times that differ are common in real rosbag2 bags (it writes them from the recording
+        # clock); fewer messages than listed means some are gone: say that apart, it is damage.
+        if lost:
+            self.notes.append(MESSAGES_MISSING + " (metadata.yaml vs files: " + "; ".join(lost)
+                              + "): the bag was cut short or files are missing")
         if diffs:
             self.notes.append("metadata.yaml disagrees with the MCAP files (metadata.yaml vs files: "
                               + "; ".join(diffs) + "); shown: what the MCAP files hold")
