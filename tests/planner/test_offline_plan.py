@@ -307,7 +307,7 @@ def test_stamps_a_few_ms_apart_form_views_within_the_slop_and_distortion_is_warn
     assert sum(t["status"] == "ok" for t in report["targets"]) >= 15
     assert len(report["warnings"]) == 1 and "'plumb_bob', largest d[1] = -0.12" in report["warnings"][0]
     err = capsys.readouterr().err.splitlines()
-    assert len(err) == 1 and err[0].startswith("plan: warning: camera_info (view 0) has non-zero distortion")
+    assert len(err) == 1 and err[0].startswith("plan: warning: view 0: camera_info has non-zero distortion")
 
 
 def test_a_complete_view_logged_out_of_stamp_order_is_kept(tmp_path, small_shots):

@@ -71,3 +71,16 @@ def test_pose_with_a_non_finite_value_is_a_message_error():
     pose.orientation.z = float("inf")
     with pytest.raises(ros_io.MessageError, match=r"non-finite values \(orientation.z=inf\)"):
         ros_io.pose_to_rt(pose)
+
+
+def test_distortion_is_named_and_zero_distortion_is_fine():
+    from sensor_msgs.msg import CameraInfo
+
+    sys.path.insert(0, str(REPO / "src" / "stud_perception"))
+    from stud_perception import ros_io
+
+    info = CameraInfo(distortion_model="plumb_bob", d=[0.0] * 5)
+    assert ros_io.distortion_warning(info) is None and ros_io.distortion_warning(CameraInfo()) is None
+    info.d = [0.02, -0.11, 0.0, 0.0, 0.0]
+    text = ros_io.distortion_warning(info)
+    assert "model 'plumb_bob', largest d[1] = -0.11" in text and "rectified" in text

@@ -85,6 +85,9 @@ class RegistrationNode(Node):
         stamp = view["color"].header.stamp
         try:
             camera = ros_io.camera_model_from_msgs(view["info"], view["pose"].pose)
+            distortion = ros_io.distortion_warning(view["info"])
+            if distortion:
+                self.get_logger().warn(distortion, once=True)
             color = ros_io.color_to_bgr(view["color"])
             depth = ros_io.depth_to_metres(view["depth"])
         except (ros_io.MessageError, ValueError) as exc:

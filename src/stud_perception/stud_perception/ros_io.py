@@ -180,6 +180,19 @@ def camera_model_from_msgs(info: CameraInfo, pose: Pose) -> CameraModel:
     return CameraModel(K=camera_info_to_K(info), width=info.width, height=info.height, R_wc=R, t_wc=t)
 
 
+def distortion_warning(info: CameraInfo) -> str | None:
+    """A warning if ``info`` has non-zero distortion coefficients, else None. Eq. 1 is a pinhole:
+    images must be rectified (a driver's ``image_rect`` topics), or positions drift away from the
+    image centre."""
+    d = np.asarray(info.d, dtype=np.float64)
+    if not (d.size and np.any(d != 0)):
+        return None
+    k = int(np.argmax(np.abs(d)))
+    return (f"camera_info has non-zero distortion coefficients (model '{info.distortion_model}', largest "
+            f"d[{k}] = {d[k]:g}); the planner assumes a pinhole camera and ignores distortion: use rectified "
+            "images (image_rect) or expect position errors away from the image centre")
+
+
 def stamp_to_ns(stamp: Time) -> int:
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 

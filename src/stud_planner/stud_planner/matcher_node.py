@@ -180,6 +180,9 @@ class MatcherNode(Node):
         self._pending = None
         try:
             camera = ros_io.camera_model_from_msgs(view["info"], view["pose"].pose)
+            distortion = ros_io.distortion_warning(view["info"])
+            if distortion:
+                self.get_logger().warn(distortion, once=True)
             depth = ros_io.depth_to_metres(view["depth"])
             if depth.shape != (camera.height, camera.width):
                 raise ros_io.MessageError(f"depth {depth.shape[1]}x{depth.shape[0]} does not match camera_info "

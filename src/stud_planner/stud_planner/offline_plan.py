@@ -161,15 +161,11 @@ def read_views(bag_path: Path, topics: dict[str, str], slop_ns: int = int(DEFAUL
 
 
 def _distortion_warning(views: list[View]) -> str | None:
-    """The model ignores lens distortion (Eq. 1 is a pinhole): non-zero ``d`` means unrectified images."""
+    """:func:`ros_io.distortion_warning` for the first view that has distortion, naming it."""
     for v in views:
-        d = np.asarray(v.info.d, dtype=np.float64)
-        if d.size and np.any(d != 0):
-            k = int(np.argmax(np.abs(d)))
-            return (f"camera_info (view {v.index}) has non-zero distortion coefficients "
-                    f"(model '{v.info.distortion_model}', largest d[{k}] = {d[k]:g}); the planner assumes a "
-                    "pinhole camera and ignores distortion: record rectified images (image_rect) or expect "
-                    "position errors away from the image centre")
+        warning = ros_io.distortion_warning(v.info)
+        if warning:
+            return f"view {v.index}: {warning}"
     return None
 
 
