@@ -37,7 +37,7 @@ from stud_perception.depth_image import FillRule, SampleStatus, fill_depth_at, s
 Z_RANGE_MARGIN_M = 0.05
 
 
-def observed_z_range(depth_m: np.ndarray, camera: CameraModel, stride: int = 8,
+def observed_z_range(depth_m: np.ndarray, camera: CameraModel, stride: int = 16,
                      margin_m: float = Z_RANGE_MARGIN_M) -> tuple[float, float, float]:
     """(z_min, z_max, z_median) in world metres of the surfaces this depth image shows.
 
@@ -48,12 +48,14 @@ def observed_z_range(depth_m: np.ndarray, camera: CameraModel, stride: int = 8,
     frame is: a robot base on a pedestal puts the part well below z = 0, a floor-mounted one above.
     An image without any depth gives a range around the camera's own height.
     """
-    sub = depth_m[::stride, ::stride]
-    v, u = np.nonzero(np.isfinite(sub) & (sub > 0))
-    if v.size == 0:
+    sub = np.where(depth_m[::stride, ::stride] > 0, depth_m[::stride, ::stride], np.nan)  # NaN stays NaN
+    u = np.arange(0, depth_m.shape[1], stride, dtype=np.float64)[None, :]
+    v = np.arange(0, depth_m.shape[0], stride, dtype=np.float64)[:, None]
+    zw = camera.pixel_to_world(u, v, sub)[..., 2]
+    zw = zw[np.isfinite(zw)]
+    if zw.size == 0:
         z = float(camera.position_w[2])
         return z - 10.0, z + 10.0, z
-    zw = camera.pixel_to_world(u * stride, v * stride, sub[v, u])[:, 2]
     return float(zw.min()) - margin_m, float(zw.max()) + margin_m, float(np.median(zw))
 
 
