@@ -344,3 +344,26 @@ def test_cli_turns_an_unexpected_exception_into_one_line(monkeypatch, capsys):
     monkeypatch.setattr(offline_plan, "plan", boom)
     assert main(["--drawing", str(DRAWING), "--bag", str(BAG)]) == 2
     assert capsys.readouterr().err == "plan: error: unexpected RuntimeError: matcher exploded\n"
+
+
+def test_views_before_the_registration_view_are_matched_in_a_second_pass(tmp_path, small_shots):
+    # the station shot (no marks in view) logged before the board shot: registration comes second
+    normal = plan(DRAWING, _write(tmp_path / "normal", _records(small_shots)))
+    late_board = [(k, m, t + (2_000_000_000 if t < 2_000_000_000 else -2_000_000_000))
+                  for k, m, t in _records(small_shots)]
+    report = plan(DRAWING, _write(tmp_path / "late", late_board))
+    assert report["registration"]["view"] == normal["registration"]["view"] == 0
+    assert report["views"] == 2 and report["targets"] == normal["targets"]
+    assert {t["view"] for t in report["targets"] if t["status"] == "ok"} == {1}  # the station view's matches
+
+
+def test_views_hold_no_images_until_they_are_processed(tmp_path, small_shots):
+    from stud_planner.offline_plan import views_with_images
+
+    bag = _write(tmp_path / "lazy", _records(small_shots))
+    views = read_views(bag, TOPICS)
+    assert [(v.color, v.depth) for v in views] == [(None, None)] * 2
+    filled = list(views_with_images(bag, TOPICS, views[::-1]))
+    assert [v.index for v in filled] == [0, 1]  # in logged order
+    for v, shot in zip(filled, small_shots):
+        assert v.color == shot["color"] and v.depth == shot["depth"] and v.info == shot["info"]
