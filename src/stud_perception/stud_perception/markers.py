@@ -103,17 +103,23 @@ class MarkDetection:
 
 
 # -- stage 1: Hough ---------------------------------------------------------------------------------
-def _merge_close_circles(circles: np.ndarray) -> np.ndarray:
-    """(K, 3) circles with those whose centre lies within a radius of a stronger one dropped.
+def _is_new_circle(c, kept) -> bool:
+    """Circle ``c`` = (u, v, r) is none of ``kept``: its centre is at least the smaller radius away
+    from each (min, not max: a spurious large circle must not swallow a real mark beside it)."""
+    return all(math.hypot(c[0] - k[0], c[1] - k[1]) >= min(c[2], k[2]) for k in kept)
+
+
+def _merge_close_circles(found: np.ndarray | None) -> np.ndarray:
+    """(K, 3) distinct circles of a cv2.HoughCircles result: those whose centre lies within a
+    radius of a stronger one are dropped.
 
     ``HOUGH_GRADIENT_ALT`` can return two circles for one elliptical mark (fx != fy, or a tilted
     board); counted twice they would hide that a mark is missing. Input and output are
     strongest first.
     """
     kept: list[np.ndarray] = []
-    for c in circles:
-        # min, not max: a spurious large circle must not swallow a real mark beside it.
-        if all(math.hypot(c[0] - k[0], c[1] - k[1]) >= min(c[2], k[2]) for k in kept):
+    for c in (() if found is None else found[0].astype(np.float64)):
+        if _is_new_circle(c, kept):
             kept.append(c)
     return np.array(kept).reshape(-1, 3)
 
@@ -126,14 +132,14 @@ def _hough_candidates(gray: np.ndarray, r_min: int, r_max: int) -> np.ndarray:
         blurred, cv2.HOUGH_GRADIENT_ALT, dp=1.5, minDist=min_dist, param1=300, param2=0.8,
         minRadius=r_min, maxRadius=r_max,
     )
-    circles = np.zeros((0, 3)) if found is None else _merge_close_circles(found[0].astype(np.float64))
+    circles = _merge_close_circles(found)
     if len(circles) < 3:
         # Classic gradient Hough: accumulator threshold a quarter of the smallest circumference.
         found = cv2.HoughCircles(
             blurred, cv2.HOUGH_GRADIENT, dp=1.0, minDist=min_dist, param1=100,
             param2=max(10.0, 0.25 * 2 * math.pi * r_min), minRadius=r_min, maxRadius=r_max,
         )
-        circles = np.zeros((0, 3)) if found is None else _merge_close_circles(found[0].astype(np.float64))
+        circles = _merge_close_circles(found)
     return circles
 
 
@@ -297,7 +303,7 @@ def detect_marks(
     for u0, v0, r in circles:
         res = _refine_centre(gray, u0, v0, r, config.min_contrast)
         if res is _Rejected.CUT_BY_BORDER:
-            if all(math.hypot(u0 - q[0], v0 - q[1]) >= min(r, q[2]) for q in cut_by_border):
+            if _is_new_circle((u0, v0, r), cut_by_border):
                 cut_by_border.append((u0, v0, r))
             continue
         if isinstance(res, _Rejected):

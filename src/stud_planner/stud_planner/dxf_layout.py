@@ -696,8 +696,7 @@ def collect_circles(
 
     layers = np.array(["0" if lay is None else lay for lay in content.layers], dtype=object)
     hidden_names = {lay for lay in set(layers.tolist()) if lay.casefold() in collector.hidden_layers}
-    hidden = np.array([lay in hidden_names for lay in layers], dtype=bool) if hidden_names else \
-        np.zeros(len(layers), dtype=bool)
+    hidden = np.isin(layers, list(hidden_names))
     for lay in hidden_names:  # circles that inherit a hidden layer (layer "0" in a block)
         collector.on_hidden_layer[(lay, "CIRCLE")] += int(np.count_nonzero(layers == lay))
     u, v = content.u, content.v
@@ -709,13 +708,13 @@ def collect_circles(
             np.abs(np.einsum("ij,ij->i", u, v)) <= _SHAPE_TOL * nu * nv
         )
         planar = np.abs(normal[:, 2]) >= (1.0 - _SHAPE_TOL) * nn
-    ok = uniform & planar & (nu > 0) & ~hidden
+    shown = (nu > 0) & ~hidden  # a hidden circle is counted once, as hidden
+    ok = uniform & planar & shown
     radii = np.sqrt(nu * nv)  # equal to nu within _SHAPE_TOL for the circles kept
-    uniform, planar = uniform | hidden, planar | hidden  # a hidden circle is counted once, as hidden
     skipped = {
         "radius<=0": int(sum(content.nonpositive.values())),
-        "non-uniform scale": int(np.count_nonzero(~uniform & (nu > 0))),
-        "not parallel to XY": int(np.count_nonzero(uniform & ~planar & (nu > 0))),
+        "non-uniform scale": int(np.count_nonzero(~uniform & shown)),
+        "not parallel to XY": int(np.count_nonzero(uniform & ~planar & shown)),
         "invisible": int(collector.invisible["CIRCLE"]),
         "frozen or off layer": int(sum(n for (_, t), n in collector.on_hidden_layer.items() if t == "CIRCLE")),
     }
@@ -723,11 +722,11 @@ def collect_circles(
         on = sorted({"0" if k is None else k for k in content.nonpositive}, key=str.casefold)
         warns.append(f"{path.name}: {skipped['radius<=0']} circles with radius <= 0 skipped (layers: {', '.join(on)})")
     if skipped["non-uniform scale"]:
-        on = sorted(set(layers[~uniform & (nu > 0)]), key=str.casefold)
+        on = sorted(set(layers[~uniform & shown]), key=str.casefold)
         warns.append(f"{path.name}: {skipped['non-uniform scale']} circles in non-uniformly scaled block references "
                      f"are ellipses and were skipped (layers: {', '.join(on)})")
     if skipped["not parallel to XY"]:
-        on = sorted(set(layers[uniform & ~planar & (nu > 0)]), key=str.casefold)
+        on = sorted(set(layers[uniform & ~planar & shown]), key=str.casefold)
         warns.append(f"{path.name}: {skipped['not parallel to XY']} circles not parallel to the XY plane skipped "
                      f"(layers: {', '.join(on)})")
     if collector.invisible:

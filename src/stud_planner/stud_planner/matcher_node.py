@@ -64,6 +64,13 @@ PARAMS = [
 _ODD = ("fpm_window_px", "hole_window_px")
 
 
+def _put_bounded(items: OrderedDict, key, value, limit: int = 5) -> None:
+    """Add an entry, dropping the oldest beyond ``limit`` (views waiting for their other half)."""
+    items[key] = value
+    while len(items) > limit:
+        items.popitem(last=False)
+
+
 class MatcherNode(Node):
     def __init__(self) -> None:
         super().__init__("matcher")
@@ -137,9 +144,7 @@ class MatcherNode(Node):
         if due is not None:
             self._publish_overlay(*due, msg)
             return
-        self._colors[stamp] = msg
-        while len(self._colors) > 5:
-            self._colors.popitem(last=False)
+        _put_bounded(self._colors, stamp, msg)
 
     def _pop_near(self, items: OrderedDict, stamp_ns: int):
         """Remove and return the entry whose stamp is within ``sync_slop_s`` of ``stamp_ns`` (or None)."""
@@ -217,9 +222,7 @@ class MatcherNode(Node):
             if color is not None:
                 self._publish_overlay(targets, camera, color)
             else:
-                self._overlays_due[stamp_ns] = (targets, camera)
-                while len(self._overlays_due) > 5:
-                    self._overlays_due.popitem(last=False)
+                _put_bounded(self._overlays_due, stamp_ns, (targets, camera))
         counts = targets.counts()
         summary = (f"view {self.view_index}: {counts.get('ok', 0)}/{len(targets.ids)} ok "
                    f"({', '.join(f'{k} {v}' for k, v in sorted(counts.items()) if k != 'ok') or 'no failures'}), "

@@ -37,6 +37,15 @@ from stud_perception.depth_image import FillRule, SampleStatus, fill_depth_at, s
 Z_RANGE_MARGIN_M = 0.05
 
 
+def _depth_samples(depth_m: np.ndarray, stride: int = 16) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every ``stride``-th pixel of a depth image: u (1, w), v (h, 1) and depth (h, w), NaN where invalid."""
+    sub = depth_m[::stride, ::stride]
+    sub = np.where(sub > 0, sub, np.nan)  # NaN stays NaN
+    u = np.arange(0, depth_m.shape[1], stride, dtype=np.float64)[None, :]
+    v = np.arange(0, depth_m.shape[0], stride, dtype=np.float64)[:, None]
+    return u, v, sub
+
+
 def observed_z_range(depth_m: np.ndarray, camera: CameraModel, stride: int = 16,
                      margin_m: float = Z_RANGE_MARGIN_M) -> tuple[float, float, float]:
     """(z_min, z_max, z_median) in world metres of the surfaces this depth image shows.
@@ -48,9 +57,7 @@ def observed_z_range(depth_m: np.ndarray, camera: CameraModel, stride: int = 16,
     frame is: a robot base on a pedestal puts the part well below z = 0, a floor-mounted one above.
     An image without any depth gives a range around the camera's own height.
     """
-    sub = np.where(depth_m[::stride, ::stride] > 0, depth_m[::stride, ::stride], np.nan)  # NaN stays NaN
-    u = np.arange(0, depth_m.shape[1], stride, dtype=np.float64)[None, :]
-    v = np.arange(0, depth_m.shape[0], stride, dtype=np.float64)[:, None]
+    u, v, sub = _depth_samples(depth_m, stride)
     zw = camera.pixel_to_world(u, v, sub)[..., 2]
     zw = zw[np.isfinite(zw)]
     if zw.size == 0:
@@ -446,8 +453,8 @@ def match_fpm(
     def depth_at(u: int, v: int) -> tuple[float, FillRule]:
         return _depth_at_pixel(depth, u, v, hole_window_px, "plane" if hole_fallback else "none")
 
-    sub = depth[::8, ::8]
-    sub = sub[np.isfinite(sub) & (sub > 0)]
+    sub = _depth_samples(depth)[2]
+    sub = sub[np.isfinite(sub)]
     z_typical = float(np.median(sub)) if sub.size else float(camera.position_w[2])
 
     for k, (xt, yt) in enumerate(xy):

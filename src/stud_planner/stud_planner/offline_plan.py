@@ -20,7 +20,7 @@ import json
 import struct
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -167,10 +167,7 @@ def read_views(bag_path: Path, topics: dict[str, str], slop_ns: int = int(DEFAUL
         index = {t: 0 for t in topics.values()}
         for item in reader.messages(list(topics.values())):
             name = by_topic[item.topic]
-            stamp = _cdr_stamp_ns(item.data) if name in IMAGE_ROLES else None
-            if stamp is None:
-                msg = _deserialise(item, index[item.topic], bag_path)
-                stamp = ros_io.stamp_to_ns(msg.header.stamp)
+            stamp, msg = _stamp(item, index[item.topic], bag_path, header_only=name in IMAGE_ROLES)
             index[item.topic] += 1
             stamped[name].append((stamp, stamp if name in IMAGE_ROLES else msg))
     except BagError as exc:
@@ -182,6 +179,16 @@ def read_views(bag_path: Path, topics: dict[str, str], slop_ns: int = int(DEFAUL
         raise PlanError(f"{bag_path}: no complete view (colour, depth, camera info and pose with stamps within "
                         f"{slop_ns / 1e6:g} ms of a depth stamp; --sync-slop-ms sets it): {_nearest_gaps(stamped)}")
     return [View(i, v["depth"], v["info"], v["pose"], v["color"], v["depth"]) for i, v in enumerate(views)]
+
+
+def _stamp(item, index: int, bag_path: Path, header_only: bool) -> tuple[int, object]:
+    """(header stamp in ns, the message or None): with ``header_only`` the stamp is read from the
+    CDR header, without deserialising the message (an image's pixels), where the encoding allows."""
+    stamp = _cdr_stamp_ns(item.data) if header_only else None
+    if stamp is not None:
+        return stamp, None
+    msg = _deserialise(item, index, bag_path)
+    return ros_io.stamp_to_ns(msg.header.stamp), msg
 
 
 def _deserialise(item, index: int, bag_path: Path):
@@ -209,22 +216,17 @@ def views_with_images(bag_path: Path, topics: dict[str, str], views: list[View])
         with open_bag(bag_path) as reader:
             for item in reader.messages(list(by_topic)):
                 name = by_topic[item.topic]
-                stamp = _cdr_stamp_ns(item.data)
-                msg = None
-                if stamp is None:
-                    msg = _deserialise(item, count[item.topic], bag_path)
-                    stamp = ros_io.stamp_to_ns(msg.header.stamp)
-                count[item.topic] += 1
+                stamp, msg = _stamp(item, count[item.topic], bag_path, header_only=True)
                 owners = want.pop((name, stamp), [])
                 if owners and msg is None:
-                    msg = _deserialise(item, count[item.topic] - 1, bag_path)
+                    msg = _deserialise(item, count[item.topic], bag_path)
+                count[item.topic] += 1
                 for view in owners:
                     parts = got.setdefault(view.index, {})
                     parts[name] = msg
                     if len(parts) == len(IMAGE_ROLES):
                         del got[view.index]
-                        yield View(view.index, view.stamp_ns, view.info, view.pose, view.color_stamp_ns,
-                                   view.depth_stamp_ns, parts["color"], parts["depth"])
+                        yield replace(view, **parts)
     except BagError as exc:
         raise PlanError(str(exc)) from None
 
@@ -322,7 +324,7 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
             result = register_view(color, depth, camera, marks, det_config)
             if not result.ok:
                 reasons.append(f"view {v.index}: {result.message}")
-                before.append(View(v.index, v.stamp_ns, v.info, v.pose, v.color_stamp_ns, v.depth_stamp_ns))
+                before.append(replace(v, color=None, depth=None))  # its images are read again
                 continue
             registration, reg_view = result.registration, v.index
         match_view(v, camera, color, depth)
