@@ -1,7 +1,7 @@
 """stud_planner's message <-> core conversions (one place, so nodes stay thin).
 
 Image/CameraInfo/Pose conversions are stud_perception.ros_io's; this module handles our
-own interfaces: layouts, registrations and weld targets.
+own interfaces: layouts and registrations (weld targets: target_cdr, the hot path).
 """
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from geometry_msgs.msg import Point, Pose, PoseArray, Quaternion
-from stud_welding_msgs.msg import Registration, Stud, StudLayout, WeldTarget
+from stud_welding_msgs.msg import Registration, Stud, StudLayout
 
 from stud_planner import dxf_layout
 
@@ -62,30 +62,3 @@ def layout_poses(msg: StudLayout) -> PoseArray:
 def registration_from_msg(msg: Registration) -> np.ndarray:
     """Registration message -> M_local2world (3, 3)."""
     return np.asarray(msg.m_local2world, dtype=np.float64).reshape(3, 3)
-
-
-def weld_target_msgs(targets, view_index: int) -> list[WeldTarget]:
-    """All WeldTargets of a view_planning.ViewTargets, in stud order. NaN positions (no match) are
-    sent as NaN so nobody mistakes them for 0; a NaN orientation becomes the identity.
-
-    The hot path of the matcher node: arrays become Python lists once, and each message's own
-    nested fields are filled in place (creating Pose/Point/... objects per stud cost more than the
-    matching itself)."""
-    quat = targets.quat_xyzw.copy()
-    quat[~np.all(np.isfinite(quat), axis=1)] = (0.0, 0.0, 0.0, 1.0)
-    columns = zip(targets.ids, targets.drawing_xy_m.tolist(), targets.position_w.tolist(),
-                  targets.normal_w.tolist(), quat.tolist(), targets.matches.pixel_uv.tolist(),
-                  targets.matches.iterations.tolist(), targets.matches.xy_residual_m.tolist(),
-                  targets.inclination_deg.tolist(), targets.normal_rms_m.tolist(), targets.status.tolist(),
-                  targets.status_text)
-    out = []
-    for sid, dxy, p, n, q, uv, it, err, incl, rms, status, text in columns:
-        t = WeldTarget(stud_id=sid, drawing_x=dxy[0], drawing_y=dxy[1], pixel_u=uv[0], pixel_v=uv[1],
-                       view_index=view_index, iterations=it, xy_error=err, inclination=incl, normal_rms=rms,
-                       status=status, status_text=text)
-        pos, ori, nrm = t.pose.position, t.pose.orientation, t.normal
-        pos.x, pos.y, pos.z = p
-        ori.x, ori.y, ori.z, ori.w = q
-        nrm.x, nrm.y, nrm.z = n
-        out.append(t)
-    return out

@@ -1,0 +1,81 @@
+"""The matcher's hand-written WeldTargetArray bytes are what rclpy itself would send: rclpy reads
+every field back as the view's arrays say, and its own serialisation of that message has the same
+layout — on a real rendered view (matched, out-of-view and failed studs, NaN positions),
+with odd-length and non-ASCII ids, and with no studs at all."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from rclpy.serialization import deserialize_message, serialize_message
+from stud_welding_msgs.msg import WeldTargetArray
+
+from stud_perception.scene import demo_camera, demo_dome_scene, render
+from stud_planner.target_cdr import weld_target_array_cdr
+from stud_planner.view_planning import STATUS_OUT_OF_VIEW, plan_view
+
+
+@pytest.fixture(scope="module")
+def view_targets():
+    scene = demo_dome_scene()
+    cam = demo_camera()
+    # shifted so some studs fall outside the image (NaN positions, identity orientation)
+    cam = cam.with_pose(cam.R_wc, cam.t_wc + np.array([0.3, 0.0, 0.0]))
+    view = render(scene, cam, seed=2, depth_noise_m=0.0005)
+    targets = plan_view(list(scene.stud_ids), np.asarray(scene.studs_drawing_m), scene.M_local2world,
+                        view.depth_m, cam)
+    # matched and unmatched studs, or the test proves less
+    assert targets.ok.any() and (targets.status == STATUS_OUT_OF_VIEW).any()
+    return targets
+
+
+def _check(targets, view_index=7, sec=1_700_000_123, nanosec=456_789_000, frame_id="world"):
+    data = weld_target_array_cdr(targets, view_index, sec, nanosec, frame_id)
+    msg = deserialize_message(data, WeldTargetArray)
+    # the same layout as rclpy's (its padding bytes are whatever was in memory, so compare the size)
+    assert len(serialize_message(msg)) == len(data)
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec, msg.header.frame_id) == (sec, nanosec, frame_id)
+    assert (msg.algorithm, msg.view_index) == (targets.algorithm, view_index)
+    assert msg.match_time == targets.match_time_s
+    assert msg.total_iterations == targets.matches.total_iterations
+    assert [t.stud_id for t in msg.targets] == targets.ids
+    assert [t.status for t in msg.targets] == targets.status.tolist()
+    assert [t.status_text for t in msg.targets] == targets.status_text
+
+    def col(f, width):
+        return np.array([f(t) for t in msg.targets], dtype=np.float64).reshape(len(msg.targets), width)
+
+    nan_eq = dict(equal_nan=True, rtol=0, atol=0)
+    np.testing.assert_allclose(col(lambda t: (t.drawing_x, t.drawing_y), 2), targets.drawing_xy_m, **nan_eq)
+    np.testing.assert_allclose(col(lambda t: (t.pose.position.x, t.pose.position.y, t.pose.position.z), 3),
+                               targets.position_w.reshape(-1, 3), **nan_eq)
+    np.testing.assert_allclose(col(lambda t: (t.normal.x, t.normal.y, t.normal.z), 3),
+                               targets.normal_w.reshape(-1, 3), **nan_eq)
+    q = col(lambda t: (t.pose.orientation.x, t.pose.orientation.y, t.pose.orientation.z, t.pose.orientation.w), 4)
+    finite = np.all(np.isfinite(targets.quat_xyzw.reshape(-1, 4)), axis=1)
+    np.testing.assert_array_equal(q[finite], targets.quat_xyzw.reshape(-1, 4)[finite])
+    np.testing.assert_array_equal(q[~finite], np.tile([0.0, 0.0, 0.0, 1.0], (int((~finite).sum()), 1)))
+    np.testing.assert_allclose(col(lambda t: (t.pixel_u, t.pixel_v), 2), targets.matches.pixel_uv.reshape(-1, 2), **nan_eq)
+    np.testing.assert_allclose(col(lambda t: (t.xy_error, t.inclination, t.normal_rms), 3),
+                               np.column_stack([targets.matches.xy_residual_m, targets.inclination_deg,
+                                                targets.normal_rms_m]), **nan_eq)
+    assert [t.iterations for t in msg.targets] == targets.matches.iterations.tolist()
+    assert all(t.view_index == view_index for t in msg.targets)
+    return msg
+
+
+def test_a_rendered_view_reads_back_field_for_field(view_targets):
+    msg = _check(view_targets)
+    assert any(np.isnan(t.pose.position.x) for t in msg.targets)  # unmatched studs stay NaN, not 0
+
+
+def test_ids_of_every_length_and_script_keep_the_alignment(view_targets):
+    ids = ["", "A", "AB", "ABC", "ABCD", "Ø16-тест", "焊钉 7", "S" * 61] + [f"x{i}" for i in range(9)]
+    _check(dataclasses.replace(view_targets, ids=ids[:len(view_targets.ids)]), frame_id="map")
+
+
+def test_a_view_without_studs(view_targets):
+    empty = plan_view([], np.zeros((0, 2)), np.eye(3), np.full((960, 1280), np.nan, np.float32),
+                      demo_camera())
+    assert _check(empty, view_index=0, sec=0, nanosec=0, frame_id="").targets == []
