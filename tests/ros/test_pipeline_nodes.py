@@ -18,17 +18,18 @@ DEMO_DXF = REPO / "src" / "stud_planner" / "data" / "dome_demo.dxf"
 DEMO_SCENE = REPO / "src" / "stud_perception" / "config" / "dome_scene.json"
 
 
-# Clean depth (32FC1, exact): positions and normals to the bounds. 16UC1 with a
-# structured-light camera's noise (0.5 mm): mm quantisation costs the normal a little more.
-@pytest.mark.parametrize("algorithm, yaw_deg, tilt_deg, height_m, encoding, noise_m, normal_tol_deg", [
-    ("batch", 90.0, 0.0, 0.60, "32FC1", 0.0, 1.0),
-    ("fpm", 90.0, 0.0, 0.60, "32FC1", 0.0, 1.0),
-    ("batch", 137.0, 10.0, 0.65, "16UC1", 0.0005, 2.0),
+# Clean depth (32FC1, exact): positions and normals to the bounds. A real camera: 16UC1
+# with a structured-light camera's noise (0.5 mm; mm quantisation costs the normal a little more),
+# tilted, and raw images of a lens with barrel distortion that registration and matcher rectify.
+@pytest.mark.parametrize("algorithm, yaw_deg, tilt_deg, height_m, encoding, noise_m, distortion, normal_tol_deg", [
+    ("batch", 90.0, 0.0, 0.60, "32FC1", 0.0, [0.0] * 5, 1.0),
+    ("fpm", 90.0, 0.0, 0.60, "32FC1", 0.0, [0.0] * 5, 1.0),
+    ("batch", 137.0, 10.0, 0.65, "16UC1", 0.0005, [-0.2, 0.08, 0.001, -0.0008, 0.0], 2.0),
 ])
 def test_targets_from_the_node_graph_match_the_scene_truth(ros_node, procs, tmp_path, algorithm, yaw_deg, tilt_deg,
-                                                           height_m, encoding, noise_m, normal_tol_deg):
+                                                           height_m, encoding, noise_m, distortion, normal_tol_deg):
     cam = {"scene_file": str(DEMO_SCENE), "depth_encoding": encoding, "depth_noise_m": noise_m,
-           "camera_xyz_m": [0.31, -0.03, height_m],
+           "camera_xyz_m": [0.31, -0.03, height_m], "distortion_d": distortion,
            "camera_yaw_deg": yaw_deg, "camera_tilt_deg": tilt_deg, "camera_tilt_azimuth_deg": 40.0}
     procs.append(ros2_run("stud_planner", "drawing", tmp_path / "drawing.log", {"drawing_file": str(DEMO_DXF)}))
     procs.append(ros2_run("stud_perception", "camera", tmp_path / "camera.log", cam))

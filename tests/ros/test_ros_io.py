@@ -5,6 +5,8 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
 from rosproc import REPO
 
 _PROBE = """
@@ -73,14 +75,31 @@ def test_pose_with_a_non_finite_value_is_a_message_error():
         ros_io.pose_to_rt(pose)
 
 
-def test_distortion_is_named_and_zero_distortion_is_fine():
+def test_raw_images_are_rectified_and_rectified_ones_use_p():
+    from geometry_msgs.msg import Pose
     from sensor_msgs.msg import CameraInfo
 
     sys.path.insert(0, str(REPO / "src" / "stud_perception"))
     from stud_perception import ros_io
 
-    info = CameraInfo(distortion_model="plumb_bob", d=[0.0] * 5)
-    assert ros_io.distortion_warning(info) is None and ros_io.distortion_warning(CameraInfo()) is None
+    K = [800.0, 0.0, 320.0, 0.0, 800.0, 240.0, 0.0, 0.0, 1.0]
+    P = [700.0, 0.0, 330.0, 0.0, 0.0, 700.0, 250.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    info = CameraInfo(width=640, height=480, distortion_model="plumb_bob", d=[0.0] * 5, k=K, p=P)
+    assert ros_io.camera_rectifier(info) is None  # a pinhole camera: nothing to do
     info.d = [0.02, -0.11, 0.0, 0.0, 0.0]
-    text = ros_io.distortion_warning(info)
-    assert "model 'plumb_bob', largest d[1] = -0.11" in text and "rectified" in text
+    rect = ros_io.camera_rectifier(info)
+    assert rect is not None and rect.D.tolist() == list(info.d) and (rect.width, rect.height) == (640, 480)
+    assert "model 'plumb_bob', largest d[1] = -0.11" in ros_io.rectification_note(info)
+    pose = Pose()
+    pose.orientation.w = 1.0
+    assert ros_io.camera_model_from_msgs(info, pose).K[0, 0] == 800.0  # raw images: K
+    # image_rect topics: the rectified projection P, and no second rectification
+    assert ros_io.camera_rectifier(info, images_rectified=True) is None
+    assert ros_io.camera_model_from_msgs(info, pose, images_rectified=True).K.tolist() == [
+        [700.0, 0.0, 330.0], [0.0, 700.0, 250.0], [0.0, 0.0, 1.0]]
+    info.p = [0.0] * 12
+    with pytest.raises(ros_io.MessageError, match=r"camera_info P has fx=0.0, fy=0.0: rectified images need"):
+        ros_io.camera_model_from_msgs(info, pose, images_rectified=True)
+    info.distortion_model = "kannala_brandt"
+    with pytest.raises(ValueError, match=r"distortion model 'kannala_brandt' is not supported"):
+        ros_io.camera_rectifier(info)

@@ -25,12 +25,18 @@ from std_srvs.srv import Trigger
 
 from stud_perception import ros_io
 from stud_perception.camera_model import CameraModel
+from stud_perception.rectify import FISHEYE_MODELS, PINHOLE_MODELS, has_distortion
 from stud_perception.ros_io import Param
 from stud_perception.rotations import rpy_to_matrix
-from stud_perception.scene import (DEMO_FOV_DISTANCE_M, DEMO_FOV_WIDTH_M, DEMO_IMAGE_SIZE, SceneError,
+from stud_perception.scene import (DEMO_FOV_DISTANCE_M, DEMO_FOV_WIDTH_M, DEMO_IMAGE_SIZE, SceneError, distort_view,
                                    demo_dome_scene, load_scene, render, view_camera)
 
 OPTICAL_FRAME = "camera_color_optical_frame"
+
+
+def _distortion_d(d) -> str | None:
+    lengths = (4, 5, 8, 12, 14)
+    return None if len(d) in lengths else f"distortion_d needs {' or '.join(map(str, lengths))} numbers, got {list(d)}"
 
 
 def _three(name: str):
@@ -65,6 +71,10 @@ PARAMS = [
           validate=_three("hand_eye_xyz_m")),
     Param("hand_eye_rpy_deg", [0.0, 0.0, 0.0], "optical frame orientation in the tool frame, roll-pitch-yaw [deg]",
           validate=_three("hand_eye_rpy_deg")),
+    Param("distortion_model", "plumb_bob", "lens distortion model of the raw images (CameraInfo distortion_model)",
+          choices=PINHOLE_MODELS + FISHEYE_MODELS),
+    Param("distortion_d", [0.0, 0.0, 0.0, 0.0, 0.0], "lens distortion coefficients of the raw images, OpenCV "
+          "order (CameraInfo D; zeros: a pinhole camera)", validate=_distortion_d),
 ]
 
 
@@ -96,7 +106,7 @@ def shot_messages(view, depth_encoding: str, stamp, noise_m: float = 0.0, seed: 
         "color": ros_io.numpy_to_image(view.color_bgr, "bgr8", stamp, OPTICAL_FRAME),
         "depth": ros_io.numpy_to_image(depth_image(view, depth_encoding, noise_m, seed), depth_encoding, stamp,
                                        OPTICAL_FRAME),
-        "info": ros_io.camera_info_from_model(camera, stamp, OPTICAL_FRAME),
+        "info": ros_io.camera_info_from_model(camera, stamp, OPTICAL_FRAME, view.distortion_d, view.distortion_model),
         "pose": pose,
     }
 
@@ -163,6 +173,8 @@ class CameraNode(Node):
             view = render(self.scene, camera, seed=self.p["seed"] + self._shots,
                           depth_noise_m=self.p["depth_noise_m"], hole_fraction=self.p["hole_fraction"],
                           mark_depth_dropout=self.p["mark_depth_dropout"])
+            if has_distortion(self.p["distortion_d"]):  # raw images of a lens with distortion
+                view = distort_view(view, self.p["distortion_d"], self.p["distortion_model"])
             self._shots += 1
             stamp = self.get_clock().now().to_msg()
             shot = shot_messages(view, self.p["depth_encoding"], stamp, self.p["depth_noise_m"],

@@ -36,6 +36,7 @@ PARAMS = [
     Param("min_contrast", 40.0, "least grey-level difference between a mark and its surround", min=1.0, max=255.0),
     Param("sync_slop_s", 0.0, "stamps closer than this belong to one view [s] (0: equal stamps)", min=0.0, max=1.0),
     Param("publish_overlay", True, "publish /registration/overlay"),
+    ros_io.IMAGES_RECTIFIED_PARAM,
 ]
 
 
@@ -84,12 +85,12 @@ class RegistrationNode(Node):
             return
         stamp = view["color"].header.stamp
         try:
-            camera = ros_io.camera_model_from_msgs(view["info"], view["pose"].pose)
-            distortion = ros_io.distortion_warning(view["info"])
-            if distortion:
-                self.get_logger().warn(distortion, once=True)
-            color = ros_io.color_to_bgr(view["color"])
-            depth = ros_io.depth_to_metres(view["depth"])
+            camera = ros_io.camera_model_from_msgs(view["info"], view["pose"].pose, self.p["images_rectified"])
+            rectifier = ros_io.camera_rectifier(view["info"], self.p["images_rectified"])
+            if rectifier is not None:
+                self.get_logger().info(ros_io.rectification_note(view["info"]), once=True)
+            color = ros_io.color_to_bgr(view["color"], rectifier)
+            depth = ros_io.depth_to_metres(view["depth"], rectifier)
         except (ros_io.MessageError, ValueError) as exc:
             self._publish_invalid(stamp, f"unusable view: {exc}")
             return

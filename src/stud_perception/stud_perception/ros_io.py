@@ -26,6 +26,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
 from sensor_msgs.msg import CameraInfo, Image
 
 from stud_perception.camera_model import CameraModel
+from stud_perception.rectify import Rectifier, rectifier_for
 from stud_perception.rotations import matrix_to_quaternion, quaternion_to_matrix
 
 # -- QoS ------------------------------------------------------------------------------------------
@@ -98,8 +99,14 @@ def numpy_to_image(arr: np.ndarray, encoding: str, stamp: Time | None = None, fr
 COLOR_ENCODINGS = ("rgb8", "bgr8", "rgba8", "bgra8", "mono8", "8UC1", "8UC3")
 
 
-def color_to_bgr(msg: Image) -> np.ndarray:
-    """Colour image (8-bit: one of COLOR_ENCODINGS) -> BGR uint8 (H, W, 3) for OpenCV."""
+def color_to_bgr(msg: Image, rectifier: Rectifier | None = None) -> np.ndarray:
+    """Colour image (8-bit: one of COLOR_ENCODINGS) -> BGR uint8 (H, W, 3) for OpenCV, rectified by
+    ``rectifier`` (see :func:`camera_rectifier`) if given."""
+    bgr = _color_to_bgr(msg)
+    return bgr if rectifier is None else rectifier.color(bgr)
+
+
+def _color_to_bgr(msg: Image) -> np.ndarray:
     if msg.encoding not in COLOR_ENCODINGS:
         raise MessageError(f"colour image encoding '{msg.encoding}' is not supported; expected an 8-bit "
                            f"colour or mono encoding, one of {list(COLOR_ENCODINGS)}")
@@ -115,8 +122,14 @@ def color_to_bgr(msg: Image) -> np.ndarray:
     return arr
 
 
-def depth_to_metres(msg: Image) -> np.ndarray:
-    """Depth image -> float32 metres (H, W), NaN where there is no depth (REP 118: 0 in 16UC1, NaN in 32FC1)."""
+def depth_to_metres(msg: Image, rectifier: Rectifier | None = None) -> np.ndarray:
+    """Depth image -> float32 metres (H, W), NaN where there is no depth (REP 118: 0 in 16UC1, NaN in
+    32FC1), rectified by ``rectifier`` (see :func:`camera_rectifier`) if given."""
+    depth = _depth_to_metres(msg)
+    return depth if rectifier is None else rectifier.depth(depth)
+
+
+def _depth_to_metres(msg: Image) -> np.ndarray:
     arr = image_to_numpy(msg)
     if msg.encoding in ("16UC1", "mono16"):
         out = arr.astype(np.float32) * np.float32(0.001)
@@ -138,14 +151,16 @@ def camera_info_to_K(msg: CameraInfo) -> np.ndarray:
 
 
 def camera_info_from_model(camera: CameraModel, stamp: Time | None = None,
-                           frame_id: str = "camera_color_optical_frame") -> CameraInfo:
+                           frame_id: str = "camera_color_optical_frame", d=(),
+                           distortion_model: str = "plumb_bob") -> CameraInfo:
+    """The CameraInfo of raw images from ``camera`` with lens distortion ``d`` (none: five zeros)."""
     msg = CameraInfo()
     if stamp is not None:
         msg.header.stamp = stamp
     msg.header.frame_id = frame_id
     msg.width, msg.height = camera.width, camera.height
-    msg.distortion_model = "plumb_bob"
-    msg.d = [0.0] * 5
+    msg.distortion_model = distortion_model
+    msg.d = [float(x) for x in d] if len(d) else [0.0] * 5
     msg.k = [float(x) for x in camera.K.ravel()]
     msg.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
     P = np.hstack([camera.K, np.zeros((3, 1))])
@@ -174,23 +189,38 @@ def rt_to_pose(R: np.ndarray, t: np.ndarray) -> Pose:
                 orientation=Quaternion(x=x, y=y, z=z, w=w))
 
 
-def camera_model_from_msgs(info: CameraInfo, pose: Pose) -> CameraModel:
-    """CameraInfo (K) + the optical frame's pose in `world` -> CameraModel for Eq. 1."""
+def camera_model_from_msgs(info: CameraInfo, pose: Pose, images_rectified: bool = False) -> CameraModel:
+    """CameraInfo + the optical frame's pose in `world` -> the pinhole CameraModel of Eq. 1.
+
+    Raw images (``images_rectified`` false, the default: ``image_raw`` topics) are modelled with K;
+    if D is non-zero they must go through :func:`camera_rectifier` onto that pinhole camera first.
+    Rectified images (a driver's ``image_rect`` topics, whose CameraInfo still carries the raw
+    images' K and D) are modelled with the left 3x3 of P, as image_geometry does."""
     R, t = pose_to_rt(pose)
-    return CameraModel(K=camera_info_to_K(info), width=info.width, height=info.height, R_wc=R, t_wc=t)
+    K = camera_info_to_K(info)
+    if images_rectified:
+        K = np.asarray(info.p, dtype=np.float64).reshape(3, 4)[:, :3]
+        if K[0, 0] <= 0 or K[1, 1] <= 0:
+            raise MessageError(f"camera_info P has fx={K[0, 0]}, fy={K[1, 1]}: rectified images need the "
+                               "rectified projection P (or set images_rectified false for raw images)")
+    return CameraModel(K=K, width=info.width, height=info.height, R_wc=R, t_wc=t)
 
 
-def distortion_warning(info: CameraInfo) -> str | None:
-    """A warning if ``info`` has non-zero distortion coefficients, else None. Eq. 1 is a pinhole:
-    images must be rectified (a driver's ``image_rect`` topics), or positions drift away from the
-    image centre."""
-    d = np.asarray(info.d, dtype=np.float64)
-    if not (d.size and np.any(d != 0)):
+def camera_rectifier(info: CameraInfo, images_rectified: bool = False) -> Rectifier | None:
+    """What maps this camera's raw images onto the pinhole camera of :func:`camera_model_from_msgs`:
+    None if there is nothing to do (no distortion, or the images are already rectified).
+    Raises RectifyError (a ValueError) for an unsupported model or coefficient count."""
+    if images_rectified:
         return None
-    k = int(np.argmax(np.abs(d)))
-    return (f"camera_info has non-zero distortion coefficients (model '{info.distortion_model}', largest "
-            f"d[{k}] = {d[k]:g}); the planner assumes a pinhole camera and ignores distortion: use rectified "
-            "images (image_rect) or expect position errors away from the image centre")
+    return rectifier_for(camera_info_to_K(info), info.d, info.distortion_model, info.width, info.height)
+
+
+def rectification_note(info: CameraInfo) -> str:
+    """One line for the log: which distortion the raw images are rectified from."""
+    d = np.asarray(info.d, dtype=np.float64)
+    k = int(np.argmax(np.abs(d))) if d.size else 0
+    return (f"camera_info has lens distortion (model '{info.distortion_model}', largest d[{k}] = "
+            f"{d[k] if d.size else 0.0:g}): rectifying the raw images onto the pinhole camera with its K")
 
 
 def stamp_to_ns(stamp: Time) -> int:
@@ -229,6 +259,12 @@ class Param:
         if self.validate is not None:
             return self.validate(value)
         return None
+
+
+#: The matcher's and the registration's: which camera model the images follow.
+IMAGES_RECTIFIED_PARAM = Param(
+    "images_rectified", False, "the images are rectified already (a driver's image_rect topics): model them with "
+    "camera_info P and ignore D; false: raw images (image_raw), rectified here when D is non-zero")
 
 
 def declare_params(node: Node, params: list[Param], on_change: Callable[[dict], None] | None = None) -> dict:

@@ -18,9 +18,11 @@ exact. Depth is the optical-frame z, quantised to millimetres in the 16UC1 image
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 from typing import Any, ClassVar, Union
 
@@ -485,6 +487,7 @@ class RenderedView:
     (N, 3) the surface point above the stud's world XY, ``stud_normals_w`` (N, 3) unit outward
     normals, ``stud_pixels_uv`` (N, 2) its projection, ``stud_visible`` (N,) in the image and
     not occluded. Marks: ``marks_world_m`` (3, 3) O, A, B and ``marks_pixels_uv`` (3, 2).
+    :func:`distort_view` turns it into the raw images of a camera with lens distortion.
     """
 
     color_bgr: np.ndarray
@@ -501,6 +504,9 @@ class RenderedView:
     stud_visible: np.ndarray
     marks_world_m: np.ndarray
     marks_pixels_uv: np.ndarray
+    #: Lens distortion of the images (CameraInfo D and distortion_model); () for a pinhole view.
+    distortion_d: tuple = ()
+    distortion_model: str = "plumb_bob"
 
     @property
     def depth_m(self) -> np.ndarray:
@@ -736,6 +742,54 @@ def render(
 DEMO_IMAGE_SIZE = (1280, 960)
 DEMO_FOV_WIDTH_M = 0.46   # field of view width at DEMO_FOV_DISTANCE_M (paper: ~460 x 360 mm)
 DEMO_FOV_DISTANCE_M = 0.5
+
+
+@lru_cache(maxsize=4)
+def _raw_to_pinhole_maps(K: tuple, D: tuple, fisheye: bool, w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
+    """For every raw pixel, the pinhole pixel on its ray (about a second for 1280x960: cached)."""
+    K, D = np.array(K).reshape(3, 3), np.array(D)
+    v, u = np.mgrid[0:h, 0:w]
+    raw = np.stack([u, v], axis=-1).reshape(-1, 1, 2).astype(np.float64)
+    if fisheye:
+        ideal = cv2.fisheye.undistortPoints(raw, K, D.reshape(4, 1), P=K)
+    else:
+        ideal = cv2.undistortPoints(raw, K, D, P=K, criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-9))
+    return (ideal[:, 0, 0].reshape(h, w).astype(np.float32), ideal[:, 0, 1].reshape(h, w).astype(np.float32))
+
+
+def distort_view(view: RenderedView, d, model: str = "plumb_bob") -> RenderedView:
+    """The raw images a camera with K = ``view.camera.K`` and lens distortion ``d`` (OpenCV order;
+    ``model`` 'plumb_bob'/'rational_polynomial' or 'equidistant') delivers of the same scene: each
+    raw pixel takes the pinhole view's value along its ray (colour bilinear, depth and labels
+    nearest), and the truth's pixels move likewise. Pixels whose ray leaves the pinhole image get
+    no depth. What :class:`stud_perception.rectify.Rectifier` undoes."""
+    K = view.camera.K
+    D = np.asarray(d, dtype=np.float64).ravel()
+    fisheye = model == "equidistant"
+    h, w = view.depth_mm.shape
+    map_u, map_v = _raw_to_pinhole_maps(tuple(K.ravel().tolist()), tuple(D.tolist()), fisheye, w, h)
+    ui, vi = np.rint(map_u).astype(np.int64), np.rint(map_v).astype(np.int64)
+    inside = (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
+    ui, vi = np.clip(ui, 0, w - 1), np.clip(vi, 0, h - 1)
+
+    def nearest(img, outside):
+        return np.where(inside, img[vi, ui], outside).astype(img.dtype)
+
+    def distort_pixels(uv):
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        xn = np.column_stack([(uv[:, 0] - K[0, 2]) / K[0, 0], (uv[:, 1] - K[1, 2]) / K[1, 1]])
+        if fisheye:
+            return cv2.fisheye.distortPoints(xn.reshape(-1, 1, 2), K, D.reshape(4, 1)).reshape(-1, 2)
+        pts = np.column_stack([xn, np.ones(len(xn))])
+        return cv2.projectPoints(pts, np.zeros(3), np.zeros(3), K, D)[0].reshape(-1, 2)
+
+    return dataclasses.replace(
+        view,
+        color_bgr=cv2.remap(view.color_bgr, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT),
+        depth_mm=nearest(view.depth_mm, 0), depth_exact_m=nearest(view.depth_exact_m, np.nan),
+        surface_id=nearest(view.surface_id, SURFACE_NONE), hole_mask=nearest(view.hole_mask, False),
+        stud_pixels_uv=distort_pixels(view.stud_pixels_uv), marks_pixels_uv=distort_pixels(view.marks_pixels_uv),
+        distortion_d=tuple(D.tolist()), distortion_model=model)
 
 
 def view_camera(

@@ -61,6 +61,7 @@ PARAMS = [
           min=0.0, max=1e6),
     Param("sync_slop_s", 0.0, "stamps closer than this belong to one view [s] (0: equal stamps)", min=0.0, max=1.0),
     Param("publish_overlay", True, "publish /weld_targets/overlay"),
+    ros_io.IMAGES_RECTIFIED_PARAM,
 ]
 _ODD = ("fpm_window_px", "hole_window_px")
 
@@ -86,7 +87,7 @@ class MatcherNode(Node):
         self._arrivals: dict[str, deque] = {k: deque(maxlen=20) for k in ("color", "depth", "info", "pose")}
         self._color_sub = None  # only while the overlay has a subscriber
         self._colors: OrderedDict[int, Image] = OrderedDict()  # stamp ns -> colour image, newest last
-        self._overlays_due: OrderedDict[int, tuple] = OrderedDict()  # stamp ns -> (targets, camera) awaiting colour
+        self._overlays_due: OrderedDict[int, tuple] = OrderedDict()  # stamp ns -> (targets, camera, rectifier)
         self.pub_targets = self.create_publisher(WeldTargetArray, "/weld_targets", ros_io.RESULT_QOS)
         self.pub_poses = self.create_publisher(PoseArray, "/weld_targets/poses", ros_io.RESULT_QOS)
         self.pub_markers = self.create_publisher(MarkerArray, "/weld_targets/markers", ros_io.RESULT_QOS)
@@ -185,11 +186,11 @@ class MatcherNode(Node):
             return
         self._pending = None
         try:
-            camera = ros_io.camera_model_from_msgs(view["info"], view["pose"].pose)
-            distortion = ros_io.distortion_warning(view["info"])
-            if distortion:
-                self.get_logger().warn(distortion, once=True)
-            depth = ros_io.depth_to_metres(view["depth"])
+            camera = ros_io.camera_model_from_msgs(view["info"], view["pose"].pose, self.p["images_rectified"])
+            rectifier = ros_io.camera_rectifier(view["info"], self.p["images_rectified"])
+            if rectifier is not None:
+                self.get_logger().info(ros_io.rectification_note(view["info"]), once=True)
+            depth = ros_io.depth_to_metres(view["depth"], rectifier)
             if depth.shape != (camera.height, camera.width):
                 raise ros_io.MessageError(f"depth {depth.shape[1]}x{depth.shape[0]} does not match camera_info "
                                           f"{camera.width}x{camera.height} (is depth registered to colour?)")
@@ -200,10 +201,10 @@ class MatcherNode(Node):
         layout = layout_from_msg(self.layout)
         targets = plan_view(layout.ids, layout.xy_m, registration_from_msg(self.registration), depth, camera,
                             self.planner_config())
-        self._publish(targets, view, camera, stamp)
+        self._publish(targets, camera, rectifier, stamp)
         self.view_index += 1
 
-    def _publish(self, targets, view: dict, camera, stamp) -> None:
+    def _publish(self, targets, camera, rectifier, stamp) -> None:
         # First: it is what the cell waits for. Written as CDR bytes straight from the arrays (a
         # tenth of the cost of 100 WeldTarget objects through rclpy's conversion).
         self.pub_targets.publish(weld_target_array_cdr(targets, self.view_index, stamp.sec, stamp.nanosec, "world"))
@@ -218,9 +219,9 @@ class MatcherNode(Node):
             stamp_ns = ros_io.stamp_to_ns(stamp)
             color = self._pop_near(self._colors, stamp_ns)
             if color is not None:
-                self._publish_overlay(targets, camera, color)
+                self._publish_overlay(targets, camera, rectifier, color)
             else:
-                _put_bounded(self._overlays_due, stamp_ns, (targets, camera))
+                _put_bounded(self._overlays_due, stamp_ns, (targets, camera, rectifier))
         counts = targets.counts()
         summary = (f"view {self.view_index}: {counts.get('ok', 0)}/{len(targets.ids)} ok "
                    f"({', '.join(f'{k} {v}' for k, v in sorted(counts.items()) if k != 'ok') or 'no failures'}), "
@@ -229,9 +230,9 @@ class MatcherNode(Node):
         self.diag.set(self.diag.OK, summary, last_match_time_ms=f"{targets.match_time_s * 1e3:.2f}",
                       **{f"count_{k}": v for k, v in counts.items()})
 
-    def _publish_overlay(self, targets, camera, color_msg: Image) -> None:
+    def _publish_overlay(self, targets, camera, rectifier, color_msg: Image) -> None:
         try:
-            color = ros_io.color_to_bgr(color_msg)
+            color = ros_io.color_to_bgr(color_msg, rectifier)
         except (ros_io.MessageError, ValueError) as exc:
             self.get_logger().warn(f"no overlay: unusable colour image: {exc}", throttle_duration_sec=10.0)
             return

@@ -231,20 +231,13 @@ def views_with_images(bag_path: Path, topics: dict[str, str], views: list[View])
         raise PlanError(str(exc)) from None
 
 
-def _distortion_warning(views: list[View]) -> str | None:
-    """:func:`ros_io.distortion_warning` for the first view that has distortion, naming it."""
-    for v in views:
-        warning = ros_io.distortion_warning(v.info)
-        if warning:
-            return f"view {v.index}: {warning}"
-    return None
-
-
-def _decode(view: View, bag: Path):
+def _decode(view: View, bag: Path, images_rectified: bool):
+    """The view's pinhole camera and images (raw images with lens distortion rectified onto it)."""
     try:
-        camera = ros_io.camera_model_from_msgs(view.info, view.pose.pose)
-        color = ros_io.color_to_bgr(view.color)
-        depth = ros_io.depth_to_metres(view.depth)
+        camera = ros_io.camera_model_from_msgs(view.info, view.pose.pose, images_rectified)
+        rectifier = ros_io.camera_rectifier(view.info, images_rectified)
+        color = ros_io.color_to_bgr(view.color, rectifier)
+        depth = ros_io.depth_to_metres(view.depth, rectifier)
     except (ros_io.MessageError, ValueError) as exc:
         raise PlanError(f"{bag}: view {view.index} (depth stamp {view.stamp_ns} ns): {exc}") from None
     if depth.shape != (camera.height, camera.width) or color.shape[:2] != depth.shape:
@@ -267,9 +260,12 @@ def _progress(i: int, n: int, quiet: bool, what: str) -> None:
 
 def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, str] | None = None,
          overlay_dir: Path | None = None, quiet: bool = True, config: PlannerConfig | None = None,
-         sync_slop_ms: float = DEFAULT_SYNC_SLOP_MS, allow_damaged: bool = False) -> dict:
+         sync_slop_ms: float = DEFAULT_SYNC_SLOP_MS, allow_damaged: bool = False,
+         images_rectified: bool = False) -> dict:
     """Run the offline planning and return the report (see the module docstring). ``report["warnings"]``
-    lists what the user must know about the result (damaged bag read anyway, unrectified images)."""
+    lists what the user must know about the result (a damaged bag read anyway). Raw images with
+    lens distortion are rectified; ``images_rectified``: they were already (see
+    :func:`ros_io.camera_model_from_msgs`)."""
     topics = topics or DEFAULT_TOPICS
     try:
         layout = dxf_layout.read_layout(drawing)
@@ -280,9 +276,6 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
     if not np.isfinite(sync_slop_ms) or sync_slop_ms < 0:
         raise PlanError(f"--sync-slop-ms {sync_slop_ms}: expected a finite number of ms >= 0")
     views = read_views(bag, topics, int(round(sync_slop_ms * 1e6)), warnings, allow_damaged)
-    distortion = _distortion_warning(views)
-    if distortion:
-        warnings.append(distortion)
     marks = np.array([(m.x_m, m.y_m) for m in (layout.mark_o, layout.mark_a, layout.mark_b)])
     det_config = config_for_layout(MarkDetectorConfig(), layout.mark_diameter_m)
 
@@ -319,7 +312,7 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
     # then match it and every later view; the views before it take a second pass.
     registration, reg_view, reasons, before = None, None, [], []
     for v in views_with_images(bag, topics, views):
-        camera, color, depth = _decode(v, bag)
+        camera, color, depth = _decode(v, bag, images_rectified)
         if registration is None:
             result = register_view(color, depth, camera, marks, det_config)
             if not result.ok:
@@ -332,7 +325,7 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
         raise PlanError(f"the marks O, A, B of {drawing} were found on none of the {len(views)} views of {bag} "
                         f"(drawing and bag do not match?): " + "; ".join(reasons[:3]))
     for v in views_with_images(bag, topics, before):
-        match_view(v, *_decode(v, bag))
+        match_view(v, *_decode(v, bag, images_rectified))
     if totals["views"] != len(views):
         raise PlanError(f"{bag}: {len(views) - totals['views']} of {len(views)} views lost their images between "
                         "two reads of the bag (was it written to meanwhile?)")
@@ -395,6 +388,9 @@ def main(argv: list[str] | None = None) -> int:
                              f"(default {DEFAULT_SYNC_SLOP_MS:g}: real drivers stamp streams a few ms apart)")
     parser.add_argument("--allow-damaged-bag", action="store_true",
                         help="plan with what a truncated/damaged bag still holds (a warning) instead of an error")
+    parser.add_argument("--images-rectified", action="store_true",
+                        help="the bag's images are rectified already (image_rect): use camera_info P, ignore D "
+                             "(default: raw images, rectified here when camera_info has distortion)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     from rclpy.utilities import remove_ros_args
 
@@ -404,7 +400,8 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     try:
         report = plan(args.drawing, args.bag, args.algorithm, topics, args.overlay_dir, args.quiet,
-                      sync_slop_ms=args.sync_slop_ms, allow_damaged=args.allow_damaged_bag)
+                      sync_slop_ms=args.sync_slop_ms, allow_damaged=args.allow_damaged_bag,
+                      images_rectified=args.images_rectified)
         for warning in report["warnings"]:
             print(f"plan: warning: {warning}", file=sys.stderr)
         if args.out:
