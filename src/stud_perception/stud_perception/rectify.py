@@ -65,7 +65,8 @@ class Rectifier:
             maps = cv2.fisheye.initUndistortRectifyMap(K, D.reshape(4, 1), np.eye(3), K, size, cv2.CV_32FC1)
         else:
             raise RectifyError(f"distortion model '{self.model}' is not supported; expected one of "
-                               f"{list(PINHOLE_MODELS + FISHEYE_MODELS)}, or rectified images")
+                               f"{list(PINHOLE_MODELS + FISHEYE_MODELS)}, or images that are rectified already "
+                               "(image_rect topics with images_rectified:=true, plan --images-rectified)")
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "D", D)
         object.__setattr__(self, "_maps", maps)
