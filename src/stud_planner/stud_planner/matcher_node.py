@@ -243,11 +243,9 @@ class MatcherNode(Node):
     def _poses(targets, header: Header) -> PoseArray:
         """Every stud's pose, in stud order (NaN position where unmatched, identity orientation
         where there is no normal), as in /weld_targets."""
-        quat = targets.quat_xyzw.copy()
-        quat[~np.all(np.isfinite(quat), axis=1)] = (0.0, 0.0, 0.0, 1.0)
         return PoseArray(header=header, poses=[
             Pose(position=Point(x=p[0], y=p[1], z=p[2]), orientation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3]))
-            for p, q in zip(targets.position_w.tolist(), quat.tolist())])
+            for p, q in zip(targets.position_w.tolist(), targets.message_quat_xyzw.tolist())])
 
     @staticmethod
     def _markers(targets, header: Header) -> MarkerArray:

@@ -22,7 +22,6 @@ _ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR, little-endian
 #: normal, pixel_u/v), uint32 view_index and iterations, 3 float64 (xy_error, inclination,
 #: normal_rms). It starts 8-aligned and holds no padding, so one numpy row is the wire bytes.
 _BLOCK = np.dtype([("f", "<f8", 14), ("u", "<u4", 2), ("g", "<f8", 3)])
-_IDENTITY_XYZW = (0.0, 0.0, 0.0, 1.0)
 
 
 def _align(buf: bytearray, size: int) -> None:
@@ -43,10 +42,8 @@ def weld_target_array_cdr(targets, view_index: int, stamp_sec: int, stamp_nanose
     positions (no match) sent as NaN so nobody mistakes them for 0, a NaN orientation as the
     identity; ``algorithm``, ``match_time`` and ``total_iterations`` from the targets."""
     n = len(targets.ids)
-    quat = np.array(targets.quat_xyzw, dtype=np.float64).reshape(n, 4)
-    quat[~np.all(np.isfinite(quat), axis=1)] = _IDENTITY_XYZW
     block = np.zeros(n, _BLOCK)
-    block["f"] = np.hstack([targets.drawing_xy_m, targets.position_w, quat, targets.normal_w,
+    block["f"] = np.hstack([targets.drawing_xy_m, targets.position_w, targets.message_quat_xyzw, targets.normal_w,
                             targets.matches.pixel_uv])
     block["u"][:, 0] = view_index
     block["u"][:, 1] = targets.matches.iterations

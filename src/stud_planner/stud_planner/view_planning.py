@@ -89,6 +89,13 @@ class ViewTargets:
     def ok(self) -> np.ndarray:
         return self.status == STATUS_OK
 
+    @property
+    def message_quat_xyzw(self) -> np.ndarray:
+        """(N, 4) the orientations messages carry: the identity where there is no normal (NaN)."""
+        quat = np.array(self.quat_xyzw, dtype=np.float64).reshape(-1, 4)
+        quat[~np.all(np.isfinite(quat), axis=1)] = (0.0, 0.0, 0.0, 1.0)
+        return quat
+
     def counts(self) -> dict[str, int]:
         vals, n = np.unique(self.status, return_counts=True)
         return {STATUS_TEXT[int(v)]: int(c) for v, c in zip(vals, n)}
