@@ -182,10 +182,16 @@ class Player:
     def _play_once(self, publishers, clock_pub) -> None:
         rate = self.options.rate
         bag_start = self.reader.start_time_ns + int(self.options.start_offset_s * 1e9)
+        messages = self.reader.messages(list(publishers), start_time_ns=bag_start)
+        # The clock starts once the first message is read: opening the first chunk (decompression)
+        # must not make the opening messages late and then go out in a burst.
+        first = next(messages, None)
+        if first is None:
+            return
         wall_start = time.monotonic()
         next_clock = wall_start
         clock_period = 1.0 / self.options.clock_hz if self.options.clock_hz else 0.0
-        for msg in self.reader.messages(list(publishers), start_time_ns=bag_start):
+        for msg in itertools.chain([first], messages):
             due = wall_start + (msg.log_time_ns - bag_start) / 1e9 / rate
             while True:
                 now = time.monotonic()
