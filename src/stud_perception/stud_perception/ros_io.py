@@ -197,8 +197,9 @@ def camera_model_from_msgs(info: CameraInfo, pose: Pose, images_rectified: bool 
     Rectified images (a driver's ``image_rect`` topics, whose CameraInfo still carries the raw
     images' K and D) are modelled with the left 3x3 of P, as image_geometry does."""
     R, t = pose_to_rt(pose)
-    K = camera_info_to_K(info)
-    if images_rectified:
+    if not images_rectified:
+        K = camera_info_to_K(info)
+    else:
         K = np.asarray(info.p, dtype=np.float64).reshape(3, 4)[:, :3]
         if K[0, 0] <= 0 or K[1, 1] <= 0:
             raise MessageError(f"camera_info P has fx={K[0, 0]}, fy={K[1, 1]}: rectified images need the "
