@@ -120,14 +120,15 @@ def _nearest_gaps(stamped: dict[str, list[tuple[int, object]]]) -> str:
     return "; ".join(parts)
 
 
-def read_views(bag_path: Path, topics: dict[str, str], slop_ns: int = int(DEFAULT_SYNC_SLOP_MS * 1e6),
+def read_views(bag_path: Path, topics: dict[str, str], sync_slop_ms: float = DEFAULT_SYNC_SLOP_MS,
                warnings: list[str] | None = None, allow_damaged: bool = False) -> list[View]:
-    """All complete views (the four topics with stamps within ``slop_ns`` of the depth stamp) of a
-    bag, in stamp order. A damaged bag (cut short, or holding fewer messages than its metadata.yaml
-    lists) is a PlanError, unless ``allow_damaged``: then it is a line in ``warnings``."""
+    """All complete views (the four topics with stamps within ``sync_slop_ms`` of the depth stamp)
+    of a bag, in stamp order. A damaged bag (cut short, or holding fewer messages than its
+    metadata.yaml lists) is a PlanError, unless ``allow_damaged``: then it is a line in ``warnings``."""
     warnings = [] if warnings is None else warnings
-    if slop_ns < 0:
-        raise PlanError(f"--sync-slop-ms {slop_ns / 1e6}: expected >= 0")
+    if not np.isfinite(sync_slop_ms) or sync_slop_ms < 0:
+        raise PlanError(f"--sync-slop-ms {sync_slop_ms}: expected a finite number of ms >= 0")
+    slop_ns = int(round(sync_slop_ms * 1e6))
     roles: dict[str, list[str]] = {}
     for name, topic in topics.items():
         roles.setdefault(topic, []).append(name)
@@ -273,9 +274,7 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
         raise PlanError(str(exc)) from None
     config = config or PlannerConfig(algorithm=algorithm)
     warnings: list[str] = []
-    if not np.isfinite(sync_slop_ms) or sync_slop_ms < 0:
-        raise PlanError(f"--sync-slop-ms {sync_slop_ms}: expected a finite number of ms >= 0")
-    views = read_views(bag, topics, int(round(sync_slop_ms * 1e6)), warnings, allow_damaged)
+    views = read_views(bag, topics, sync_slop_ms, warnings, allow_damaged)
     marks = np.array([(m.x_m, m.y_m) for m in (layout.mark_o, layout.mark_a, layout.mark_b)])
     det_config = config_for_layout(MarkDetectorConfig(), layout.mark_diameter_m)
 
