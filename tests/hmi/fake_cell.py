@@ -25,7 +25,7 @@ def target(stud_id: str, status: int, xyz_m=(NAN, NAN, NAN), incl_deg=NAN, xy_er
     t = WeldTarget(stud_id=stud_id, status=status, inclination=incl_deg, xy_error=xy_error_m, view_index=view)
     t.status_text = {WeldTarget.STATUS_OK: "ok", WeldTarget.STATUS_NO_DEPTH: "no_depth",
                      WeldTarget.STATUS_OUT_OF_VIEW: "out_of_view",
-                     WeldTarget.STATUS_INCLINATION_EXCEEDED: "inclination_exceeded"}[status]
+                     WeldTarget.STATUS_NORMAL_UNCERTAIN: "normal_uncertain"}[status]
     t.pose.position.x, t.pose.position.y, t.pose.position.z = xyz_m
     return t
 

@@ -165,10 +165,10 @@ def test_page_in_headless_chromium_shows_published_targets_and_its_stop_button_r
     assert row["cells"][:7] == ["S0001", "ok", "2.5", "100.0", "200.0", "50.0", "0.40"]
     assert "st-ok" in row["cls"]
     assert page.evaluate(ROW_JS.format(sid="S0002"))["cells"][1:4] == ["no depth", "–", "–"]
-    update = [target("S0001", WeldTarget.STATUS_INCLINATION_EXCEEDED, (0.15, 0.2, 0.05), incl_deg=7.0,
+    update = [target("S0001", WeldTarget.STATUS_NORMAL_UNCERTAIN, (0.15, 0.2, 0.05), incl_deg=7.0,
                      xy_error_m=0.0002, view=1)]
-    row = shown("S0001", update, lambda r: r["cells"][1] == "inclination exceeded")
-    assert row["cells"][2:4] == ["7.0", "150.0"] and "st-inclination_exceeded" in row["cls"]
+    row = shown("S0001", update, lambda r: r["cells"][1] == "normal uncertain")
+    assert row["cells"][2:4] == ["7.0", "150.0"] and "st-normal_uncertain" in row["cls"]
 
     # (c) pressing Stop in the page reaches /arm/stop (and /cell/stop); the reply is shown
     page.evaluate("document.getElementById('btn-stop').click()")

@@ -15,7 +15,6 @@ from stud_planner.view_planning import PlannerConfig, plan_view
 # A wide-angle RGB lens's barrel distortion: about 50 px at the corners of the 1280x960 image.
 PLUMB_BOB = (-0.2, 0.08, 0.001, -0.0008, 0.0)
 FISHEYE = (-0.02, 0.004, 0.0, 0.0)
-STEEP_OK = PlannerConfig(max_inclination_deg=30.0)  # the dome's outer studs lean 14 deg: judge them all
 
 
 @pytest.fixture(scope="module")
@@ -29,7 +28,7 @@ def _plan(scene, color, depth, camera):
     reg = register_view(color, depth, camera, np.asarray(scene.board.marks_drawing_m))
     assert reg.ok, reg.message
     return reg, plan_view(list(scene.stud_ids), np.asarray(scene.studs_drawing_m), reg.registration.M_local2world,
-                          depth, camera, STEEP_OK)
+                          depth, camera, PlannerConfig())
 
 
 def _position_errors(view, targets):
@@ -61,7 +60,7 @@ def test_raw_images_taken_for_pinhole_ones_give_wrong_positions(scene_and_view):
     reg = register_view(raw.color_bgr, raw.depth_m, view.camera, marks, MarkDetectorConfig(distance_tol_m=0.02))
     assert reg.ok, reg.message
     targets = plan_view(list(scene.stud_ids), np.asarray(scene.studs_drawing_m), reg.registration.M_local2world,
-                        raw.depth_m, view.camera, STEEP_OK)
+                        raw.depth_m, view.camera, PlannerConfig())
     assert np.linalg.norm(_position_errors(view, targets)[:, :2], axis=1).max() > 0.003
 
 

@@ -130,7 +130,7 @@ def test_driver_node_runs_a_weld_job_and_publishes_state(sim, probe, tmp_path):
         np.testing.assert_allclose(R_cam[:, 0], T_tool[:3, 1], atol=1e-6)  # yaw 90 deg about the tool z
 
         targets = dome_targets(rings=((0.0, 1), (0.05, 5)))
-        tilted = type(targets[0])("TILT", [0.30, 0.09, 0.0], [np.sin(np.radians(9)), 0, np.cos(np.radians(9))])
+        tilted = type(targets[0])("TILT", [0.30, 0.09, 0.0], [np.sin(np.radians(65)), 0, np.cos(np.radians(65))])
         goal = WeldJob.Goal(targets=[weld_target_msg(t) for t in targets[:3]]
                             + [weld_target_msg(targets[3], WeldTarget.STATUS_NO_DEPTH), weld_target_msg(tilted)]
                             + [weld_target_msg(t) for t in targets[4:]], resume=True)
@@ -151,7 +151,7 @@ def test_driver_node_runs_a_weld_job_and_publishes_state(sim, probe, tmp_path):
         assert res.success, res.message
         assert list(res.welded) == welded
         assert list(res.skipped) == [targets[3].stud_id, "TILT"]
-        assert "no_depth" in res.messages[0] and "inclination 9.0" in res.messages[1]
+        assert "no_depth" in res.messages[0] and "tilt 65.0 deg from vertical" in res.messages[1]
         assert [f.phase for f in feedback if f.stud_id == "S0000"] == ["approach", "descend", "weld", "dwell",
                                                                           "retract"]
         assert feedback[-1].total == 7

@@ -58,7 +58,8 @@ def test_full_dome_job_welds_every_stud_once_on_its_normal(client, sim, tmp_path
 def test_rejected_targets_are_never_sent(client, sim, tmp_path):
     good = dome_targets(rings=((0.0, 1), (0.05, 2)))
     unreachable = StudTarget("FAR", [0.50, 0.0, 0.0], [0, 0, 1])
-    tilted = StudTarget("TILT", [0.30, 0.08, 0.0], [np.sin(np.radians(8)), 0, np.cos(np.radians(8))])
+    # beyond the cell's gun tilt (60 deg from vertical by default): not the stud's 5 deg lean budget
+    tilted = StudTarget("TILT", [0.30, 0.08, 0.0], [np.sin(np.radians(70)), 0, np.cos(np.radians(70))])
     outside = StudTarget("LOW", [0.30, -0.08, -0.05], [0, 0, 1])
     targets = [good[0], unreachable, good[1], tilted, outside, good[2]]
     seq, journal = make_seq(client, tmp_path)
@@ -66,7 +67,7 @@ def test_rejected_targets_are_never_sent(client, sim, tmp_path):
     assert res.success and res.welded == [good[0].stud_id, good[1].stud_id, good[2].stud_id]
     assert res.skipped == ["FAR", "TILT", "LOW"]
     msgs = dict(m.split(": ", 1) for m in res.messages)
-    assert "unreachable" in msgs["FAR"] and "inclination 8.0" in msgs["TILT"] and "workspace box" in msgs["LOW"]
+    assert "unreachable" in msgs["FAR"] and "tilt 70.0 deg" in msgs["TILT"] and "workspace box" in msgs["LOW"]
     assert journal.status("FAR") == "skipped"
     # the simulator never saw a motion towards a rejected stud
     movels = [P.pose_from_wire(c.msg["pose"])[:3] for c in sim.commands_named("movel")]

@@ -22,8 +22,8 @@ def _target(i: int) -> m.WeldTarget:
         stud_id=f"S{i:04d}", drawing_x=0.1 * i, drawing_y=-0.05,
         pose=Pose(position=Point(x=0.3, y=0.02 * i, z=0.041), orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)),
         normal=Vector3(x=0.01, y=-0.02, z=0.9997), pixel_u=640.25, pixel_v=480.5, view_index=3, iterations=7,
-        xy_error=0.0003, inclination=4.1, normal_rms=0.0002, status=m.WeldTarget.STATUS_INCLINATION_EXCEEDED,
-        status_text="inclination_exceeded")
+        xy_error=0.0003, inclination=4.1, normal_rms=0.0002, status=m.WeldTarget.STATUS_NORMAL_UNCERTAIN,
+        status_text="normal_uncertain", normal_sigma=1.9, lean_bound=6.2, fill_ratio=0.4, gun_clearance=0.012)
 
 
 def _samples() -> list:

@@ -60,6 +60,9 @@ def _check(targets, view_index=7, sec=1_700_000_123, nanosec=456_789_000, frame_
     np.testing.assert_allclose(col(lambda t: (t.xy_error, t.inclination, t.normal_rms), 3),
                                np.column_stack([targets.matches.xy_residual_m, targets.inclination_deg,
                                                 targets.normal_rms_m]), **nan_eq)
+    np.testing.assert_allclose(col(lambda t: (t.normal_sigma, t.lean_bound, t.fill_ratio, t.gun_clearance), 4),
+                               np.column_stack([targets.normal_sigma_deg, targets.lean_bound_deg,
+                                                targets.poses.fill_ratio, targets.gun_clearance_m]), **nan_eq)
     assert [t.iterations for t in msg.targets] == targets.matches.iterations.tolist()
     assert all(t.view_index == view_index for t in msg.targets)
     return msg

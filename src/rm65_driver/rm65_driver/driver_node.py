@@ -99,8 +99,11 @@ PARAMS = [
           validate=_vec3("workspace_min_m")),
     Param("workspace_max_m", [0.70, 0.70, 1.10], "workspace box upper corner, world [m]",
           validate=_vec3("workspace_max_m")),
-    Param("max_inclination_deg", 5.0, "max angle between a target's normal and stud_axis [deg]", min=0.0, max=90.0),
-    Param("stud_axis", [0.0, 0.0, 1.0], "direction studs are welded along, world", validate=_vec3("stud_axis")),
+    Param("max_tool_tilt_deg", 60.0, "how far this cell's gun may lean from vertical (hose, cable, gun body) -- a "
+          "property of the cell: studs are welded along the surface normal at any slope up to it [deg]",
+          min=0.0, max=90.0),
+    Param("yaw_step_deg", 15.0, "the free rotation about the stud's axis is searched in these steps for the "
+          "reachable solution nearest the current joints [deg]", min=1.0, max=180.0),
     Param("motion_timeout_s", 60.0, "a motion that has not arrived by then aborts the job [s]", min=1.0, max=600.0),
     Param("reconnect_timeout_s", 10.0, "reconnection attempts before a job aborts [s]", min=0.5, max=300.0),
     Param("on_disconnect", "continue", "after a connection loss mid-weld: 'continue' with the next studs or 'abort'",
@@ -205,7 +208,7 @@ class DriverNode(Node):
             on_disconnect=p["on_disconnect"])
         limits = SafetyLimits(
             workspace_min_m=tuple(p["workspace_min_m"]), workspace_max_m=tuple(p["workspace_max_m"]),
-            max_inclination_deg=p["max_inclination_deg"], stud_axis=tuple(p["stud_axis"]),
+            max_tool_tilt_deg=p["max_tool_tilt_deg"], yaw_step_deg=p["yaw_step_deg"],
             max_joint_speed_pct=p["max_joint_speed_pct"], max_linear_speed_pct=p["max_linear_speed_pct"])
         return WeldSequence(self.client, self.journal, SafetyChecker(self.kin, limits, params.tool_T), params)
 

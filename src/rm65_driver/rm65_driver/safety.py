@@ -1,4 +1,10 @@
-"""Checks run before any motion command is sent: reach, joint limits, workspace, inclination, speed.
+"""Checks run before any motion command is sent: reach, joint limits, workspace, gun tilt, speed.
+
+The gun welds along the surface normal at any slope (the stud's 5 deg is its lean from that
+normal, an error budget the planner checks). What the cell limits is how far the gun may tilt
+from vertical, ``max_tool_tilt_deg``: a property of the cell (hose, cable, gun body), not of
+the stud. The stud is round, so the rotation about its axis is free: it is searched for a
+reachable solution nearest the current joints.
 
 Every check returns a reason string a person can act on (``None``/``ok`` when it passes), and
 nothing here talks to the controller: a rejected target is never sent.
@@ -21,27 +27,28 @@ from .kinematics import SHOULDER_M, WORKING_RADIUS_M, RM65Kinematics, tool_pose_
 class SafetyLimits:
     """Limits; lengths in m (world frame), angles in deg, speeds in % of the controller maximum.
 
-    ``stud_axis`` is the direction studs must be welded along (unit vector, world; the plate
-    normal, +z by default); a target whose surface normal is tilted more than
-    ``max_inclination_deg`` from it is refused. ``workspace_min_m``/``workspace_max_m`` bound
-    the weld-tool tip (and the flange) everywhere along every planned path.
+    ``max_tool_tilt_deg``: how far the gun may lean from vertical (gun pointing straight down)
+    in this cell; a stud whose normal is tilted more than that from world +z is refused.
+    ``workspace_min_m``/``workspace_max_m`` bound the weld-tool tip (and the flange) everywhere
+    along every planned path. ``yaw_step_deg``: the rotation about the stud's axis is searched
+    in these steps.
     """
 
     workspace_min_m: tuple[float, float, float] = (-0.70, -0.70, -0.02)
     workspace_max_m: tuple[float, float, float] = (0.70, 0.70, 1.10)
-    max_inclination_deg: float = 5.0
-    stud_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    max_tool_tilt_deg: float = 60.0
+    yaw_step_deg: float = 15.0
     max_joint_speed_pct: int = 50
     max_linear_speed_pct: int = 30
 
     def __post_init__(self) -> None:
         lo, hi = np.asarray(self.workspace_min_m, float), np.asarray(self.workspace_max_m, float)
-        if lo.shape != (3,) or hi.shape != (3,) or np.any(lo >= hi):
+        if lo.shape != (3,) or hi.shape != (3,) or not np.all(np.isfinite(lo) & np.isfinite(hi)) or np.any(lo >= hi):
             raise ValueError(f"workspace box min {self.workspace_min_m} must be below max {self.workspace_max_m}")
-        if not 0.0 <= self.max_inclination_deg <= 90.0:
-            raise ValueError(f"max_inclination_deg={self.max_inclination_deg} outside 0..90")
-        if np.linalg.norm(self.stud_axis) < 1e-9:
-            raise ValueError("stud_axis must be a non-zero vector")
+        if not 0.0 <= self.max_tool_tilt_deg <= 90.0:
+            raise ValueError(f"max_tool_tilt_deg={self.max_tool_tilt_deg} outside 0..90")
+        if not 0.0 < self.yaw_step_deg <= 180.0:
+            raise ValueError(f"yaw_step_deg={self.yaw_step_deg} outside (0, 180]")
         for name in ("max_joint_speed_pct", "max_linear_speed_pct"):
             if not 1 <= getattr(self, name) <= 100:
                 raise ValueError(f"{name}={getattr(self, name)} outside 1..100 %")
@@ -72,7 +79,14 @@ class SafetyChecker:
     kin: RM65Kinematics
     limits: SafetyLimits = field(default_factory=SafetyLimits)
     tool_T: np.ndarray = field(default_factory=lambda: np.eye(4))
-    yaw_candidates_deg: Sequence[float] = (0.0, 90.0, -90.0, 180.0, 45.0, -45.0, 135.0, -135.0)
+
+    @property
+    def yaw_candidates_deg(self) -> np.ndarray:
+        """Rotations about the stud's axis tried, from the current wrist yaw outward: 0, +s, -s, ..."""
+        step = self.limits.yaw_step_deg
+        k = np.arange(1, int(np.floor(180.0 / step + 1e-9)) + 1)
+        yaws = np.concatenate([[0.0], np.ravel(np.column_stack([k * step, -k * step]))])
+        return yaws[np.abs(yaws) <= 180.0 + 1e-9][: int(round(360.0 / step))]
 
     # -- single checks -------------------------------------------------------------------
     def check_speed(self, v_pct: int, linear: bool) -> str | None:
@@ -82,16 +96,16 @@ class SafetyChecker:
             return f"{kind} speed {v_pct} % outside 1..{cap} % (speed cap)"
         return None
 
-    def check_inclination(self, normal: Sequence[float]) -> str | None:
+    def check_tool_tilt(self, normal: Sequence[float]) -> str | None:
+        """The gun, along -normal, leans from vertical by the normal's angle to world +z."""
         n = np.asarray(normal, dtype=np.float64)
         norm = np.linalg.norm(n)
         if not np.isfinite(norm) or norm < 1e-9:
             return f"surface normal {n.tolist()} is not a usable direction"
-        axis = np.asarray(self.limits.stud_axis, dtype=np.float64)
-        cosang = np.dot(n / norm, axis / np.linalg.norm(axis))
-        ang = float(np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0))))
-        if ang > self.limits.max_inclination_deg:
-            return f"inclination {ang:.1f} deg > {self.limits.max_inclination_deg:.1f} deg limit"
+        ang = float(np.degrees(np.arccos(np.clip(n[2] / norm, -1.0, 1.0))))
+        if ang > self.limits.max_tool_tilt_deg:
+            return (f"the gun would tilt {ang:.1f} deg from vertical > the cell's max_tool_tilt_deg "
+                    f"{self.limits.max_tool_tilt_deg:.1f} deg")
         return None
 
     def check_points(self, points_m: np.ndarray, what: str) -> str | None:
@@ -143,38 +157,51 @@ class SafetyChecker:
     # -- a whole stud --------------------------------------------------------------------
     def check_target(self, position_m: Sequence[float], normal: Sequence[float], standoff_m: float,
                      q_current: np.ndarray, plunge_m: float = 0.0) -> TargetCheck:
-        """Plan and check one stud: inclination, approach pose on the normal at ``standoff_m``,
-        contact pose (``plunge_m`` beyond the surface), both in the workspace and reachable inside
-        the joint limits, the straight descent feasible, the joint move from ``q_current`` inside
-        the workspace. Tries several tool yaws (a round stud does not care)."""
+        """Plan and check one stud: gun tilt, approach pose on the normal at ``standoff_m``, contact
+        pose (``plunge_m`` beyond the surface), both in the workspace and reachable inside the
+        joint limits, the straight descent (and so the retract, the same line back) feasible, the
+        joint move from ``q_current`` inside the workspace.
+
+        The rotation about the stud's axis is free: every ``yaw_step_deg`` is tried, and of the
+        reachable ones the plan whose approach joints are nearest ``q_current`` is taken. Only
+        when no rotation works is the stud refused, with the first reason met."""
         p = np.asarray(position_m, dtype=np.float64).reshape(3)
         if not np.all(np.isfinite(p)):
             return TargetCheck(False, f"position {p.tolist()} is not finite")
-        reason = self.check_inclination(normal)
+        reason = self.check_tool_tilt(normal)
         if reason:
             return TargetCheck(False, reason)
         n = np.asarray(normal, dtype=np.float64)
         n = n / np.linalg.norm(n)
         q_current = np.asarray(q_current, dtype=np.float64)
-        x_hint = (self.kin.fk(q_current) @ self.tool_T)[:3, 0]  # keep the wrist's current yaw
-        # Positions do not depend on the yaw about the tool axis: check them once.
-        for T, what in ((tool_pose_facing(p + standoff_m * n, n), "approach pose"),
-                        (tool_pose_facing(p - plunge_m * n, n), "contact pose")):
-            reason = self.check_position(T, what)
+        x_hint = (self.kin.fk(q_current) @ self.tool_T)[:3, 0]  # yaw 0: keep the wrist's current yaw
+        # The tip's positions do not depend on the yaw about the tool axis: check them once (the
+        # flange's do, when the gun is mounted off the flange axis: checked per yaw below).
+        for point, what in ((p + standoff_m * n, "approach pose"), (p - plunge_m * n, "contact pose")):
+            reason = self.check_points(point, what)
             if reason:
                 return TargetCheck(False, reason)
+        # Approach solutions for every yaw, each seeded from its neighbour's (a yaw step is mostly
+        # a step of the wrist), then the full plan for the nearest first.
+        candidates: list[tuple[float, float, np.ndarray, np.ndarray]] = []
         first_reason = ""
+        seed = q_current
         for yaw_deg in self.yaw_candidates_deg:
             yaw = float(np.radians(yaw_deg))
-            T_contact = tool_pose_facing(p - plunge_m * n, n, x_hint=x_hint, yaw=yaw)
             T_approach = tool_pose_facing(p + standoff_m * n, n, x_hint=x_hint, yaw=yaw)
-            q_app, why = self.check_pose(T_approach, q_current, "approach pose")
-            if q_app is not None:
-                q_con, why = self.check_pose(T_contact, q_app, "contact pose")
-                if q_con is not None:
-                    why = (self.check_linear(q_app, T_contact, "descent")
-                           or self.check_joint_path(q_current, q_app, "approach move") or "")
-                    if not why:
-                        return TargetCheck(True, "", StudPlan(T_approach, T_contact, q_app, q_con, yaw))
+            q_app, why = self.check_pose(T_approach, seed if candidates else q_current, "approach pose")
+            if q_app is None:
+                first_reason = first_reason or why
+                continue
+            seed = q_app
+            candidates.append((float(np.linalg.norm(q_app - q_current)), yaw, T_approach, q_app))
+        for _dist, yaw, T_approach, q_app in sorted(candidates, key=lambda c: c[0]):
+            T_contact = tool_pose_facing(p - plunge_m * n, n, x_hint=x_hint, yaw=yaw)
+            q_con, why = self.check_pose(T_contact, q_app, "contact pose")
+            if q_con is not None:
+                why = (self.check_linear(q_app, T_contact, "descent")
+                       or self.check_joint_path(q_current, q_app, "approach move") or "")
+                if not why:
+                    return TargetCheck(True, "", StudPlan(T_approach, T_contact, q_app, q_con, yaw))
             first_reason = first_reason or why
-        return TargetCheck(False, first_reason)
+        return TargetCheck(False, first_reason or "no rotation about the stud's axis is reachable")

@@ -9,7 +9,8 @@ Per target, in order:
 1. journal says **welded** -> not touched (reported welded when ``resume``, else skipped
    "already welded"); journal says **uncertain** -> refused (failed, "needs an operator
    decision": ``/arm/resolve_stud``);
-2. safety check (inclination, workspace, reach/IK inside the joint limits, straight descent
+2. safety check (gun tilt from vertical, workspace, reach/IK inside the joint limits for the
+   free rotation about the stud's axis nearest the current joints, straight descent
    feasible): a rejection is journaled ``skipped(reason)`` and nothing is sent;
 3. ``approach``: ``movej`` to the checked joint solution of the approach pose, ``standoff_m``
    out along the surface normal, tool z pointing into the surface;
@@ -464,8 +465,12 @@ class WeldSequence:
 
     def _weld(self, t: StudTarget, plan: StudPlan) -> None:
         p = self.params
+        # The joints the controller reports at the contact pose: the gun's real axis at the weld
+        # (forward kinematics), for the QA record and the demo's check against the true normal.
+        q_at_weld = self.client.get_state().joints_rad
         # Durable *before* the trigger: after a crash this stud reads "uncertain", never "not welded".
-        self.journal.started(t.stud_id, position=t.position, normal=t.normal, joints=plan.q_contact)
+        self.journal.started(t.stud_id, position=t.position, normal=t.normal, joints=plan.q_contact,
+                             joints_at_weld=q_at_weld)
         try:
             self.client.set_do(p.trigger_io, True, tool=p.trigger_on_tool)
             self._sleep(p.pulse_s, interruptible=True)

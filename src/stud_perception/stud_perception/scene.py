@@ -42,6 +42,7 @@ SURFACE_NONE = -1
 SURFACE_TABLE = 0
 SURFACE_BOARD = 1
 SURFACE_COMPONENT = 2
+SURFACE_OBSTACLE = 3
 
 # Appearance (8-bit grey levels before shading, BGR tints). Dark marks on a light board
 # and a mid-grey table give the contrast the paper's Hough stage relies on.
@@ -54,6 +55,7 @@ _TINT_BGR = {
     SURFACE_TABLE: (0.92, 1.0, 1.06),
     SURFACE_BOARD: (1.0, 1.0, 1.0),
     SURFACE_COMPONENT: (1.04, 1.0, 0.97),
+    SURFACE_OBSTACLE: (1.0, 0.98, 0.92),
 }
 # Lambertian shading with a light slightly off vertical, so curvature is visible in colour.
 _LIGHT_DIR_W = np.array([0.25, 0.15, 1.0]) / np.linalg.norm([0.25, 0.15, 1.0])
@@ -268,6 +270,104 @@ class Cylinder:
 
 
 @dataclass(frozen=True)
+class Trough:
+    """Concave section of a horizontal cylinder -- the inside of a tank shell or a pipe: the top
+    of a block of ``width_m`` (across the axis) x ``length_m`` (along it) is the lower arc of a
+    circle of ``radius_m``, its rims ``rim_height_m`` above the plane; axis through world
+    ``centre_xy_m`` at yaw ``axis_yaw_rad``. Its slope at the rims is asin(width / (2 radius))."""
+
+    centre_xy_m: tuple[float, float]
+    radius_m: float
+    axis_yaw_rad: float
+    length_m: float
+    width_m: float
+    rim_height_m: float
+    kind: ClassVar[str] = "trough"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "centre_xy_m", _pair(self.centre_xy_m, "trough centre_xy_m"))
+        if not (self.radius_m > 0 and 0 < self.width_m < 2 * self.radius_m and self.length_m > 0):
+            raise SceneError(
+                f"trough needs 0 < width_m < 2 radius_m and length_m > 0, got radius_m={self.radius_m}, "
+                f"width_m={self.width_m}, length_m={self.length_m}"
+            )
+        if not self.rim_height_m > self.sagitta_m:
+            raise SceneError(
+                f"trough bottom would be below the working plane: rim_height_m={self.rim_height_m} must exceed "
+                f"its depth {self.sagitta_m:.4f} m (radius_m={self.radius_m}, width_m={self.width_m})"
+            )
+
+    @property
+    def sagitta_m(self) -> float:
+        r, c = self.radius_m, self.width_m / 2
+        return r - math.sqrt(r * r - c * c)
+
+    @property
+    def axis_z_m(self) -> float:
+        """Height of the circle's centre (above the rims)."""
+        return self.rim_height_m + math.sqrt(self.radius_m**2 - (self.width_m / 2) ** 2)
+
+    def _local(self, x, y):
+        c, s = math.cos(self.axis_yaw_rad), math.sin(self.axis_yaw_rad)
+        dx, dy = np.asarray(x) - self.centre_xy_m[0], np.asarray(y) - self.centre_xy_m[1]
+        return c * dx + s * dy, -s * dx + c * dy  # along the axis, across it
+
+    def top_height(self, x, y):
+        along, across = self._local(x, y)
+        inside = (np.abs(along) <= self.length_m / 2) & (np.abs(across) <= self.width_m / 2)
+        z = self.axis_z_m - np.sqrt(np.maximum(self.radius_m**2 - across**2, 0.0))
+        return np.where(inside, z, 0.0), inside
+
+    def top_normal(self, x, y) -> np.ndarray:
+        _, across = self._local(x, y)
+        c, s = math.cos(self.axis_yaw_rad), math.sin(self.axis_yaw_rad)
+        up = np.sqrt(np.maximum(self.radius_m**2 - across**2, 0.0))
+        n = np.stack(np.broadcast_arrays(s * across, -c * across, up), -1)  # toward the axis
+        return n / self.radius_m
+
+    def bounding_box_w(self) -> np.ndarray:
+        c, s = math.cos(self.axis_yaw_rad), math.sin(self.axis_yaw_rad)
+        half = np.array([[c, s], [-s, c]]) * np.array([[self.length_m / 2], [self.width_m / 2]])
+        return _box_corners(np.asarray(self.centre_xy_m), half, self.rim_height_m)
+
+    def intersect(self, o: np.ndarray, dx, dy, dz):
+        c, s = math.cos(self.axis_yaw_rad), math.sin(self.axis_yaw_rad)
+        ox, oy = o[0] - self.centre_xy_m[0], o[1] - self.centre_xy_m[1]
+        oz = o[2] - self.axis_z_m
+        al_o, ac_o = c * ox + s * oy, -s * ox + c * oy
+        al_d, ac_d = c * dx + s * dy, -s * dx + c * dy
+        hl, hw = self.length_m / 2, self.width_m / 2
+        # Concave top: the ray's exit from the circle in the (across, z) plane (the far root).
+        a = ac_d * ac_d + dz * dz
+        b = ac_o * ac_d + oz * dz
+        cc = ac_o * ac_o + oz * oz - self.radius_m**2
+        disc = b * b - a * cc
+        with np.errstate(invalid="ignore", divide="ignore"):
+            t_top = (-b + np.sqrt(disc)) / a
+        ok = ((disc >= 0) & (np.abs(al_o + t_top * al_d) <= hl) & (np.abs(ac_o + t_top * ac_d) <= hw)
+              & (oz + t_top * dz <= self.rim_height_m - self.axis_z_m))
+        t_top = np.where(ok, t_top, _INF)
+        # Outer walls: the two long sides (up to the rims) and the two ends (up to the arc).
+        walls = []
+        for end in (-hw, hw):
+            with np.errstate(invalid="ignore", divide="ignore"):
+                t = (end - ac_o) / ac_d
+            z = o[2] + t * dz
+            ok = np.isfinite(t) & (np.abs(al_o + t * al_d) <= hl) & (z >= 0) & (z <= self.rim_height_m)
+            walls.append(np.where(ok, t, _INF))
+        for end in (-hl, hl):
+            with np.errstate(invalid="ignore", divide="ignore"):
+                t = (end - al_o) / al_d
+            ac, z = ac_o + t * ac_d, o[2] + t * dz
+            top = self.axis_z_m - np.sqrt(np.maximum(self.radius_m**2 - ac * ac, 0.0))
+            ok = np.isfinite(t) & (np.abs(ac) <= hw) & (z >= 0) & (z <= top)
+            walls.append(np.where(ok, t, _INF))
+        t_wall = _first_positive(*walls)
+        t = _first_positive(t_top, t_wall)
+        return t, np.isfinite(t_wall) & (t_wall < t_top)
+
+
+@dataclass(frozen=True)
 class Plate:
     """Rectangular plate: footprint ``size_m`` = (length along the plate's x, width along its y)
     centred at world ``centre_xy_m``, x at ``yaw_rad``; top at ``height_m`` over the centre,
@@ -354,7 +454,7 @@ class Plate:
         return t, np.isfinite(t_wall) & (t_wall < t_top)
 
 
-Component = Union[Dome, Cylinder, Plate]
+Component = Union[Dome, Cylinder, Trough, Plate]
 
 
 # -- scene description ------------------------------------------------------------------------
@@ -387,7 +487,11 @@ class SceneSpec:
 
     ``drawing_to_world`` places the drawing frame (and with it the board) on the plane;
     ``studs_drawing_m`` (N, 2) are stud positions in the drawing frame, ``stud_ids`` their
-    names; ``stud_mark_style`` is ``circle``, ``cross`` or ``none``.
+    names; ``stud_mark_style`` is ``circle``, ``cross`` or ``none``. ``obstacles``: flat boxes
+    standing on the plane (stiffeners, webs, flanges: world frame, their tops ``height_m`` above
+    the plane) that a welding gun must not hit. ``specular_lobe_deg``: the component is shiny
+    steel -- a structured-light camera gets no depth where the surface mirrors its projector into
+    the camera, within this angle (0: a matte part).
     """
 
     component: Component | None
@@ -397,8 +501,16 @@ class SceneSpec:
     stud_ids: tuple[str, ...] = ()
     stud_mark_diameter_m: float = 0.008
     stud_mark_style: str = "circle"
+    obstacles: tuple[Plate, ...] = ()
+    specular_lobe_deg: float = 0.0
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "obstacles", tuple(self.obstacles))
+        for i, ob in enumerate(self.obstacles):
+            if not isinstance(ob, Plate) or ob.tilt_rad != 0:
+                raise SceneError(f"obstacle {i} must be a flat box (plane kind), got {ob!r}")
+        if not 0.0 <= self.specular_lobe_deg < 45.0:
+            raise SceneError(f"specular_lobe_deg must be in [0, 45), got {self.specular_lobe_deg}")
         studs = np.asarray(self.studs_drawing_m, dtype=np.float64).reshape(-1, 2)
         object.__setattr__(self, "studs_drawing_m", tuple(tuple(float(c) for c in p) for p in studs))
         ids = tuple(str(i) for i in self.stud_ids) or tuple(f"S{i + 1:04d}" for i in range(len(studs)))
@@ -450,11 +562,12 @@ def _top_surface(scene: SceneSpec, x, y):
     zb, inb = scene.board_plate.top_height(x, y)
     z = np.where(inb, zb, z)
     sid[inb] = SURFACE_BOARD
-    if scene.component is not None:
-        zc, inc = scene.component.top_height(x, y)
+    solids = [(SURFACE_COMPONENT, scene.component)] if scene.component is not None else []
+    for surf, solid in solids + [(SURFACE_OBSTACLE, ob) for ob in scene.obstacles]:
+        zc, inc = solid.top_height(x, y)
         higher = inc & (zc >= z)
         z = np.where(higher, zc, z)
-        sid[higher] = SURFACE_COMPONENT
+        sid[higher] = surf
     return z, sid
 
 
@@ -619,6 +732,7 @@ def render(
     hole_blob_px: float = 6.0,
     color_noise: float = 0.0,
     mark_depth_dropout: bool = False,
+    projector_offset_m: tuple[float, float, float] = (0.05, 0.0, 0.0),
 ) -> RenderedView:
     """Ray-cast ``scene`` through ``camera`` into a colour + 16UC1 depth pair with ground truth.
 
@@ -626,7 +740,10 @@ def render(
     ``hole_fraction``: fraction of pixels removed from the depth as random blobs of about
     ``hole_blob_px`` radius. ``color_noise``: std of Gaussian noise in grey levels.
     ``mark_depth_dropout``: structured light returns nothing from dark paint, so the marks
-    and stud marks lose their depth too. Everything random is drawn from ``seed``, one
+    and stud marks lose their depth too. ``projector_offset_m``: the structured-light
+    projector's position in the optical frame; with the scene's ``specular_lobe_deg``, the
+    component loses its depth where it mirrors the projector into the camera (a hole that moves
+    with the viewpoint, unlike a dark mark). Everything random is drawn from ``seed``, one
     independent stream per effect, so changing one effect leaves the others' pattern alone.
     """
     if not (0.0 <= hole_fraction < 1.0):
@@ -652,6 +769,7 @@ def render(
     solids = [(SURFACE_BOARD, scene.board_plate)]
     if scene.component is not None:
         solids.append((SURFACE_COMPONENT, scene.component))
+    solids += [(SURFACE_OBSTACLE, ob) for ob in scene.obstacles]
     for surf, solid in solids:
         win = _image_window(camera, solid.bounding_box_w())
         if win is None:
@@ -668,12 +786,22 @@ def render(
     px_per_depth = 1.0 / camera.fx  # pixel footprint: metres per pixel per metre of depth
 
     # Shading: Lambert on the top faces, a flat darker shade on walls (float32: colour only).
-    grey_lut = np.array([0.0, _TABLE_GREY, _BOARD_GREY, _STEEL_GREY], dtype=np.float32)  # index sid + 1
+    grey_lut = np.array([0.0, _TABLE_GREY, _BOARD_GREY, _STEEL_GREY, _STEEL_GREY], dtype=np.float32)  # sid + 1
     shade = np.full((h, w), _AMBIENT + (1 - _AMBIENT) * _LIGHT_DIR_W[2], dtype=np.float32)
     comp_top = (sid == SURFACE_COMPONENT) & ~wall
+    specular = np.zeros((h, w), dtype=bool)
     if comp_top.any():
         n = scene.component.top_normal(hit_x[comp_top], hit_y[comp_top])
         shade[comp_top] = _AMBIENT + (1 - _AMBIENT) * np.clip(n @ _LIGHT_DIR_W, 0, 1)
+        if scene.specular_lobe_deg > 0:
+            p_hit = np.column_stack([hit_x[comp_top], hit_y[comp_top], o[2] + depth_exact[comp_top] * dz[comp_top]])
+            projector = camera.R_wc @ np.asarray(projector_offset_m, dtype=np.float64) + o
+            to_cam = o - p_hit
+            to_proj = projector - p_hit
+            half = (to_cam / np.linalg.norm(to_cam, axis=1, keepdims=True)
+                    + to_proj / np.linalg.norm(to_proj, axis=1, keepdims=True))
+            cos_half = np.einsum("ni,ni->n", n, half) / np.linalg.norm(half, axis=1)
+            specular[comp_top] = cos_half > math.cos(math.radians(scene.specular_lobe_deg))
     shade[wall] = _WALL_SHADE
     grey = grey_lut[sid + 1] * shade
 
@@ -689,7 +817,7 @@ def render(
     stud_cover = _stud_mark_coverage(scene, camera, hit_x, hit_y, depth_exact, px_per_depth)
     grey = grey * (1 - stud_cover) + np.float32(_STUD_MARK_GREY) * stud_cover
 
-    tint_lut = np.ones((4, 3), dtype=np.float32)
+    tint_lut = np.ones((5, 3), dtype=np.float32)
     for surf, bgr in _TINT_BGR.items():
         tint_lut[surf + 1] = bgr
     color = grey[..., None] * tint_lut[sid + 1]
@@ -706,6 +834,8 @@ def render(
     depth_mm[holes] = 0
     if mark_depth_dropout:
         depth_mm[(mark_cover > 0.5) | (stud_cover > 0.5)] = 0
+    depth_mm[specular] = 0
+    holes = holes | specular
 
     # Ground truth per stud and mark.
     xy = scene.studs_world_xy_m
@@ -884,14 +1014,11 @@ def grid_stud_scene(
     world = np.column_stack([xx.ravel(), yy.ravel()])[:n_studs] + np.asarray(centre_world_xy_m)
     pitch = min(ex / max(cols - 1, 1), ey / max(rows - 1, 1))
     drawing = base.drawing_to_world.apply_inverse(world)
-    return SceneSpec(
-        component=base.component,
-        board=base.board,
-        drawing_to_world=base.drawing_to_world,
+    return dataclasses.replace(
+        base,
         studs_drawing_m=tuple(map(tuple, drawing)),
         stud_ids=tuple(f"S{i + 1:05d}" for i in range(n_studs)),
         stud_mark_diameter_m=min(base.stud_mark_diameter_m, 0.5 * pitch),
-        stud_mark_style=base.stud_mark_style,
     )
 
 
@@ -920,6 +1047,13 @@ def _component_from_dict(d: dict | None) -> Component | None:
                 d["centre_xy_m"], float(d["radius_m"]), math.radians(float(d.get("axis_yaw_deg", 0.0))),
                 float(d["length_m"]), float(d["height_m"]),
             )
+        if kind == "trough":
+            _take(d, "component (trough)",
+                  {"kind", "centre_xy_m", "radius_m", "axis_yaw_deg", "length_m", "width_m", "rim_height_m"})
+            return Trough(
+                d["centre_xy_m"], float(d["radius_m"]), math.radians(float(d.get("axis_yaw_deg", 0.0))),
+                float(d["length_m"]), float(d["width_m"]), float(d["rim_height_m"]),
+            )
         if kind in ("tilted_plane", "plane"):
             keys = {"kind", "centre_xy_m", "size_m", "yaw_deg", "height_m"}
             if kind == "tilted_plane":
@@ -931,7 +1065,7 @@ def _component_from_dict(d: dict | None) -> Component | None:
             )
     except KeyError as exc:
         raise SceneError(f"scene component ({kind}) misses key {exc.args[0]!r}") from None
-    raise SceneError(f"unknown component kind {kind!r}: use dome, cylinder, tilted_plane or plane")
+    raise SceneError(f"unknown component kind {kind!r}: use dome, cylinder, trough, tilted_plane or plane")
 
 
 def _component_to_dict(c: Component | None) -> dict | None:
@@ -944,6 +1078,12 @@ def _component_to_dict(c: Component | None) -> dict | None:
         return {
             "kind": "cylinder", "centre_xy_m": list(c.centre_xy_m), "radius_m": c.radius_m,
             "axis_yaw_deg": math.degrees(c.axis_yaw_rad), "length_m": c.length_m, "height_m": c.height_m,
+        }
+    if isinstance(c, Trough):
+        return {
+            "kind": "trough", "centre_xy_m": list(c.centre_xy_m), "radius_m": c.radius_m,
+            "axis_yaw_deg": math.degrees(c.axis_yaw_rad), "length_m": c.length_m, "width_m": c.width_m,
+            "rim_height_m": c.rim_height_m,
         }
     d = {"kind": c.kind, "centre_xy_m": list(c.centre_xy_m), "size_m": list(c.size_m),
          "yaw_deg": math.degrees(c.yaw_rad), "height_m": c.height_m}
@@ -959,9 +1099,17 @@ def scene_from_dict(d: dict[str, Any]) -> SceneSpec:
          "board": {"marks_drawing_m": [[0, 0], [0.13, 0], [0, 0.1]], "mark_diameter_m": 0.02,
                    "thickness_m": 0.005, "margin_m": 0.018},
          "drawing_to_world": {"x_m": -0.135, "y_m": -0.11, "yaw_deg": 90},
-         "studs": {"xy_m": [[0.1, 0.2]], "ids": ["S1"], "mark_diameter_m": 0.008, "mark_style": "circle"}}
+         "studs": {"xy_m": [[0.1, 0.2]], "ids": ["S1"], "mark_diameter_m": 0.008, "mark_style": "circle"},
+         "obstacles": [{"centre_xy_m": [0.1, 0.0], "size_m": [0.3, 0.012], "yaw_deg": 0, "height_m": 0.12}],
+         "specular_lobe_deg": 3.0}
+
+    Component kinds: ``dome`` (centre_xy_m, base_radius_m, height_m), ``cylinder`` (centre_xy_m,
+    radius_m, axis_yaw_deg, length_m, height_m), ``trough`` (centre_xy_m, radius_m, axis_yaw_deg,
+    length_m, width_m, rim_height_m), ``tilted_plane`` / ``plane`` (centre_xy_m, size_m, yaw_deg,
+    height_m, tilt_deg). ``obstacles`` are flat boxes (stiffeners); ``specular_lobe_deg`` makes the
+    component shiny (see :class:`SceneSpec`).
     """
-    _take(d, "", {"component", "board", "drawing_to_world", "studs"})
+    _take(d, "", {"component", "board", "drawing_to_world", "studs", "obstacles", "specular_lobe_deg"})
     board_keys = {"marks_drawing_m", "mark_diameter_m", "thickness_m", "margin_m"}
     board = MarkingBoard(**_take(d.get("board", {}), "board", board_keys))
     pose_d = _take(d.get("drawing_to_world", {}), "drawing_to_world", {"x_m", "y_m", "yaw_deg"})
@@ -969,6 +1117,17 @@ def scene_from_dict(d: dict[str, Any]) -> SceneSpec:
         float(pose_d.get("x_m", 0.0)), float(pose_d.get("y_m", 0.0)), math.radians(float(pose_d.get("yaw_deg", 0.0)))
     )
     studs = _take(d.get("studs", {}), "studs", {"xy_m", "ids", "mark_diameter_m", "mark_style"})
+    obstacles = d.get("obstacles", [])
+    if not isinstance(obstacles, list):
+        raise SceneError(f"scene obstacles must be a list of boxes, got {type(obstacles).__name__}")
+    boxes = []
+    for i, ob in enumerate(obstacles):
+        _take(ob, f"obstacles[{i}]", {"centre_xy_m", "size_m", "yaw_deg", "height_m"})
+        try:
+            boxes.append(Plate(ob["centre_xy_m"], ob["size_m"], math.radians(float(ob.get("yaw_deg", 0.0))),
+                               float(ob["height_m"])))
+        except KeyError as exc:
+            raise SceneError(f"scene obstacles[{i}] misses key {exc.args[0]!r}") from None
     return SceneSpec(
         component=_component_from_dict(d.get("component")),
         board=board,
@@ -977,6 +1136,8 @@ def scene_from_dict(d: dict[str, Any]) -> SceneSpec:
         stud_ids=tuple(studs.get("ids", ())),
         stud_mark_diameter_m=float(studs.get("mark_diameter_m", 0.008)),
         stud_mark_style=str(studs.get("mark_style", "circle")),
+        obstacles=tuple(boxes),
+        specular_lobe_deg=float(d.get("specular_lobe_deg", 0.0)),
     )
 
 
@@ -991,6 +1152,9 @@ def scene_to_dict(scene: SceneSpec) -> dict[str, Any]:
                              "yaw_deg": math.degrees(scene.drawing_to_world.yaw_rad)},
         "studs": {"xy_m": [list(p) for p in scene.studs_drawing_m], "ids": list(scene.stud_ids),
                   "mark_diameter_m": scene.stud_mark_diameter_m, "mark_style": scene.stud_mark_style},
+        "obstacles": [{"centre_xy_m": list(ob.centre_xy_m), "size_m": list(ob.size_m),
+                       "yaw_deg": math.degrees(ob.yaw_rad), "height_m": ob.height_m} for ob in scene.obstacles],
+        "specular_lobe_deg": scene.specular_lobe_deg,
     }
 
 

@@ -38,6 +38,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from stud_perception import ros_io
 from stud_perception.ros_io import Param
+from stud_planner.gun_clearance import GunModel
 from stud_planner.msg_convert import layout_from_msg, registration_from_msg
 from stud_planner.target_cdr import weld_target_array_cdr
 from stud_planner.view_planning import (ALGORITHMS, STATUS_BGR, STATUS_OUT_OF_VIEW, PlannerConfig,
@@ -49,11 +50,19 @@ PARAMS = [
     Param("fpm_window_px", 25, "FPM brute-force window side [px] (paper: 25)", min=3, max=201),
     Param("hole_window_px", 7, "missing-depth window side [px] (paper: 7)", min=3, max=63),
     Param("normal_window_m", 0.02, "side of the surface patch the normal is fitted on [m]", min=0.002, max=0.2),
-    Param("normal_samples_per_side", 21, "depth samples per side of the normal's patch (the patch size, not the "
-          "count, sets the accuracy; cost grows with its square)", min=5, max=101),
-    Param("max_normal_rms_m", 0.0015, "largest plane-fit RMS for a trusted normal [m]", min=1e-5, max=0.05),
-    Param("max_inclination_deg", 5.0, "largest angle between normal and world z for a weldable stud [deg]",
-          min=0.0, max=90.0),
+    Param("normal_samples_per_side", 81, "depth samples per side of the normal's patch at most (81: every pixel "
+          "of a 20 mm patch at 0.45 m; fewer is faster and noisier)", min=5, max=161),
+    Param("max_normal_rms_m", 0.0015, "largest fit RMS for a trusted normal [m]", min=1e-5, max=0.05),
+    Param("lean_budget_deg", 5.0, "the most a welded stud may lean from the true normal (the code's 5 deg); a "
+          "target whose normal is too uncertain for it is normal_uncertain -- the slope never refuses [deg]",
+          min=0.1, max=45.0),
+    Param("arm_orientation_error_deg", 0.5, "the arm's orientation error, its share of the lean budget [deg]",
+          min=0.0, max=10.0),
+    Param("normal_sigma_k", 3.0, "coverage factor on the normal's 1-sigma in the lean bound", min=0.5, max=10.0),
+    Param("check_gun_clearance", True, "refuse studs where the gun would touch the part (gun_blocked)"),
+    Param("gun_radius_m", 0.03, "the welding gun's radius about the stud (body, foot) [m]", min=0.001, max=0.5),
+    Param("gun_length_m", 0.30, "surface to the gun's top at the approach pose (gun length + standoff) [m]",
+          min=0.01, max=2.0),
     Param("tool_offset_m", 0.0, "report the point this far along the normal [m] (0: on the surface)",
           min=-0.5, max=0.5),
     Param("bfs_max_pixels", 0, "BFS only: pixels evaluated per stud at most (0: all)", min=0, max=100_000_000),
@@ -159,7 +168,10 @@ class MatcherNode(Node):
         return PlannerConfig(algorithm=p["algorithm"], tol_m=p["tolerance_m"], fpm_window_px=p["fpm_window_px"],
                              hole_window_px=p["hole_window_px"], normal_window_m=p["normal_window_m"],
                              normal_samples_per_side=p["normal_samples_per_side"],
-                             max_normal_rms_m=p["max_normal_rms_m"], max_inclination_deg=p["max_inclination_deg"],
+                             max_normal_rms_m=p["max_normal_rms_m"], lean_budget_deg=p["lean_budget_deg"],
+                             arm_orientation_error_deg=p["arm_orientation_error_deg"],
+                             normal_sigma_k=p["normal_sigma_k"], check_gun_clearance=p["check_gun_clearance"],
+                             gun=GunModel(radius_m=p["gun_radius_m"], length_m=p["gun_length_m"]),
                              tool_offset_m=p["tool_offset_m"], bfs_max_pixels=p["bfs_max_pixels"] or None)
 
     def _not_ready(self, stamp) -> str | None:

@@ -29,7 +29,9 @@ from stud_perception import ros_io
 from stud_perception.markers import MarkDetectorConfig
 from stud_perception.view_registration import config_for_layout, register_view
 from stud_planner import dxf_layout
-from stud_planner.view_planning import ALGORITHMS, STATUS_OUT_OF_VIEW, PlannerConfig, draw_targets_overlay, plan_view
+from stud_planner.gun_clearance import GunModel
+from stud_planner.view_planning import (ALGORITHMS, STATUS_OUT_OF_VIEW, STATUS_TEXT, PlannerConfig, draw_targets_overlay,
+                                        plan_view)
 
 DEFAULT_TOPICS = {"color": "/camera/color/image_raw", "depth": "/camera/depth/image_raw",
                   "info": "/camera/color/camera_info", "pose": "/camera/pose"}
@@ -351,13 +353,21 @@ def _num(x) -> float | None:
 
 
 def _entry(sid: str, xy_m, t, i: int, view_index: int) -> dict:
-    return {
-        "stud_id": sid, "drawing_xy_mm": [xy_m[0] * 1e3, xy_m[1] * 1e3], "status": t.status_text[i],
+    """One stud's report entry: the schema's keys, then the normal's uncertainty, the lean it could
+    give, the window's fill and the gun's clearance (added keys), and why it is not usable."""
+    entry = {
+        "stud_id": sid, "drawing_xy_mm": [xy_m[0] * 1e3, xy_m[1] * 1e3], "status": STATUS_TEXT[int(t.status[i])],
         "position_m": [_num(v) for v in t.position_w[i]], "normal": [_num(v) for v in t.normal_w[i]],
         "pixel": [_num(v) for v in t.matches.pixel_uv[i]], "view": view_index,
         "iterations": int(t.matches.iterations[i]), "xy_error_mm": _num(t.matches.xy_residual_m[i] * 1e3),
         "inclination_deg": _num(t.inclination_deg[i]),
+        "normal_sigma_deg": _num(t.normal_sigma_deg[i]), "lean_bound_deg": _num(t.lean_bound_deg[i]),
+        "fill_ratio": _num(t.poses.fill_ratio[i]), "gun_clearance_mm": _num(t.gun_clearance_m[i] * 1e3),
     }
+    reason = t.reason(i)
+    if reason:
+        entry["reason"] = reason
+    return entry
 
 
 def write_csv(report: dict, path: Path) -> None:
@@ -390,6 +400,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--images-rectified", action="store_true",
                         help="the bag's images are rectified already (image_rect): use camera_info P, ignore D "
                              "(default: raw images, rectified here when camera_info has distortion)")
+    defaults, gun = PlannerConfig(), GunModel()
+    parser.add_argument("--lean-budget-deg", type=float, default=defaults.lean_budget_deg,
+                        help="the most a welded stud may lean from the true normal (default: the code's "
+                             f"{defaults.lean_budget_deg:g} deg); a target whose normal is too uncertain for it "
+                             "is normal_uncertain. The surface's slope never refuses a stud")
+    parser.add_argument("--arm-orientation-error-deg", type=float, default=defaults.arm_orientation_error_deg,
+                        help="the arm's share of the lean budget [deg]")
+    parser.add_argument("--gun-radius-m", type=float, default=gun.radius_m,
+                        help="the welding gun's radius about the stud, for the clearance check [m]")
+    parser.add_argument("--gun-length-m", type=float, default=gun.length_m,
+                        help="surface to the gun's top at the approach pose, for the clearance check [m]")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     from rclpy.utilities import remove_ros_args
 
@@ -398,7 +419,14 @@ def main(argv: list[str] | None = None) -> int:
     topics = {name: getattr(args, f"{name}_topic") for name in DEFAULT_TOPICS}
     t0 = time.perf_counter()
     try:
-        report = plan(args.drawing, args.bag, args.algorithm, topics, args.overlay_dir, args.quiet,
+        config = PlannerConfig(algorithm=args.algorithm, lean_budget_deg=args.lean_budget_deg,
+                               arm_orientation_error_deg=args.arm_orientation_error_deg,
+                               gun=GunModel(radius_m=args.gun_radius_m, length_m=args.gun_length_m))
+    except ValueError as exc:
+        print(f"plan: error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        report = plan(args.drawing, args.bag, args.algorithm, topics, args.overlay_dir, args.quiet, config=config,
                       sync_slop_ms=args.sync_slop_ms, allow_damaged=args.allow_damaged_bag,
                       images_rectified=args.images_rectified)
         for warning in report["warnings"]:

@@ -1,16 +1,28 @@
-"""Weld pose at matched studs: surface normal from a local plane fit, inclination, tool pose.
+"""Weld pose at matched studs: the surface normal from a local quadric fit, its uncertainty, the tool pose.
 
-The matcher gives the point where a stud's vertical line meets the surface; the welding gun must
-approach along the surface normal there. The normal comes from a least-squares plane through the
-3D points (Eq. 1 of every valid pixel) of a window around the match. The window is specified in
-metres on the surface, not pixels, because the normal's noise falls with the window's extent: at
-0.5 mm depth noise a 7x7-11x11 px window gives 2-4 deg, a ~20 mm window well under 1 deg (ANCHORS.md),
-the order of the paper's 5 deg acceptance limit. Each fit reports its RMS, fill ratio and an
-estimated normal uncertainty so a planner can refuse to weld on a bad estimate.
+The matcher gives the point where a stud's vertical line meets the surface; the welding gun
+approaches along the surface normal there, whatever the slope. The normal comes from a
+least-squares fit to the 3D points (Eq. 1 of every valid pixel) of a window around the match.
+The window is specified in metres on the surface, not pixels, because the normal's noise falls
+with the window's extent: at 0.5 mm depth noise a 7x7-11x11 px window gives 2-4 deg, a ~20 mm
+window well under 1 deg.
 
-Frames and units: `world` (z up), metres; normals are unit vectors oriented away from the surface,
-toward the camera; quaternions are (x, y, z, w) of a frame whose z-axis is the normal and whose
-x-axis is world X projected onto the tangent plane (world Y when the normal is along X).
+The fitted surface is a quadric height field in the tangent frame of a first normal estimate,
+h = b0 + b1 u + b2 v + b3 u^2 + b4 uv + b5 v^2, and the normal is its gradient at the stud.
+A plane fits a curved part badly wherever the window's points are not centred on the stud (a
+hole on one side, the image border): its tilt is the surface's at the points' centroid, off by
+(centroid offset) / (radius of curvature) -- 2 deg for 5 mm on a 150 mm dome. The quadric's
+gradient at the stud has no such bias, and on a symmetric window its slope terms are
+uncorrelated with the curvature terms, so it costs no precision there.
+
+Each fit reports its 1-sigma normal uncertainty (from the least-squares covariance: the residual
+variance times the inverse normal matrix, so it grows with the depth noise, with holes and with
+a lop-sided window), the RMS of the residuals, the fill ratio and the outlier ratio, so a planner
+can refuse to weld on a normal it cannot trust.
+
+Frames and units: `world` (z up), metres; normals are unit vectors oriented away from the
+surface, toward the camera; quaternions are (x, y, z, w) of a frame whose z-axis is the normal
+and whose x-axis is world X projected onto the tangent plane (world Y when the normal is along X).
 Vectorised over studs (in chunks, to bound memory).
 """
 from __future__ import annotations
@@ -25,28 +37,27 @@ from stud_perception.rotations import matrix_to_quaternion as quaternion_from_ma
 
 #: Paper: M16x150 shear stud, tool-top offset along the normal.
 M16X150_TOP_OFFSET_M = 0.013
-#: Paper: maximum inclination of the weld surface to world z the gun can weld.
-DEFAULT_INCLINATION_LIMIT_DEG = 5.0
 
 
 class SurfaceStatus(IntEnum):
     OK = 0
     NOT_MATCHED = 1  # no matched point (NaN input or the caller's mask)
     TOO_FEW_POINTS = 2  # fewer than min_points valid depths or fill ratio below min_fill_ratio
-    BAD_FIT = 3  # plane-fit RMS above max_rms_m or too many outliers (a step/edge in the window)
+    BAD_FIT = 3  # fit RMS above max_rms_m or too many outliers (a step/edge in the window)
 
 
 @dataclass(frozen=True)
 class SurfacePoses:
     """Per-stud surface pose, N studs.
 
-    - ``position_w`` (N, 3) m: the matched point moved along world z onto the fitted plane (the
+    - ``position_w`` (N, 3) m: the matched point moved along world z onto the fitted surface (the
       fit averages the depth noise out of the height; XY is the match's);
     - ``normal_w`` (N, 3): unit normal, toward the camera;
     - ``quat_xyzw`` (N, 4): orientation whose z-axis is the normal;
-    - ``inclination_deg`` (N,): angle between normal and world z;
-    - ``normal_sigma_deg`` (N,): 1-sigma normal uncertainty from the fit's RMS and point spread;
-    - ``plane_rms_m`` (N,): RMS distance of the inliers to the plane;
+    - ``inclination_deg`` (N,): angle between normal and world z (the slope: information only);
+    - ``normal_sigma_deg`` (N,): 1-sigma uncertainty of the normal's direction about its least
+      certain axis, from the fit's covariance;
+    - ``fit_rms_m`` (N,): RMS distance of the inliers to the fitted surface;
     - ``fill_ratio`` (N,): valid depths / pixels sampled in the window;
     - ``outlier_ratio`` (N,): valid points rejected by the robust pass;
     - ``n_points`` (N,) int: inliers used;
@@ -59,7 +70,7 @@ class SurfacePoses:
     quat_xyzw: np.ndarray
     inclination_deg: np.ndarray
     normal_sigma_deg: np.ndarray
-    plane_rms_m: np.ndarray
+    fit_rms_m: np.ndarray
     fill_ratio: np.ndarray
     outlier_ratio: np.ndarray
     n_points: np.ndarray
@@ -77,12 +88,6 @@ def inclination_deg(normal_w: np.ndarray) -> np.ndarray:
     """Angle (deg) between unit normals (..., 3) and world +z."""
     n = np.asarray(normal_w, dtype=np.float64)
     return np.degrees(np.arccos(np.clip(n[..., 2], -1.0, 1.0)))
-
-
-def inclination_within_limit(inclination_deg: np.ndarray, limit_deg: float = DEFAULT_INCLINATION_LIMIT_DEG) -> np.ndarray:
-    """True where the surface is flat enough to weld (paper: 5 deg); NaN inclination is not."""
-    inc = np.asarray(inclination_deg, dtype=np.float64)
-    return np.isfinite(inc) & (inc <= limit_deg)
 
 
 def offset_along_normal(points_w: np.ndarray, normals_w: np.ndarray, offset_m: float = M16X150_TOP_OFFSET_M) -> np.ndarray:
@@ -111,53 +116,228 @@ def quaternion_from_normal(normal_w: np.ndarray) -> np.ndarray:
     return quaternion_from_matrix(frame_from_normal(normal_w))
 
 
-_MOMENT_PAIRS = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+def tangent_basis(normal_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors (..., 3) spanning the plane normal to each unit normal (..., 3): the x and
+    y axes of :func:`frame_from_normal`."""
+    R = frame_from_normal(normal_w)
+    return R[..., 0], R[..., 1]
 
 
-def _window_features(camera: CameraModel, u0, v0, du, dv, depth, p_stud) -> np.ndarray:
-    """(n, 9, M) per-sample features [x, y, z, xx, xy, xz, yy, yz, zz] of the window points
-    relative to the stud, so that every weighted plane fit over the same points is one weighted
-    sum (feature-major: each feature row is contiguous; Eq. 1 writes x, y, z in place)."""
-    n, M = depth.shape
-    F = np.empty((n, 9, M))
-    camera.window_to_world(u0, v0, du, dv, depth, minus_w=p_stud, out=F[:, :3].transpose(1, 0, 2))
-    for k, (i, j) in enumerate(_MOMENT_PAIRS):
-        np.multiply(F[:, i], F[:, j], out=F[:, 3 + k])
-    return F
+#: Quadric terms of the fit in the window's normalised image coordinates: 1, a, b, a^2, ab, b^2.
+_N_TERMS = 6
 
 
-def _fit_planes(F: np.ndarray, w: np.ndarray):
-    """Weighted PCA plane per row from moment features F (n, 9, M) and weights w (n, M) in {0, 1}.
+@dataclass(frozen=True)
+class _InverseDepthFit:
+    """Robust quadric fits w(a, b) = 1/z of n windows (all arrays (n, ...)).
 
-    Returns centroid (n, 3), unit normal (n, 3) (smallest-eigenvalue eigenvector), eigenvalues
-    (n, 3) ascending (weighted variances, m^2), weight sums (n,). Raw moments are fine here: the
-    points are relative to the stud (centimetres), far from cancellation trouble in float64.
+    (a, b) are normalised image coordinates (x~ = (u - cx)/fx, y~ = (v - cy)/fy) relative to the
+    window's centre (``x0``, ``y0``), divided by ``scale`` so the normal matrix is well
+    conditioned. ``beta`` (n, 6), ``cov`` (n, 6, 6) its covariance, ``inliers`` (n, k, k) bool,
+    ``rms_w`` (n,) the residual RMS in 1/m.
     """
-    wsum = w.sum(axis=1)
-    safe = np.maximum(wsum, 1.0)
-    m = np.matmul(F, w[:, :, None])[..., 0] / safe[:, None]
-    c = m[:, :3]
-    C = np.empty((F.shape[0], 3, 3))
-    for k, (i, j) in enumerate(_MOMENT_PAIRS):
-        C[:, i, j] = C[:, j, i] = m[:, 3 + k] - c[:, i] * c[:, j]
-    evals, evecs = np.linalg.eigh(C)
-    return c, evecs[..., 0], evals, wsum, C
+
+    x0: np.ndarray
+    y0: np.ndarray
+    scale: np.ndarray
+    beta: np.ndarray
+    cov: np.ndarray
+    inliers: np.ndarray
+    rms_w: np.ndarray
+
+    def gradient_map(self, xt: np.ndarray, yt: np.ndarray) -> np.ndarray:
+        """(n, 3, 6) linear map beta -> g = (w_x, w_y, w - w_x x~ - w_y y~) at normalised image
+        coordinates (xt, yt): the (unnormalised) surface normal in the optical frame there.
+
+        The surface is F(X) = Z w(X/Z, Y/Z) - 1 = 0, whose gradient is that g; for a plane
+        n . X = d, w = (n_x x~ + n_y y~ + n_z) / d is linear and g = n / d exactly.
+        """
+        s = self.scale
+        a, b = (xt - self.x0) / s, (yt - self.y0) / s
+        one, zero = np.ones_like(a), np.zeros_like(a)
+        w = np.stack([one, a, b, a * a, a * b, b * b], axis=-1)
+        w_x = np.stack([zero, one, zero, 2 * a, b, zero], axis=-1) / s[:, None]
+        w_y = np.stack([zero, zero, one, zero, a, 2 * b], axis=-1) / s[:, None]
+        return np.stack([w_x, w_y, w - w_x * xt[:, None] - w_y * yt[:, None]], axis=1)
+
+    def residual_f(self, xt: np.ndarray, yt: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """F = z w(x~, y~) - 1 at optical-frame points given as (x~, y~, z)."""
+        s = self.scale
+        a, b = (xt - self.x0) / s, (yt - self.y0) / s
+        B = self.beta
+        w = B[:, 0] + B[:, 1] * a + B[:, 2] * b + B[:, 3] * a * a + B[:, 4] * a * b + B[:, 5] * b * b
+        return z * w - 1.0
+
+    def normal_at(self, xt: np.ndarray, yt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Unit normals (n, 3) in the optical frame, toward the camera, at (x~, y~), and the
+        1-sigma (rad) of their direction about the least certain axis."""
+        L = self.gradient_map(xt, yt)
+        g = np.einsum("nij,nj->ni", L, self.beta)
+        norm = np.linalg.norm(g, axis=1, keepdims=True)
+        n = g / norm
+        n = np.where((n[:, 2:3] > 0), -n, n)  # the camera looks along +z: toward it is -z
+        cov_g = np.matmul(np.matmul(L, self.cov), np.swapaxes(L, 1, 2))
+        P = (np.eye(3) - n[:, :, None] * n[:, None, :]) / norm[:, :, None]
+        cov_n = np.matmul(np.matmul(P, cov_g), np.swapaxes(P, 1, 2))
+        return n, np.sqrt(np.maximum(np.linalg.eigvalsh(cov_n)[:, -1], 0.0))
 
 
-def _height_regression_normals(C: np.ndarray) -> np.ndarray:
-    """Unit normals of the least-squares height planes z = a + b x + c y, from covariances C (n, 3, 3).
+#: The fit's terms as powers (p, q) of the window coordinates (a, b): 1, a, b, a^2, ab, b^2.
+_TERMS = ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2))
+_TP = np.array([t[0] for t in _TERMS])
+_TQ = np.array([t[1] for t in _TERMS])
 
-    The seed of the robust fit: unlike PCA, whose smallest-variance axis can swing into the
-    plane when a few far outliers add as much variance as the window's extent, a regression of
-    z on (x, y) only shifts and tilts (our surfaces are well under 90 deg from horizontal).
+
+@dataclass(frozen=True)
+class _Windows:
+    """The windows of n studs as k x k blocks of pixels (rows v, columns u), all (n, ...).
+
+    A window is a square of ``window_m`` at the stud's optical depth (f * window / z) sampled
+    with an integer pixel ``step`` (every sample a real pixel); sample (i, j) is pixel
+    (u0 + g_j step, v0 + g_i step) with g = -(k-1)/2 .. (k-1)/2. ``good`` (n, k, k): inside the
+    window and the image, with depth; ``inv_z`` (n, k, k) 1/depth there (0 elsewhere);
+    ``n_window`` (n,) samples inside the window and the image.
     """
-    A = C[:, :2, :2]
-    det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] ** 2
-    safe = np.where(np.abs(det) > 1e-30, det, np.inf)
-    b = (A[:, 1, 1] * C[:, 0, 2] - A[:, 0, 1] * C[:, 1, 2]) / safe
-    c = (A[:, 0, 0] * C[:, 1, 2] - A[:, 0, 1] * C[:, 0, 2]) / safe
-    n = np.column_stack([-b, -c, np.ones_like(b)])
-    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+    u0: np.ndarray
+    v0: np.ndarray
+    step: np.ndarray
+    grid: np.ndarray
+    good: np.ndarray
+    inv_z: np.ndarray
+    n_window: np.ndarray
+
+
+def _window_blocks(camera: CameraModel, depth: np.ndarray, uv: np.ndarray, z_cam: np.ndarray, window_m: float,
+                   max_per_side: int) -> _Windows:
+    H, W = depth.shape
+    half_px = 0.5 * window_m * camera.fx / np.maximum(z_cam, 1e-6)
+    step = np.maximum(1, np.ceil(2 * half_px / max(max_per_side - 1, 1))).astype(np.int64)
+    reach = half_px + 0.5 * step
+    half_k = int(np.max(np.floor(reach / step)))
+    grid = np.arange(-half_k, half_k + 1)
+    u0 = np.rint(uv[:, 0]).astype(np.int64)
+    v0 = np.rint(uv[:, 1]).astype(np.int64)
+    off = grid[None, :] * step[:, None]
+    U, V = u0[:, None] + off, v0[:, None] + off
+    inside = np.abs(off) <= reach[:, None]  # the window is separable: rows x columns
+    col_ok = inside & (U >= 0) & (U < W)
+    row_ok = inside & (V >= 0) & (V < H)
+    d = depth[np.clip(V, 0, H - 1)[:, :, None], np.clip(U, 0, W - 1)[:, None, :]]
+    good = row_ok[:, :, None] & col_ok[:, None, :] & (d > 0)  # NaN compares False
+    inv_z = np.zeros(d.shape)
+    np.divide(1.0, d, out=inv_z, where=good)
+    return _Windows(u0=u0, v0=v0, step=step, grid=grid.astype(np.float64), good=good, inv_z=inv_z,
+                    n_window=row_ok.sum(axis=1) * col_ok.sum(axis=1))
+
+
+def _moments(weights: np.ndarray, values: np.ndarray | None, grid: np.ndarray, order: int) -> np.ndarray:
+    """sum_ij weights_ij values_ij g_j^p g_i^q for p, q <= order: (n, order + 1, order + 1) [p, q].
+
+    Separable: a matrix product over the columns, then one over the rows."""
+    G = grid[:, None] ** np.arange(order + 1)[None, :]  # (k, order + 1)
+    data = weights if values is None else weights * values
+    return np.einsum("nip,iq->npq", np.matmul(data, G), G)
+
+
+def _solve_normal_equations(Mw: np.ndarray, My: np.ndarray, ca: np.ndarray, cb: np.ndarray):
+    """beta (n, 6) and A^-1 (n, 6, 6) of the quadric fit from the grid moments, with a = ca g_u,
+    b = cb g_v: A_ij = ca^(p_i+p_j) cb^(q_i+q_j) Mw[p_i+p_j, q_i+q_j], rhs_i = ca^p_i cb^q_i My[p_i, q_i]."""
+    P, Q = _TP[:, None] + _TP[None, :], _TQ[:, None] + _TQ[None, :]
+    A = Mw[:, P, Q] * ca[:, None, None] ** P * cb[:, None, None] ** Q
+    rhs = My[:, _TP, _TQ] * ca[:, None] ** _TP * cb[:, None] ** _TQ
+    # A tiny ridge keeps windows with too few or collinear points solvable; their covariance is
+    # then huge, which is what the uncertainty should say.
+    A += 1e-9 * np.eye(len(_TERMS))
+    A_inv = np.linalg.inv(A)
+    return np.einsum("nij,nj->ni", A_inv, rhs), A_inv, rhs
+
+
+def _evaluate(beta: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The quadric (n, k, k) on the grid: a (n, k) per column, b (n, k) per row."""
+    A, B = a[:, None, :], b[:, :, None]
+    return (beta[:, 0, None, None] + beta[:, 1, None, None] * A + beta[:, 2, None, None] * B
+            + beta[:, 3, None, None] * A * A + beta[:, 4, None, None] * A * B + beta[:, 5, None, None] * B * B)
+
+
+def _fit_inverse_depth(win: _Windows, camera: CameraModel, scale: np.ndarray, robust_passes: int, outlier_k: float,
+                       floor_w: np.ndarray, trigger_k: float = 4.5) -> _InverseDepthFit:
+    """Robust quadric fits of 1/z over the windows' normalised image coordinates.
+
+    The depth noise of an RGB-D camera lies along its rays, that is in z alone at a fixed pixel:
+    fitting 1/z as a function of the pixel keeps every error in the dependent variable. (A fit
+    to the 3D points instead has errors in all three coordinates, correlated along the ray,
+    which tilts the normal of a sloped surface by sigma^2 sin(2 theta) / (2 s^2): 0.35 deg at
+    0.8 mm noise on a 20 deg slope with a 20 mm window.)
+
+    The least-squares fit of every window comes from moment sums (:func:`_moments`, a few
+    operations per sample). Windows whose worst residual is beyond ``trigger_k`` times the RMS
+    (flying pixels, a sliver of floor behind a part's edge -- a clean window of a few thousand
+    Gaussian samples rarely is) get robust passes: up to ``robust_passes`` times, samples farther
+    from the fit than max(outlier_k * 1.4826 * MAD, floor_w) are dropped and the fit redone.
+    """
+    ca = win.step / (camera.fx * scale)  # a = ca * g_u: window units per grid step
+    cb = win.step / (camera.fy * scale)
+    a, b = ca[:, None] * win.grid[None, :], cb[:, None] * win.grid[None, :]
+    good = win.good
+    w = good.astype(np.float64)
+    Mw = _moments(w, None, win.grid, 4)
+    My = _moments(w, win.inv_z, win.grid, 2)
+    yy = np.einsum("nij,nij->n", win.inv_z, win.inv_z)
+    beta, A_inv, rhs = _solve_normal_equations(Mw, My, ca, cb)
+    n_in = good.sum(axis=(1, 2))
+    var = np.maximum(yy - np.einsum("ni,ni->n", beta, rhs), 0.0) / np.maximum(n_in - len(_TERMS), 1)
+    inl = good
+    resid = np.abs(win.inv_z - _evaluate(beta, a, b))
+    worst = np.max(np.where(good, resid, 0.0), axis=(1, 2))
+    rows = np.flatnonzero(worst > np.maximum(trigger_k * np.sqrt(var), floor_w))
+    if rows.size and robust_passes > 0:
+        inl = good.copy()
+        for _ in range(robust_passes):
+            r = resid[rows].reshape(rows.size, -1)
+            g = good[rows].reshape(rows.size, -1)
+            # Median over the valid entries of each row: sort with invalid = +inf, take the middle.
+            mid = np.maximum(g.sum(axis=1) - 1, 0) // 2
+            r_sorted = np.sort(np.where(g, r, np.inf), axis=1)
+            mad = np.take_along_axis(r_sorted, mid[:, None], axis=1)[:, 0]
+            thr = np.maximum(outlier_k * 1.4826 * np.where(np.isfinite(mad), mad, 0.0), floor_w[rows])
+            new_inl = (g & (r <= thr[:, None])).reshape(good[rows].shape)
+            changed = (new_inl != inl[rows]).any(axis=(1, 2))
+            rows, new_inl = rows[changed], new_inl[changed]
+            if rows.size == 0:
+                break
+            inl[rows] = new_inl
+            wr = new_inl.astype(np.float64)
+            Mw_r, My_r = _moments(wr, None, win.grid, 4), _moments(wr, win.inv_z[rows], win.grid, 2)
+            beta[rows], A_inv[rows], rhs_r = _solve_normal_equations(Mw_r, My_r, ca[rows], cb[rows])
+            yy_r = np.einsum("nij,nij,nij->n", wr, win.inv_z[rows], win.inv_z[rows])
+            n_r = new_inl.sum(axis=(1, 2))
+            var[rows] = (np.maximum(yy_r - np.einsum("ni,ni->n", beta[rows], rhs_r), 0.0)
+                         / np.maximum(n_r - len(_TERMS), 1))
+            resid[rows] = np.abs(win.inv_z[rows] - _evaluate(beta[rows], a[rows], b[rows]))
+    x0 = (win.u0 - camera.cx) / camera.fx
+    y0 = (win.v0 - camera.cy) / camera.fy
+    return _InverseDepthFit(x0=x0, y0=y0, scale=scale, beta=beta, cov=var[:, None, None] * A_inv, inliers=inl,
+                            rms_w=np.sqrt(var))
+
+
+def _vertical_line_hit(fit: _InverseDepthFit, camera: CameraModel, xy_w: np.ndarray, z0_w: np.ndarray,
+                       iterations: int = 4) -> np.ndarray:
+    """World z (n,) where the vertical lines through ``xy_w`` (n, 2) meet the fitted surfaces
+    (Newton's method on F = Z w(X/Z, Y/Z) - 1 from z0_w, the matched heights)."""
+    R_cw = camera.R_wc.T
+    dX = R_cw[:, 2]  # d(optical point) / d(world z)
+    z = z0_w.astype(np.float64).copy()
+    for _ in range(iterations):
+        P = np.column_stack([xy_w, z])
+        X = (P - camera.t_wc) @ R_cw.T
+        xt, yt = X[:, 0] / X[:, 2], X[:, 1] / X[:, 2]
+        F = fit.residual_f(xt, yt, X[:, 2])
+        g = np.einsum("nij,nj->ni", fit.gradient_map(xt, yt), fit.beta)  # dF/dX
+        with np.errstate(invalid="ignore", divide="ignore"):
+            dz = F / (g @ dX)
+        z -= np.where(np.isfinite(dz), dz, 0.0)
+    return z
 
 
 def estimate_surface_poses(
@@ -167,143 +347,81 @@ def estimate_surface_poses(
     camera: CameraModel,
     *,
     window_m: float = 0.02,
-    max_samples_per_side: int = 31,
+    max_samples_per_side: int = 81,
     min_points: int = 12,
-    min_fill_ratio: float = 0.3,
+    min_fill_ratio: float = 0.1,
     max_rms_m: float = 0.0015,
     max_outlier_ratio: float = 0.2,
     outlier_k: float = 3.0,
     outlier_floor_m: float = 0.001,
     robust_passes: int = 5,
     valid: np.ndarray | None = None,
-    chunk: int = 1024,
+    target_xy_w: np.ndarray | None = None,
+    chunk: int = 256,
 ) -> SurfacePoses:
-    """Normals and weld poses at N matched points by a robust least-squares plane fit.
+    """Normals and weld poses at N matched points by a robust least-squares fit of the window.
 
     Inputs: ``points_w`` (N, 3) matched points in `world` (m); ``pixel_uv`` (N, 2) their pixels;
     ``depth_m`` (H, W) metres, NaN = invalid; ``valid`` (N,) optional mask of studs to process
-    (e.g. ``matches.ok``).
+    (e.g. ``matches.ok``); ``target_xy_w`` (N, 2) optional: the studs' own world XY (the drawing's),
+    where the weld point and the normal are taken (else at the match's XY, which the matcher's
+    tolerance allows to be a millimetre off -- a third of a degree of normal on a 150 mm dome).
 
-    The window is a square of side ``window_m`` on the surface, converted to pixels at the point's
-    optical depth (f * window / z), sampled on a grid of at most ``max_samples_per_side`` per side
-    (the normal's accuracy comes from the window's extent; more samples add little and cost memory).
-    Every valid sample is back-projected with Eq. 1 (:meth:`CameraModel.window_to_world`). Seeded by
-    a least-squares height plane, up to ``robust_passes`` times the points farther than
-    max(outlier_k * 1.4826 * MAD, outlier_floor_m) from the current plane are dropped (flying
-    pixels, a sliver of floor behind a part's edge) and a PCA (total least squares) plane is
-    refitted to the rest; with no outliers the result is the PCA plane of all valid points.
-    ``normal_sigma_deg`` ~ RMS / sqrt(n * lambda_mid), the LS slope uncertainty on the worse-spread
-    in-plane axis. Status: TOO_FEW_POINTS (< min_points or fill < min_fill_ratio), BAD_FIT
-    (RMS > max_rms_m or outliers > max_outlier_ratio), else OK.
+    Every valid sample of the window (:func:`_window_blocks`) enters a robust quadric fit of
+    1/z over normalised image coordinates (:func:`_fit_inverse_depth`: exact for planes, the
+    quadratic terms take the curvature). The weld point is where the stud's vertical line meets
+    the fitted surface (the fit averages the depth noise out of the height), the normal is the
+    surface's there (Eq. 1's camera: ``R_wc`` takes it to `world`). ``normal_sigma_deg`` is the
+    1-sigma uncertainty of the normal's direction about its least certain axis, from the fit's
+    covariance. Status: TOO_FEW_POINTS (< min_points or fill < min_fill_ratio), BAD_FIT (RMS >
+    max_rms_m or outliers > max_outlier_ratio), else OK.
     """
     P0 = np.asarray(points_w, dtype=np.float64).reshape(-1, 3)
     uv = np.asarray(pixel_uv, dtype=np.float64).reshape(-1, 2)
     n = P0.shape[0]
     depth = np.asarray(depth_m)
-    H, W = depth.shape
     ok_in = np.all(np.isfinite(P0), axis=1) & np.all(np.isfinite(uv), axis=1)
     if valid is not None:
         ok_in &= np.asarray(valid, dtype=bool)
+    target_xy = P0[:, :2] if target_xy_w is None else np.asarray(target_xy_w, dtype=np.float64).reshape(-1, 2)
 
     out = dict(
         position_w=np.full((n, 3), np.nan), normal_w=np.full((n, 3), np.nan), quat_xyzw=np.full((n, 4), np.nan),
-        inclination_deg=np.full(n, np.nan), normal_sigma_deg=np.full(n, np.nan), plane_rms_m=np.full(n, np.nan),
+        inclination_deg=np.full(n, np.nan), normal_sigma_deg=np.full(n, np.nan), fit_rms_m=np.full(n, np.nan),
         fill_ratio=np.full(n, np.nan), outlier_ratio=np.full(n, np.nan), n_points=np.zeros(n, dtype=np.int64),
         status=np.full(n, SurfaceStatus.NOT_MATCHED, dtype=np.int8),
     )
-    k = int(max_samples_per_side)
-    grid = np.arange(k) - (k - 1) / 2.0  # sample indices, centred
-    gj, gi = np.meshgrid(grid, grid, indexing="ij")
-    gi, gj = gi.ravel(), gj.ravel()
-    cam_pos = camera.position_w
 
     for start in range(0, n, chunk):
         idx = np.arange(start, min(start + chunk, n))
         idx = idx[ok_in[idx]]
         if idx.size == 0:
             continue
-        z_cam = camera.world_to_camera(P0[idx])[:, 2]
-        half_px = 0.5 * window_m * camera.fx / np.maximum(z_cam, 1e-6)
-        # Integer pixel step so every sample is a real pixel (no interpolation inside the fit).
-        step = np.maximum(1, np.ceil(2 * half_px / max(k - 1, 1))).astype(np.int64)
-        u0 = np.rint(uv[idx, 0]).astype(np.int64)
-        v0 = np.rint(uv[idx, 1]).astype(np.int64)
-        # Offsets from a table per distinct step (a handful), not arithmetic on (n, M) arrays.
-        steps, which = np.unique(step, return_inverse=True)
-        off_u = np.rint(gi[None, :] * steps[:, None]).astype(np.int64)[which]
-        off_v = np.rint(gj[None, :] * steps[:, None]).astype(np.int64)[which]
-        reach = half_px + 0.5 * step
-        in_window = (np.abs(off_u) <= reach[:, None]) & (np.abs(off_v) <= reach[:, None])
-        U = u0[:, None] + off_u
-        V = v0[:, None] + off_v
-        ext = np.rint(np.abs(grid).max() * step)  # the grid's farthest offset, either axis
-        edge = (u0 - ext < 0) | (u0 + ext >= W) | (v0 - ext < 0) | (v0 + ext >= H)
-        if edge.any():  # samples of windows that cross the image border are not in the window
-            in_window[edge] &= (U[edge] >= 0) & (U[edge] < W) & (V[edge] >= 0) & (V[edge] < H)
-            U, V = np.clip(U, 0, W - 1), np.clip(V, 0, H - 1)
-        d = np.take(depth.reshape(-1), V * W + U).astype(np.float64)
-        good = in_window & np.isfinite(d)
         p_stud = P0[idx]
-        # Eq. 1 on the window, relative to the stud. Invalid samples get depth 0, a finite point
-        # that weight 0 keeps out of every fit and the median.
-        F = _window_features(camera, u0, v0, off_u, off_v, np.where(good, d, 0.0), p_stud)
+        z_cam = camera.world_to_camera(p_stud)[:, 2]
+        win = _window_blocks(camera, depth, uv[idx], z_cam, window_m, int(max_samples_per_side))
+        scale = 0.5 * window_m / np.maximum(z_cam, 1e-6)
+        floor_w = outlier_floor_m / np.maximum(z_cam, 1e-6) ** 2  # 1 mm of depth, in 1/z
+        fit = _fit_inverse_depth(win, camera, scale, robust_passes, outlier_k, floor_w)
+        z_w = _vertical_line_hit(fit, camera, target_xy[idx], p_stud[:, 2])
+        pos = np.column_stack([target_xy[idx], z_w])
+        X = camera.world_to_camera(pos)
+        nrm_c, sigma_rad = fit.normal_at(X[:, 0] / X[:, 2], X[:, 1] / X[:, 2])
+        nrm = nrm_c @ camera.R_wc.T
+        sigma = np.degrees(sigma_rad)
+        rms_m = fit.rms_w * z_cam**2  # d(1/z) = dz / z^2
 
-        c, nrm_pca, evals, wsum, C = _fit_planes(F, good.astype(np.float64))
-        nrm = _height_regression_normals(C) if robust_passes > 0 else nrm_pca
-        refit = np.zeros(idx.size, dtype=bool)
-        # Robust passes from a regression seed: drop points farther from the current plane than a
-        # multiple of the median absolute distance (robust to a few gross outliers -- flying
-        # pixels, a sliver of floor) and refit by PCA, only the rows whose inlier set changed.
-        inl = good.copy()
-        rows = np.arange(idx.size)
-        for _ in range(robust_passes):
-            g = good[rows]
-            r = np.abs(np.matmul(nrm[rows, None, :], F[rows, :3])[:, 0]
-                       - np.einsum("ni,ni->n", c[rows], nrm[rows])[:, None])
-            # Median over the valid entries of each row: sort with invalid = +inf, take the middle.
-            mid = np.maximum(g.sum(axis=1) - 1, 0) // 2
-            kth = np.flatnonzero(np.bincount(mid))  # the distinct median positions, sorted
-            # A partition at the (few) distinct median positions gives the same medians as a full
-            # sort at a fraction of the cost; rows with many different hole counts fall back to sort.
-            r_masked = np.where(g, r, np.inf)
-            r_sorted = np.partition(r_masked, kth, axis=1) if kth.size <= 16 else np.sort(r_masked, axis=1)
-            mad = np.take_along_axis(r_sorted, mid[:, None], axis=1)[:, 0]
-            thr = np.maximum(outlier_k * 1.4826 * np.where(np.isfinite(mad), mad, 0.0), outlier_floor_m)
-            new_inl = g & (r <= thr[:, None])
-            changed = (new_inl != inl[rows]).any(axis=1)
-            rows, new_inl = rows[changed], new_inl[changed]
-            if rows.size == 0:
-                break
-            inl[rows] = new_inl
-            c[rows], nrm[rows], evals[rows], wsum[rows], _ = _fit_planes(F[rows], new_inl.astype(np.float64))
-            refit[rows] = True
-        # Rows whose inliers never changed: all valid points are inliers, so the PCA plane stands.
-        nrm = np.where(refit[:, None], nrm, nrm_pca)
-        c = c + p_stud
-
-        # Orient toward the camera (away from the surface, as seen).
-        flip = np.einsum("ni,ni->n", nrm, cam_pos - c) < 0
-        nrm = np.where(flip[:, None], -nrm, nrm)
-        rms = np.sqrt(np.maximum(evals[:, 0], 0.0))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            sigma = np.degrees(rms / np.sqrt(np.maximum(wsum, 1.0) * np.maximum(evals[:, 1], 1e-18)))
-        n_valid = good.sum(axis=1)
-        n_window = in_window.sum(axis=1)
-        fill = n_valid / np.maximum(n_window, 1)
-        outl = 1.0 - wsum / np.maximum(n_valid, 1)
-
+        n_in = fit.inliers.sum(axis=(1, 2))
+        n_valid = win.good.sum(axis=(1, 2))
+        fill = n_valid / np.maximum(win.n_window, 1)
+        outl = 1.0 - n_in / np.maximum(n_valid, 1)
         status = np.full(idx.size, SurfaceStatus.OK, dtype=np.int8)
-        few = (wsum < max(min_points, 3)) | (fill < min_fill_ratio)
-        bad = ~few & ((rms > max_rms_m) | (outl > max_outlier_ratio))
+        few = (n_in < max(min_points, _N_TERMS + 2)) | (fill < min_fill_ratio)
+        finite = np.all(np.isfinite(pos), axis=1) & np.all(np.isfinite(nrm), axis=1)
+        bad = ~few & ((rms_m > max_rms_m) | (outl > max_outlier_ratio) | ~finite)
         status[bad] = SurfaceStatus.BAD_FIT
         status[few] = SurfaceStatus.TOO_FEW_POINTS
-        have = ~few
-
-        with np.errstate(invalid="ignore", divide="ignore"):
-            # Height of the plane at the match's XY: n . (p - c) = 0 solved for z.
-            p = p_stud
-            z_plane = c[:, 2] - (nrm[:, 0] * (p[:, 0] - c[:, 0]) + nrm[:, 1] * (p[:, 1] - c[:, 1])) / nrm[:, 2]
-        pos = np.column_stack([p[:, :2], np.where(np.abs(nrm[:, 2]) > 1e-6, z_plane, p[:, 2])])
+        have = ~few & finite
 
         j = idx[have]
         out["position_w"][j] = pos[have]
@@ -311,21 +429,21 @@ def estimate_surface_poses(
         out["quat_xyzw"][j] = quaternion_from_normal(nrm[have])
         out["inclination_deg"][j] = inclination_deg(nrm[have])
         out["normal_sigma_deg"][j] = sigma[have]
-        out["plane_rms_m"][j] = rms[have]
+        out["fit_rms_m"][j] = rms_m[have]
         out["outlier_ratio"][j] = outl[have]
-        out["n_points"][idx] = wsum.astype(np.int64)
+        out["n_points"][idx] = n_in
         out["fill_ratio"][idx] = fill
         out["status"][idx] = status
     return SurfacePoses(**out)
 
 
 def estimate_surface_poses_for_matches(matches, depth_m: np.ndarray, camera: CameraModel, **kwargs) -> SurfacePoses:
-    """:func:`estimate_surface_poses` on the OK studs of a :class:`stud_planner.matching.MatchResults`."""
+    """:func:`estimate_surface_poses` on the OK studs of a :class:`stud_planner.matching.MatchResults`
+    (pass ``target_xy_w``, the studs' world XY, to take the poses on their own vertical lines)."""
     return estimate_surface_poses(matches.point_w, matches.pixel_uv, depth_m, camera, valid=matches.ok, **kwargs)
 
 
 __all__ = [
-    "DEFAULT_INCLINATION_LIMIT_DEG",
     "M16X150_TOP_OFFSET_M",
     "SurfacePoses",
     "SurfaceStatus",
@@ -333,8 +451,8 @@ __all__ = [
     "estimate_surface_poses_for_matches",
     "frame_from_normal",
     "inclination_deg",
-    "inclination_within_limit",
     "offset_along_normal",
     "quaternion_from_matrix",
     "quaternion_from_normal",
+    "tangent_basis",
 ]

@@ -18,10 +18,11 @@ import struct
 import numpy as np
 
 _ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR, little-endian
-#: WeldTarget from drawing_x to normal_rms: 14 float64 (drawing_x/y, pose position + orientation,
-#: normal, pixel_u/v), uint32 view_index and iterations, 3 float64 (xy_error, inclination,
-#: normal_rms). It starts 8-aligned and holds no padding, so one numpy row is the wire bytes.
-_BLOCK = np.dtype([("f", "<f8", 14), ("u", "<u4", 2), ("g", "<f8", 3)])
+#: WeldTarget from drawing_x to gun_clearance: 14 float64 (drawing_x/y, pose position + orientation,
+#: normal, pixel_u/v), uint32 view_index and iterations, 7 float64 (xy_error, inclination,
+#: normal_rms, normal_sigma, lean_bound, fill_ratio, gun_clearance). It starts 8-aligned and holds
+#: no padding, so one numpy row is the wire bytes.
+_BLOCK = np.dtype([("f", "<f8", 14), ("u", "<u4", 2), ("g", "<f8", 7)])
 
 
 def _align(buf: bytearray, size: int) -> None:
@@ -47,7 +48,9 @@ def weld_target_array_cdr(targets, view_index: int, stamp_sec: int, stamp_nanose
                             targets.matches.pixel_uv])
     block["u"][:, 0] = view_index
     block["u"][:, 1] = targets.matches.iterations
-    block["g"] = np.column_stack([targets.matches.xy_residual_m, targets.inclination_deg, targets.normal_rms_m])
+    block["g"] = np.column_stack([targets.matches.xy_residual_m, targets.inclination_deg, targets.normal_rms_m,
+                                  targets.normal_sigma_deg, targets.lean_bound_deg, targets.poses.fill_ratio,
+                                  targets.gun_clearance_m])
     rows = block.tobytes()
 
     buf = bytearray(_ENCAPSULATION)

@@ -2,12 +2,19 @@
 
 The core the matcher node and the offline planner share. For each stud of the drawing it
 returns the weld point on the surface, the outward normal, the pose quaternion (z along
-the normal), the inclination, and one status:
+the normal), the surface's slope, the normal's uncertainty, the gun's clearance and one status:
 
 ``ok`` | ``out_of_view`` | ``no_depth`` | ``not_converged`` | ``depth_discontinuity`` (from the
-matcher) | ``no_normal`` (the plane fit could not give a trustworthy normal) |
-``inclination_exceeded`` (the stud would lean more than ``max_inclination_deg``).
-Status codes equal the STATUS_* constants of stud_welding_msgs/WeldTarget.
+matcher) | ``no_normal`` (too few points or a bad fit: no normal at all) | ``normal_uncertain``
+(the welded stud could lean more than the lean budget from the true normal) | ``gun_blocked``
+(the gun would touch the part along its approach, descent or retract).
+
+The gun is welded along the normal at any slope: the slope (``inclination_deg``, against world z)
+is information, never a refusal. What limits a stud is the code's 5 deg (the paper's Fig. 9:
+13 mm top offset for an M16x150), the most the *welded stud* may lean from the true
+perpendicular: an error budget, consumed by the normal's uncertainty (``normal_sigma_k`` times its
+1-sigma) and the arm's orientation error. ``lean_bound_deg`` is that sum: the worst lean the
+target could give. Status codes equal the STATUS_* constants of stud_welding_msgs/WeldTarget.
 """
 from __future__ import annotations
 
@@ -19,23 +26,30 @@ import numpy as np
 
 from stud_perception.camera_model import CameraModel
 from stud_perception.registration import local_to_world
-from stud_planner.matching import MatchResults, MatchStatus, match_batch, match_bfs, match_fpm
-from stud_planner.surface_pose import SurfacePoses, estimate_surface_poses_for_matches, offset_along_normal
+from stud_planner.gun_clearance import Clearance, GunModel, gun_clearance
+from stud_planner.matching import MatchResults, MatchStatus, match_batch, match_bfs, match_fpm, observed_z_range
+from stud_planner.surface_pose import (SurfacePoses, SurfaceStatus, estimate_surface_poses_for_matches,
+                                      offset_along_normal)
 
 STATUS_OK = 0
 STATUS_OUT_OF_VIEW = 1
 STATUS_NO_DEPTH = 2
 STATUS_NOT_CONVERGED = 3
-STATUS_INCLINATION_EXCEEDED = 4
+STATUS_NORMAL_UNCERTAIN = 4
 STATUS_UNREACHABLE = 5
 STATUS_NO_NORMAL = 6
 STATUS_DEPTH_DISCONTINUITY = 7
+STATUS_GUN_BLOCKED = 8
 STATUS_TEXT = {
     STATUS_OK: "ok", STATUS_OUT_OF_VIEW: "out_of_view", STATUS_NO_DEPTH: "no_depth",
-    STATUS_NOT_CONVERGED: "not_converged", STATUS_INCLINATION_EXCEEDED: "inclination_exceeded",
+    STATUS_NOT_CONVERGED: "not_converged", STATUS_NORMAL_UNCERTAIN: "normal_uncertain",
     STATUS_UNREACHABLE: "unreachable", STATUS_NO_NORMAL: "no_normal",
-    STATUS_DEPTH_DISCONTINUITY: "depth_discontinuity",
+    STATUS_DEPTH_DISCONTINUITY: "depth_discontinuity", STATUS_GUN_BLOCKED: "gun_blocked",
 }
+#: Statuses another view of the same stud may cure (a new shot, another station): the cell
+#: shoots such studs again before giving up on them.
+VIEW_DEPENDENT_STATUSES = frozenset({STATUS_OUT_OF_VIEW, STATUS_NO_DEPTH, STATUS_NOT_CONVERGED, STATUS_NO_NORMAL,
+                                     STATUS_NORMAL_UNCERTAIN, STATUS_DEPTH_DISCONTINUITY})
 ALGORITHMS = ("batch", "fpm", "bfs")
 
 
@@ -43,6 +57,13 @@ ALGORITHMS = ("batch", "fpm", "bfs")
 class PlannerConfig:
     """Matcher and pose settings (metres, pixels, degrees).
 
+    ``lean_budget_deg``: the most a welded stud may lean from the true normal (the code's 5 deg);
+    ``arm_orientation_error_deg`` is the arm's share of it, ``normal_sigma_k`` the coverage factor
+    on the normal's 1-sigma (3: 99 % of a 2D normal error), ``normal_sigma_floor_deg`` what the
+    fit's covariance cannot see (depth quantisation, the quadric's model error), added in
+    quadrature; a target whose ``lean_bound_deg`` = k * sqrt(sigma^2 + floor^2) + arm error
+    exceeds the budget is ``normal_uncertain``. ``gun``: the volume the gun
+    sweeps about the stud's axis, checked against the view (``check_gun_clearance``).
     ``tool_offset_m``: the reported position is moved this far along the normal (0: the surface
     point; the paper's M16x150 stud top is 13 mm -> use the arm driver's tool offset instead).
     """
@@ -52,15 +73,25 @@ class PlannerConfig:
     fpm_window_px: int = 25
     hole_window_px: int = 7
     normal_window_m: float = 0.02
-    normal_samples_per_side: int = 21
+    normal_samples_per_side: int = 81
     max_normal_rms_m: float = 0.0015
-    max_inclination_deg: float = 5.0
+    lean_budget_deg: float = 5.0
+    arm_orientation_error_deg: float = 0.5
+    normal_sigma_k: float = 3.0
+    normal_sigma_floor_deg: float = 0.1
+    check_gun_clearance: bool = True
+    gun: GunModel = GunModel()
     tool_offset_m: float = 0.0
     bfs_max_pixels: int | None = None
 
     def __post_init__(self) -> None:
         if self.algorithm not in ALGORITHMS:
             raise ValueError(f"algorithm '{self.algorithm}' unknown; expected one of {list(ALGORITHMS)}")
+        if not 0 < self.lean_budget_deg <= 90 or not 0 <= self.arm_orientation_error_deg < self.lean_budget_deg:
+            raise ValueError(f"lean_budget_deg={self.lean_budget_deg} must be in (0, 90] and above "
+                             f"arm_orientation_error_deg={self.arm_orientation_error_deg} >= 0")
+        if not self.normal_sigma_k > 0:
+            raise ValueError(f"normal_sigma_k={self.normal_sigma_k} must be positive")
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,17 +104,41 @@ class ViewTargets:
     position_w: np.ndarray       # (N, 3)
     normal_w: np.ndarray         # (N, 3)
     quat_xyzw: np.ndarray        # (N, 4)
-    inclination_deg: np.ndarray  # (N,)
-    normal_rms_m: np.ndarray     # (N,)
+    inclination_deg: np.ndarray  # (N,) the surface's slope against world z (information)
+    normal_rms_m: np.ndarray     # (N,) RMS of the fit that gave the normal
+    normal_sigma_deg: np.ndarray  # (N,) the normal's 1-sigma uncertainty
+    lean_bound_deg: np.ndarray   # (N,) the worst lean from the true normal the target could give
+    gun_clearance_m: np.ndarray  # (N,) the gun's clearance to the part (negative: it would touch)
     status: np.ndarray           # (N,) uint8, STATUS_*
     matches: MatchResults
     poses: SurfacePoses
+    clearance: Clearance
     algorithm: str
     match_time_s: float
+    config: "PlannerConfig"
 
     @property
     def status_text(self) -> list[str]:
         return [STATUS_TEXT[int(s)] for s in self.status]
+
+    def reason(self, i: int) -> str:
+        """Why stud ``i`` is not usable, with the figure behind it ("" when it is)."""
+        st = int(self.status[i])
+        if st == STATUS_NORMAL_UNCERTAIN:
+            return (f"normal 1-sigma {self.normal_sigma_deg[i]:.2f} deg (fill {self.poses.fill_ratio[i]:.0%} of the "
+                    f"window): the stud could lean up to {self.lean_bound_deg[i]:.1f} deg > "
+                    f"{self.config.lean_budget_deg:g} deg budget")
+        if st == STATUS_GUN_BLOCKED:
+            return (f"the gun ({self.config.gun.radius_m * 1e3:.0f} mm radius) would touch the part "
+                    f"{-self.gun_clearance_m[i] * 1e3:.1f} mm inside it, {self.clearance.along_m[i] * 1e3:.0f} mm "
+                    "up the stud's axis")
+        if st == STATUS_NO_NORMAL:
+            p = self.poses
+            if p.status[i] == SurfaceStatus.BAD_FIT:
+                return (f"no trustworthy normal: the window is not one smooth surface (fit RMS "
+                        f"{p.fit_rms_m[i] * 1e3:.2f} mm, {p.outlier_ratio[i]:.0%} outliers: an edge or a step)")
+            return f"no trustworthy normal: too few depth points (fill {p.fill_ratio[i]:.0%} of the window)"
+        return "" if st == STATUS_OK else STATUS_TEXT[st]
 
     @property
     def ok(self) -> np.ndarray:
@@ -122,25 +177,37 @@ def plan_view(ids: list[str], drawing_xy_m: np.ndarray, M_local2world: np.ndarra
     match_time = time.perf_counter() - t0
     poses = estimate_surface_poses_for_matches(matches, depth_m, camera, window_m=config.normal_window_m,
                                                max_samples_per_side=config.normal_samples_per_side,
-                                               max_rms_m=config.max_normal_rms_m)
+                                               max_rms_m=config.max_normal_rms_m, target_xy_w=target_xy_w)
     status = matches.status.astype(np.uint8).copy()
     matched = status == MatchStatus.OK
     status[matched & ~poses.ok] = STATUS_NO_NORMAL
-    steep = matched & poses.ok & (poses.inclination_deg > config.max_inclination_deg)
-    status[steep] = STATUS_INCLINATION_EXCEEDED
+    lean_bound = (config.normal_sigma_k * np.hypot(poses.normal_sigma_deg, config.normal_sigma_floor_deg)
+                  + config.arm_orientation_error_deg)
+    uncertain = matched & poses.ok & ~(lean_bound <= config.lean_budget_deg)
+    status[uncertain] = STATUS_NORMAL_UNCERTAIN
     position = np.where(poses.ok[:, None], poses.position_w, matches.point_w)
+    usable = status == STATUS_OK
+    if config.check_gun_clearance:
+        z_top = observed_z_range(depth_m, camera, margin_m=0.0)[1]
+        clearance = gun_clearance(position, poses.normal_w, depth_m, camera, config.gun, valid=usable, z_top_w=z_top)
+    else:
+        clearance = Clearance(np.full(len(ids), np.nan), np.full(len(ids), np.nan), np.zeros(len(ids), np.int64))
+    status[usable & clearance.blocked] = STATUS_GUN_BLOCKED
     if config.tool_offset_m:
         position = np.where(poses.ok[:, None], offset_along_normal(position, poses.normal_w, config.tool_offset_m),
                             position)
     return ViewTargets(ids=list(ids), drawing_xy_m=drawing_xy_m, target_xy_w=target_xy_w, position_w=position,
                        normal_w=poses.normal_w, quat_xyzw=poses.quat_xyzw, inclination_deg=poses.inclination_deg,
-                       normal_rms_m=poses.plane_rms_m, status=status, matches=matches, poses=poses,
-                       algorithm=config.algorithm, match_time_s=match_time)
+                       normal_rms_m=poses.fit_rms_m, normal_sigma_deg=poses.normal_sigma_deg,
+                       lean_bound_deg=np.where(poses.ok, lean_bound, np.nan), gun_clearance_m=clearance.clearance_m,
+                       status=status, matches=matches, poses=poses, clearance=clearance, algorithm=config.algorithm,
+                       match_time_s=match_time, config=config)
 
 
 # -- overlay (the paper's Fig. 11) ---------------------------------------------------------------------
 STATUS_BGR = {
-    STATUS_OK: (40, 200, 40), STATUS_INCLINATION_EXCEEDED: (0, 165, 255), STATUS_NO_NORMAL: (0, 200, 255),
+    STATUS_OK: (40, 200, 40), STATUS_NORMAL_UNCERTAIN: (0, 165, 255), STATUS_NO_NORMAL: (0, 200, 255),
+    STATUS_GUN_BLOCKED: (0, 80, 255),
     STATUS_NO_DEPTH: (220, 0, 220), STATUS_NOT_CONVERGED: (0, 0, 230), STATUS_DEPTH_DISCONTINUITY: (0, 0, 230),
     STATUS_UNREACHABLE: (200, 100, 0), STATUS_OUT_OF_VIEW: (128, 128, 128),
 }

@@ -1,0 +1,124 @@
+"""Gun clearance: would the welding gun touch the part on its way along a stud's normal?
+
+The gun approaches a stud along the surface normal, descends to it and retracts the same way,
+so the volume it sweeps is a cylinder about the stud's axis: from the surface out to the gun's
+top at the approach pose. On a convex part nothing of the part enters it; on a concave one (the
+inside of a shell, a saddle) or next to a stiffener, web or flange, the part can. The check uses
+what the camera saw: every depth pixel whose 3D point (Eq. 1) lies inside that cylinder, higher
+than ``margin_m`` above the stud along the axis (the surface the gun stands on rises a little
+under its foot on a concave part), is part of the part in the gun's way.
+
+What the depth image does not show (holes, surfaces hidden from the camera) cannot be checked:
+the result says how many samples it saw.
+
+Frames and units: `world`, metres; the cylinder's axis is the unit outward normal.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from stud_perception.camera_model import CameraModel
+from stud_planner.surface_pose import tangent_basis
+
+
+@dataclass(frozen=True)
+class GunModel:
+    """The volume the gun sweeps about a stud's axis (metres).
+
+    ``radius_m``: the gun's radius about the stud (body, foot, spark shield), ``length_m``: from
+    the surface to the gun's top at the approach pose (gun length plus the approach standoff),
+    ``margin_m``: how far above the weld point, along the axis, the part may rise under the gun.
+    """
+
+    radius_m: float = 0.03
+    length_m: float = 0.30
+    margin_m: float = 0.005
+
+    def __post_init__(self) -> None:
+        if not (self.radius_m > 0 and self.length_m > self.margin_m >= 0):
+            raise ValueError(f"gun model needs radius_m > 0 and length_m > margin_m >= 0, got {self}")
+
+
+@dataclass(frozen=True)
+class Clearance:
+    """Per stud (N,): ``clearance_m`` the distance from the gun's side to the nearest point of the
+    part inside its length (negative: that far inside the gun; when nothing rises beside the stud,
+    the farthest distance checked, a lower bound), ``along_m`` that point's height up the axis,
+    ``samples`` depth points checked; NaN / 0 where nothing was checked."""
+
+    clearance_m: np.ndarray
+    along_m: np.ndarray
+    samples: np.ndarray
+
+    @property
+    def blocked(self) -> np.ndarray:
+        return np.isfinite(self.clearance_m) & (self.clearance_m < 0)
+
+
+_RING = np.array([[1, 0], [-1, 0], [0, 1], [0, -1], [0.7071, 0.7071], [-0.7071, 0.7071], [0.7071, -0.7071],
+                  [-0.7071, -0.7071]])
+
+
+def gun_clearance(points_w: np.ndarray, normals_w: np.ndarray, depth_m: np.ndarray, camera: CameraModel,
+                  gun: GunModel = GunModel(), valid: np.ndarray | None = None, z_top_w: float = np.inf,
+                  samples_per_side: int = 48) -> Clearance:
+    """The gun's clearance at N studs: weld points ``points_w`` (N, 3) with unit outward normals
+    ``normals_w`` (N, 3), against the depth image ``depth_m`` (H, W, metres, NaN = none).
+
+    The image box the cylinder projects to is sampled on a ``samples_per_side`` square grid per
+    stud (vectorised over studs). Only the part of the cylinder below ``z_top_w``, the highest
+    world z the view shows (e.g. from :func:`stud_planner.matching.observed_z_range`), can meet
+    the part, and only that part is projected (the rest may reach behind the camera).
+    """
+    P = np.asarray(points_w, dtype=np.float64).reshape(-1, 3)
+    N = np.asarray(normals_w, dtype=np.float64).reshape(-1, 3)
+    n = P.shape[0]
+    ok = np.all(np.isfinite(P), axis=1) & np.all(np.isfinite(N), axis=1)
+    if valid is not None:
+        ok &= np.asarray(valid, dtype=bool)
+    clearance = np.full(n, np.nan)
+    along = np.full(n, np.nan)
+    samples = np.zeros(n, dtype=np.int64)
+    idx = np.flatnonzero(ok)
+    if idx.size == 0:
+        return Clearance(clearance, along, samples)
+    p, nrm = P[idx], N[idx]
+    length = np.full(idx.size, gun.length_m)
+    up = nrm[:, 2] > 1e-3
+    length[up] = np.clip((z_top_w - p[up, 2]) / nrm[up, 2] + gun.radius_m, gun.margin_m, gun.length_m)
+    t1, t2 = tangent_basis(nrm)
+    offsets = gun.radius_m * (_RING[None, :, :1] * t1[:, None, :] + _RING[None, :, 1:] * t2[:, None, :])
+    corners = np.concatenate([p[:, None] + offsets, (p + length[:, None] * nrm)[:, None] + offsets], axis=1)
+    u, v, zc = camera.world_to_pixel(corners)
+    seen = np.all(np.isfinite(u) & np.isfinite(v), axis=1)
+    u_lo, u_hi = np.clip(np.nanmin(u, axis=1), 0, camera.width - 1), np.clip(np.nanmax(u, axis=1), 0, camera.width - 1)
+    v_lo, v_hi = np.clip(np.nanmin(v, axis=1), 0, camera.height - 1), np.clip(np.nanmax(v, axis=1), 0, camera.height - 1)
+    k = int(samples_per_side)
+    g = np.linspace(0.0, 1.0, k)
+    gu, gv = np.meshgrid(g, g)
+    U = np.rint(u_lo[:, None] + gu.ravel()[None, :] * (u_hi - u_lo)[:, None]).astype(np.int64)
+    V = np.rint(v_lo[:, None] + gv.ravel()[None, :] * (v_hi - v_lo)[:, None]).astype(np.int64)
+    depth = np.asarray(depth_m)
+    d = depth[V, U].astype(np.float64)
+    have = seen[:, None] & np.isfinite(d) & (d > 0)
+    X = camera.window_to_world(np.zeros(idx.size), np.zeros(idx.size), U.astype(np.float64), V.astype(np.float64),
+                               np.where(have, d, 0.0), minus_w=p)  # (3, n, M) relative to the weld points
+    s = np.einsum("inm,ni->nm", X, nrm)
+    rho = np.sqrt(np.maximum(np.einsum("inm,inm->nm", X, X) - s * s, 0.0))
+    inside_length = have & (s > gun.margin_m) & (s < gun.length_m)
+    any_inside = inside_length.any(axis=1)
+    k_near = np.argmin(np.where(inside_length, rho, np.inf), axis=1)
+    rows = np.arange(idx.size)
+    # Nothing of the part rises beside the stud: the clearance is at least what was seen.
+    farthest = np.max(np.where(have, rho, -np.inf), axis=1)
+    clear = np.where(any_inside, rho[rows, k_near], farthest) - gun.radius_m
+    counted = have.any(axis=1)
+    clearance[idx[counted]] = clear[counted]
+    along[idx[counted & any_inside]] = s[rows, k_near][counted & any_inside]
+    samples[idx] = have.sum(axis=1)
+    return Clearance(clearance_m=clearance, along_m=along, samples=samples)
+
+
+__all__ = ["Clearance", "GunModel", "gun_clearance"]
