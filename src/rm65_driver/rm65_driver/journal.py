@@ -645,8 +645,11 @@ class Journal:
         """Check that nobody changed the files since our last write (cheap unless they did);
         raises :class:`JournalError` / :class:`JournalCorrupt` and sets :attr:`fault` if so."""
         with self._lock:
-            if self.fault is not None:
+            if isinstance(self.fault, JournalCorrupt):
                 raise self.fault
+            if self.fault is not None:
+                raise JournalError(f"the weld journal failed earlier ({self.fault}): nothing is written to it "
+                                   "until it is opened again")
             if self._stat() == self._snapshot:
                 return
             try:

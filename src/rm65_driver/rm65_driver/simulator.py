@@ -240,6 +240,7 @@ class ArmSimulator:
         self.connection_count = 0
 
         self._server: socket.socket | None = None
+        self._bound_port: int | None = None
         self._threads: list[threading.Thread] = []
         self._running = threading.Event()
         self._changed = threading.Condition(self._lock)
@@ -256,6 +257,7 @@ class ArmSimulator:
         srv.listen(8)
         srv.settimeout(0.05)
         self._server = srv
+        self._bound_port = srv.getsockname()[1]
         self._running.set()
         for target, name in ((self._accept_loop, "sim-accept"), (self._motion_loop, "sim-motion")):
             t = threading.Thread(target=target, name=name, daemon=True)
@@ -286,9 +288,8 @@ class ArmSimulator:
 
     @property
     def port(self) -> int:
-        if self._server is None:
-            return self._requested_port
-        return self._server.getsockname()[1]
+        """The bound port (also after :meth:`stop`: a restarted controller binds it again)."""
+        return self._requested_port if self._bound_port is None else self._bound_port
 
     # ------------------------------------------------------------------------------------
     # inspection (tests)
