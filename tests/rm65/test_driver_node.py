@@ -212,3 +212,143 @@ def test_estop_stop_latency_and_resolve_over_ros(sim, probe, tmp_path):
         assert call(probe, stop, Trigger.Request(), proc).success
     finally:
         assert proc.stop() == 0, proc.output()
+
+
+# -- parameters -----------------------------------------------------------------------------------
+
+
+BAD_PARAMS = [
+    ("standoff_m", "-0.1", "standoff_m=-0.1: expected a number in [0.005, 0.3]"),
+    ("joint_speed_pct", "1000", "joint_speed_pct=1000: expected an integer in [1, 100]"),
+    ("pulse_s", ".nan", "pulse_s=nan: expected a number in [0.0, 5.0]"),
+    ("tcp_port", "0", "tcp_port=0: expected an integer in [1, 65535]"),
+    ("standoff_m", "1", "standoff_m=1 (int): expected a number in [0.005, 0.3]"),
+    ("hand_eye_xyz_m", "[0.0,.inf,0.0]", "hand_eye_xyz_m=[0.0, inf, 0.0]: expected a list of numbers, finite"),
+    ("workspace_min_m", "[0.0,0.0,2.0]",
+     "workspace_min_m=[0.0, 0.0, 2.0] must be below workspace_max_m=[0.7, 0.7, 1.1] on every axis"),
+    ("stud_axis", "[0.0,0.0,0.0]", "combination refused by the weld job: stud_axis must be a non-zero vector"),
+]
+
+
+def test_bad_parameters_end_the_driver_with_one_line_naming_them_and_exit_code_2(tmp_path):
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO / "src" / "rm65_driver"),
+                                                       str(REPO / "src" / "stud_perception"),
+                                                       os.environ.get("PYTHONPATH", "")]))
+    procs = [subprocess.Popen([sys.executable, "-m", "rm65_driver.driver_node", "--ros-args",
+                               "-p", f"journal_file:={tmp_path / f'j{i}.jsonl'}", "-p", f"{name}:={value}"],
+                              env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+             for i, (name, value, _) in enumerate(BAD_PARAMS)]
+    for proc, (name, value, expected) in zip(procs, BAD_PARAMS):
+        out, _ = proc.communicate(timeout=60)
+        lines = [x for x in out.splitlines() if x.strip()]
+        assert proc.returncode == 2, (name, value, out)
+        assert len(lines) == 1 and "Traceback" not in out, out
+        assert "[FATAL]" in lines[0] and f"bad parameter {expected}" in lines[0], lines[0]
+
+
+# -- a damaged journal, the driver restarted ----------------------------------------------------
+
+
+def _weld_in_process(sim, journal_path, targets):
+    """The first job, as a driver that crashed afterwards left it: every target welded once."""
+    from rm65_driver.arm_client import ArmClient
+    from rm65_driver.journal import Journal
+    from rm65_driver.safety import SafetyChecker, SafetyLimits
+    from rm65_driver.weld_sequence import WeldParams, WeldSequence
+
+    params = WeldParams(standoff_m=0.04, pulse_s=0.01, dwell_s=0.01, joint_speed_pct=50, linear_speed_pct=20)
+    with ArmClient("127.0.0.1", sim.port) as client, Journal(journal_path) as journal:
+        client.connect()
+        seq = WeldSequence(client, journal, SafetyChecker(RM65Kinematics(), SafetyLimits(), params.tool_T), params)
+        assert seq.run(targets).success
+
+
+def _random_bytes(path):
+    path.write_bytes(np.random.default_rng(14).integers(0, 256, 4096, dtype=np.uint8).tobytes())
+
+
+def _nul_block(path):  # over the third stud's two lines (records 5 and 6)
+    data = path.read_bytes()
+    lines = data.split(b"\n")
+    start = sum(len(x) + 1 for x in lines[:4])
+    n = len(lines[4]) + len(lines[5]) + 1
+    path.write_bytes(data[:start] + b"\0" * n + data[start + n:])
+
+
+def _torn_tail(path):  # power cut while the next stud's 'started' was being written
+    with open(path, "ab") as f:
+        f.write(b'{"seq":17,"event":"started","stud":"S0008","job":"2026')
+
+
+def _run_job(probe, action, targets, proc, resume=True):
+    fut = action.send_goal_async(WeldJob.Goal(targets=[weld_target_msg(t) for t in targets], resume=resume))
+    spin_until(probe, fut.done, 20, "goal response", proc)
+    handle = fut.result()
+    assert handle.accepted
+    rfut = handle.get_result_async()
+    spin_until(probe, rfut.done, 60, "job result", proc)
+    return rfut.result().result
+
+
+@pytest.mark.parametrize("damage", ["random_bytes", "nul_block", "torn_tail"])
+def test_damaged_journal_then_driver_restart_never_repeats_a_weld(sim, probe, tmp_path, damage):
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    from stud_welding_msgs.srv import ResolveJournal
+
+    journal_path = tmp_path / "journal.jsonl"
+    targets = dome_targets(rings=((0.0, 1), (0.05, 7)))
+    _weld_in_process(sim, journal_path, targets)
+    assert len(sim.rising_edges(1)) == 8
+    {"random_bytes": _random_bytes, "nul_block": _nul_block, "torn_tail": _torn_tail}[damage](journal_path)
+
+    proc = NodeProc(sim.port, tmp_path, pulse_s=0.01, dwell_s=0.01, standoff_m=0.04, state_rate_hz=20.0,
+                    joint_speed_pct=50, linear_speed_pct=20)
+    try:
+        states, diags = [], []
+        probe.create_subscription(ArmState, "/arm/state", states.append, RELIABLE_10)
+        probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, RELIABLE_10)
+        action = ActionClient(probe, WeldJob, "/arm/weld_job")
+        spin_until(probe, lambda: states and states[-1].connected and action.server_is_ready(), 30, "driver", proc)
+        extra = dome_targets(rings=((0.10, 1),))[0]
+        extra = type(extra)("S0008", extra.position, extra.normal)
+        if damage == "torn_tail":
+            # tolerated: no FAULT; the torn record's stud is uncertain and not welded without a decision
+            assert states[-1].mode == ArmState.MODE_IDLE, states[-1].message
+            res = _run_job(probe, action, targets + [extra], proc)
+            assert list(res.welded) == [t.stud_id for t in targets] and list(res.failed) == ["S0008"]
+            assert "operator decision" in res.messages[-1]
+            assert len(sim.rising_edges(1)) == 8
+            resolve = probe.create_client(ResolveStud, "/arm/resolve_stud")
+            r = call(probe, resolve, ResolveStud.Request(stud_id="S0008",
+                                                         decision=ResolveStud.Request.DECISION_NOT_WELDED), proc)
+            assert r.success, r.message
+            res = _run_job(probe, action, targets + [extra], proc)
+            assert res.success and len(res.welded) == 9 and len(sim.rising_edges(1)) == 9
+            return
+
+        spin_until(probe, lambda: states[-1].mode == ArmState.MODE_FAULT, 10, "FAULT", proc)
+        msg = states[-1].message
+        where = "lines 1-" if damage == "random_bytes" else "line 5 (not JSON"
+        assert f"weld journal {journal_path} is damaged: {where}" in msg, msg
+        spin_until(probe, lambda: any(s.level == DiagnosticStatus.ERROR and "weld journal FAULT" in s.message
+                                      for d in diags for s in d.status), 10, "/diagnostics ERROR", proc)
+        res = _run_job(probe, action, targets, proc)  # refused with the reason, nothing moves
+        assert not res.success and "weld journal FAULT" in res.message and str(journal_path) in res.message
+        assert not res.welded and len(sim.rising_edges(1)) == 8
+
+        resolve = probe.create_client(ResolveJournal, "/arm/resolve_journal")
+        act = (ResolveJournal.Request.ACTION_LOAD_BACKUP if damage == "random_bytes"
+               else ResolveJournal.Request.ACTION_ACCEPT_INTACT)
+        r = call(probe, resolve, ResolveJournal.Request(action=act, note="test"), proc)
+        assert r.success, r.message
+        spin_until(probe, lambda: states[-1].mode != ArmState.MODE_FAULT, 10, "FAULT cleared", proc)
+        assert list(tmp_path.glob("journal.jsonl.corrupt-*"))
+        res = _run_job(probe, action, targets, proc)
+        if damage == "random_bytes":  # the mirror loaded: every stud known welded
+            assert res.success and list(res.welded) == [t.stud_id for t in targets], res.message
+        else:  # accepted the two studs before the NUL block; the rest (the mirror knows them) uncertain
+            assert list(res.welded) == ["S0000", "S0001"] and list(res.failed) == [t.stud_id for t in targets[2:]]
+        assert len(sim.rising_edges(1)) == 8  # no stud welded twice, counted at the simulator
+        assert set(welds_per_stud(sim, targets).values()) == {1}
+    finally:
+        assert proc.stop() == 0, proc.output()

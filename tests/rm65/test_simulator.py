@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import socket
+import struct
+import threading
 import time
 
 import numpy as np
@@ -303,3 +305,64 @@ def test_cli_rejects_a_busy_port(capsys):
     with ArmSimulator(port=0) as s:
         assert main(["--port", str(s.port)]) == 2
     assert "cannot start" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("raw_msg, code", [
+    (P.encode(P.movel([1e300, 0.0, 0.3, 3.14, 0.0, 0.0], 20)), 0x1003),
+    (P.encode(P.movej_p([1e300, 0.0, 0.3, 3.14, 0.0, 0.0], 20)), 0x1003),
+    (b'{"command":"movel","v":20,"pose":[' + b"9" * 400 + b',0,0,0,0,0],"trajectory_connect":0}\r\n', 0x1003),
+    (b'{"command":"movel","v":20,"pose":[NaN,0,300000,3140,0,0],"trajectory_connect":0}\r\n', 0x1003),
+    (b'{"command":"movej_p","v":20,"pose":[1e400,0,0,0,0,0],"trajectory_connect":0}\r\n', 0x1003),
+    (b'{"command":"movel","v":20,"pose":[300000,0,200000,1e300,0,0],"trajectory_connect":0}\r\n', 0x1003),
+    (P.encode(P.movel([2.0, 0.0, 0.3, 3.14, 0.0, 0.0], 20)), 0x1003),  # finite, far out of reach
+    (b'{"command":"movej","v":20,"joint":[' + b"9" * 400 + b',0,0,0,0,0],"trajectory_connect":0}\r\n', 0x1002),
+    (b'{"command":"movej","v":20,"joint":[Infinity,0,0,0,0,0],"trajectory_connect":0}\r\n', 0x1002),
+], ids=["movel-1e300m", "movej_p-1e300m", "movel-400-digits", "movel-NaN", "movej_p-1e400", "movel-1e300rad",
+        "movel-2m-away", "movej-400-digits", "movej-Infinity"])
+def test_absurd_targets_are_refused_like_unreachable_ones_and_the_connection_survives(raw, sim, raw_msg, code):
+    q = sim.joints
+    [reply] = raw.ask(raw_msg)
+    assert reply["receive_state"] is False
+    assert P.parse_arm_state(raw.ask(P.get_current_arm_state())[0]).error_codes == (code,)
+    assert raw.ask(P.get_joint_degree())[0]["state"] == "joint_degree"  # same connection, still served
+    assert not sim.moving and np.allclose(sim.joints, q)
+
+
+def test_200_simultaneous_connections_open_without_a_retry(sim):
+    """A short listen backlog drops the SYNs of a burst of clients, which then retry after 1, 3, 7 s
+    (20 s for 200 clients was seen). No client may need a retransmission (Linux TCP_INFO)."""
+    socks, errors = [], []
+    lock = threading.Lock()
+
+    def one():
+        try:
+            s = socket.create_connection(("127.0.0.1", sim.port), timeout=30)
+            s.settimeout(30)
+            s.sendall(P.encode(P.get_joint_degree()))
+            assert b"joint_degree" in s.recv(65536)
+            with lock:
+                socks.append(s)
+        except (OSError, AssertionError) as exc:
+            with lock:
+                errors.append(exc)
+
+    t0 = time.monotonic()
+    threads = [threading.Thread(target=one) for _ in range(200)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    elapsed = time.monotonic() - t0
+    try:
+        assert not errors and len(socks) == 200
+        assert sim.client_count == 200
+        if hasattr(socket, "TCP_INFO"):
+            # struct tcp_info: 8 bytes of u8 fields, then u32s; tcpi_total_retrans is the 24th
+            retrans = [struct.unpack_from("I", s.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, 104), 100)[0]
+                       for s in socks]
+            assert sum(1 for r in retrans if r) == 0, f"{sum(1 for r in retrans if r)} clients had to retransmit"
+        assert elapsed < 10.0
+    finally:
+        for s in socks:
+            s.close()
+    assert wait_for(lambda: sim.client_count == 0, 10)

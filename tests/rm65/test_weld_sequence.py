@@ -1,7 +1,9 @@
 """WeldSequence end to end against the simulator: jobs, rejections, errors, drops, stops."""
 from __future__ import annotations
 
+import errno
 import json
+import os
 import threading
 import time
 
@@ -12,8 +14,9 @@ from rm65_driver import protocol as P
 from rm65_driver.journal import Journal
 from rm65_driver.kinematics import RM65Kinematics
 from rm65_driver.safety import SafetyChecker, SafetyLimits
+from rm65_driver.simulator import ArmSimulator
 from rm65_driver.weld_sequence import StudTarget, WeldParams, WeldSequence
-from rm65_testing import dome_targets, wait_for, welds_per_stud
+from rm65_testing import FAST, dome_targets, wait_for, welds_per_stud
 
 PARAMS = WeldParams(standoff_m=0.04, tool_offset_m=0.15, pulse_s=0.01, dwell_s=0.01, joint_speed_pct=50,
                     linear_speed_pct=20, motion_timeout_s=5.0, reconnect_timeout_s=3.0)
@@ -238,3 +241,74 @@ def test_job_refused_for_speed_caps_and_a_foreign_work_frame(client, sim, tmp_pa
     assert not res.success and "not the base frame" in res.message
     with pytest.raises(ValueError):
         WeldParams(on_disconnect="retry")
+
+
+def test_controller_restart_mid_pulse_sets_the_controller_up_again_and_the_job_goes_on(client, sim, tmp_path):
+    """The controller restarts (a new simulator on the same port) while the trigger is high: the new
+    one comes up with its IO in input mode and the factory tool frame. The job reconnects, sets
+    both again, leaves the cut-off stud uncertain (never re-welded) and welds the rest."""
+    targets = dome_targets(rings=((0.0, 1), (0.05, 4)))
+    params = WeldParams(**{**PARAMS.__dict__, "pulse_s": 0.3})
+    seq, journal = make_seq(client, tmp_path, params=params)
+    out = {}
+    job = threading.Thread(target=lambda: out.setdefault("res", seq.run(targets)))
+    job.start()
+    sims = [sim]
+    try:
+        assert sim.wait_until(lambda: len(sim.rising_edges(1)) == 2 and sim.do_state(1) == 1, 20)  # S0001 firing
+        q = sim.joints
+        sim.stop()
+        restarted = ArmSimulator(port=sim.port, time_scale=FAST, initial_joints_deg=np.degrees(q)).start()
+        sims.append(restarted)
+        job.join(30)
+        res = out["res"]
+        assert res.welded == ["S0000", "S0002", "S0003", "S0004"], res.message
+        assert res.failed == ["S0001"] and "uncertain" in res.messages[0]
+        assert journal.uncertain_ids == {"S0001"}
+        counts = {t.stud_id: sum(welds_per_stud(s, targets)[t.stud_id] for s in sims) for t in targets}
+        assert counts == {t.stud_id: 1 for t in targets}  # the cut-off stud fired once, before the restart
+        names = restarted.command_names()
+        assert names.index("set_IO_mode") < names.index("set_DO_state")  # output mode before driving it low
+        assert "set_manual_tool_frame" in names and restarted.do_state(1) == 0
+    finally:
+        for s in sims:
+            s.stop()
+
+
+@pytest.mark.parametrize("record, uncertain", [("started", False), ("welded", True)])
+def test_a_journal_write_that_fails_stops_the_job_before_its_next_motion(client, sim, tmp_path, monkeypatch, record,
+                                                                          uncertain):
+    targets = dome_targets(rings=((0.0, 1), (0.05, 3)))
+    seq, journal = make_seq(client, tmp_path)
+    real_write = os.write
+    at_failure = {}
+
+    def disk_full(fd, data):
+        if f'"event":"{record}","stud":"S0001"'.encode() in bytes(data):
+            at_failure["commands"] = len(sim.commands)
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_write(fd, data)
+
+    monkeypatch.setattr(os, "write", disk_full)
+    res = seq.run(targets)
+    assert not res.success and res.welded == ["S0000"] and res.failed == ["S0001"]
+    assert "No space left on device" in res.message and "weld.jsonl" in res.message
+    after = [c.name for c in sim.commands[at_failure["commands"]:]]
+    assert not set(after) & {"movej", "movel", "movej_p"}, after  # nothing moved after the failed write
+    assert len(sim.rising_edges(1)) == (2 if uncertain else 1) and sim.do_state(1) == 0
+    assert journal.status("S0001") == ("uncertain" if uncertain else "new")
+    # the journal refuses to go on until it is opened again (the driver's FAULT): no new job moves
+    monkeypatch.setattr(os, "write", real_write)
+    n = len(sim.commands_named("movej"))
+    res2 = seq.run(targets)
+    assert "job refused" in res2.message and "failed earlier" in res2.message
+    assert len(sim.commands_named("movej")) == n
+
+
+def test_every_journal_record_of_a_job_carries_its_job_id(client, sim, tmp_path):
+    seq, journal = make_seq(client, tmp_path)
+    res = seq.run(dome_targets(rings=((0.0, 1), (0.05, 1))))
+    res2 = seq.run([StudTarget("FAR", [0.50, 0.0, 0.0], [0, 0, 1])])
+    recs = [json.loads(x) for x in (tmp_path / "weld.jsonl").read_text().splitlines()]
+    assert res.job_id and res2.job_id != res.job_id
+    assert [r["job"] for r in recs] == [res.job_id] * 4 + [res2.job_id]

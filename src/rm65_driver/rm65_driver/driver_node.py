@@ -13,8 +13,19 @@ Interfaces
   action     /arm/weld_job (stud_welding_msgs/action/WeldJob); a cancel is graceful (see
              weld_sequence: motions before the trigger stop at once, a started weld completes).
   services   /arm/stop, /arm/pause, /arm/resume, /arm/estop (std_srvs/Trigger);
-             /arm/resolve_stud (stud_welding_msgs/srv/ResolveStud).
+             /arm/resolve_stud (stud_welding_msgs/srv/ResolveStud);
+             /arm/resolve_journal (stud_welding_msgs/srv/ResolveJournal).
   subscribes /arm/estop (std_msgs/Bool): true engages the e-stop latch, false releases it.
+
+Weld-journal FAULT: a journal found damaged at start-up (anything but a torn last line), or one
+that fails or changes while the driver runs, puts the driver in ``ArmState.MODE_FAULT``;
+``/arm/state.message`` and ``/diagnostics`` (ERROR) name the file and the lines. Every weld job is
+aborted at once with that message until an operator resolves it with /arm/resolve_journal
+(accept the intact part, or load the intact copy); see :func:`.journal.repair_journal`.
+
+Parameters are checked at start-up, each against its range and all together against what the
+weld job accepts (:class:`WeldParams`, :class:`SafetyLimits`): a bad value ends the node with one
+line naming it and exit code 2.
 
 The e-stop here is a *software* stop (``set_arm_stop`` + trigger output low + a latch that refuses
 new jobs until released). It is not a safety-rated emergency stop: the cell's hardware e-stop
@@ -43,14 +54,14 @@ from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
 from stud_welding_msgs.msg import ArmState, WeldTarget
-from stud_welding_msgs.srv import MoveTo, ResolveStud
+from stud_welding_msgs.srv import MoveTo, ResolveJournal, ResolveStud
 
 from stud_perception import ros_io
 from stud_perception.ros_io import Param
 
 from . import protocol as P
 from .arm_client import ArmClient, ArmError
-from .journal import Journal, JournalError
+from .journal import ACTION_ACCEPT_INTACT, ACTION_LOAD_BACKUP, Journal, JournalCorrupt, JournalError, repair_journal
 from .kinematics import D6_BY_VARIANT, DHModel, RM65Kinematics, euler_zyx_to_matrix
 from .safety import SafetyChecker, SafetyLimits
 from .weld_sequence import JobResult, StudTarget, WeldParams, WeldSequence
@@ -118,6 +129,39 @@ PARAMS = [
 ]
 
 
+#: ResolveJournal.action -> journal.repair_journal action
+JOURNAL_ACTIONS = {ResolveJournal.Request.ACTION_ACCEPT_INTACT: ACTION_ACCEPT_INTACT,
+                   ResolveJournal.Request.ACTION_LOAD_BACKUP: ACTION_LOAD_BACKUP}
+
+
+def job_config(p: dict) -> tuple[WeldParams, SafetyLimits]:
+    """The weld job's parameters and limits from the node's parameter values (raises ValueError)."""
+    params = WeldParams(
+        standoff_m=p["standoff_m"], tool_offset_m=p["tool_offset_m"], plunge_m=p["plunge_m"],
+        tool_payload_kg=p["tool_payload_kg"], tool_frame_name=p["tool_frame_name"], trigger_io=p["trigger_io"],
+        trigger_on_tool=p["trigger_on_tool"], set_io_mode=p["set_io_mode"], pulse_s=p["pulse_s"],
+        dwell_s=p["dwell_s"], joint_speed_pct=p["joint_speed_pct"], linear_speed_pct=p["linear_speed_pct"],
+        motion_timeout_s=p["motion_timeout_s"], reconnect_timeout_s=p["reconnect_timeout_s"],
+        on_disconnect=p["on_disconnect"])
+    limits = SafetyLimits(
+        workspace_min_m=tuple(p["workspace_min_m"]), workspace_max_m=tuple(p["workspace_max_m"]),
+        max_tool_tilt_deg=p["max_tool_tilt_deg"], yaw_step_deg=p["yaw_step_deg"],
+        max_joint_speed_pct=p["max_joint_speed_pct"], max_linear_speed_pct=p["max_linear_speed_pct"])
+    return params, limits
+
+
+def job_config_problem(p: dict) -> str | None:
+    """Why the weld job would refuse these parameter values together (None: it accepts them)."""
+    lo, hi = list(p["workspace_min_m"]), list(p["workspace_max_m"])
+    if len(lo) == len(hi) == 3 and any(a >= b for a, b in zip(lo, hi)):
+        return f"workspace_min_m={lo} must be below workspace_max_m={hi} on every axis (x, y, z)"
+    try:
+        job_config(p)
+    except ValueError as exc:
+        return f"combination refused by the weld job: {exc}"
+    return None
+
+
 # -- message <-> core conversions --------------------------------------------------------------
 
 
@@ -150,20 +194,18 @@ def result_to_msg(res: JobResult, pre_skipped: list[tuple[str, str]]) -> WeldJob
 class DriverNode(Node):
     def __init__(self) -> None:
         super().__init__("rm65_driver")
-        self.p = ros_io.declare_params(self, PARAMS)
+        self.p = ros_io.declare_params(self, PARAMS, check=job_config_problem)
         p = self.p
         self.kin = RM65Kinematics(dh=DHModel.rm65(D6_BY_VARIANT[p["arm_variant"]]))
         self.client = ArmClient(p["arm_ip"], p["tcp_port"], p["connect_timeout_s"], p["reply_timeout_s"])
-        journal_path = Path(p["journal_file"] or _default_journal()).expanduser()
+        self.journal_path = Path(p["journal_file"] or _default_journal()).expanduser()
+        self.journal: Journal | None = None
+        self._journal_fault: JournalError | None = None  # damage found when opening (the FAULT)
         try:
-            self.journal = Journal(journal_path)
-        except (OSError, JournalError) as exc:
-            self.get_logger().fatal(f"cannot open the weld journal '{journal_path}': {exc}")
+            self._open_journal()
+        except OSError as exc:
+            self.get_logger().fatal(f"cannot open the weld journal '{self.journal_path}': {exc}")
             raise SystemExit(2) from None
-        for w in self.journal.warnings:
-            self.get_logger().warn(f"weld journal: {w}")
-        self.get_logger().info(f"weld journal {journal_path}: {len(self.journal.welded_ids)} welded, "
-                               f"{len(self.journal.uncertain_ids)} uncertain stud(s)")
         self.sequence: WeldSequence | None = None
         self._job_lock = threading.Lock()
         self._estop = False
@@ -183,6 +225,7 @@ class DriverNode(Node):
         self.create_service(Trigger, "/arm/resume", self._on_resume, callback_group=group)
         self.create_service(Trigger, "/arm/estop", self._on_estop_srv, callback_group=group)
         self.create_service(ResolveStud, "/arm/resolve_stud", self._on_resolve, callback_group=group)
+        self.create_service(ResolveJournal, "/arm/resolve_journal", self._on_resolve_journal, callback_group=group)
         self.create_service(MoveTo, "/arm/move_to", self._on_move_to, callback_group=group)
         self.create_subscription(Bool, "/arm/estop", self._on_estop_topic, 10, callback_group=group)
         self.action = ActionServer(self, WeldJob, "/arm/weld_job", execute_callback=self._execute,
@@ -196,20 +239,36 @@ class DriverNode(Node):
                                f"state at {p['state_rate_hz']:.1f} Hz, trigger DO{p['trigger_io']}"
                                f"{' (tool)' if p['trigger_on_tool'] else ''}")
 
+    # -- the weld journal ------------------------------------------------------------------------
+    def _open_journal(self) -> None:
+        """Open the journal; damage puts the driver in FAULT instead (OSError: cannot read it at all)."""
+        try:
+            self.journal = Journal(self.journal_path)
+        except JournalCorrupt as exc:
+            self.journal, self._journal_fault = None, exc
+            self.get_logger().error(f"FAULT: {exc}")
+            return
+        self._journal_fault = None
+        for w in self.journal.warnings:
+            self.get_logger().warn(f"weld journal: {w}")
+        self.get_logger().info(f"weld journal {self.journal_path}: {len(self.journal.welded_ids)} welded, "
+                               f"{len(self.journal.uncertain_ids)} uncertain stud(s)")
+
+    @property
+    def journal_fault(self) -> JournalError | None:
+        """Why the journal cannot be trusted or written now (None: it can)."""
+        if self._journal_fault is not None:
+            return self._journal_fault
+        j = self.journal
+        return j.fault if j is not None else None
+
+    def _fault_text(self, fault: JournalError) -> str:
+        return f"weld journal FAULT: {fault} (weld jobs refused until /arm/resolve_journal)"
+
     # -- configuration per job ------------------------------------------------------------------
     def _make_sequence(self) -> WeldSequence:
-        p = self.p
-        params = WeldParams(
-            standoff_m=p["standoff_m"], tool_offset_m=p["tool_offset_m"], plunge_m=p["plunge_m"],
-            tool_payload_kg=p["tool_payload_kg"], tool_frame_name=p["tool_frame_name"], trigger_io=p["trigger_io"],
-            trigger_on_tool=p["trigger_on_tool"], set_io_mode=p["set_io_mode"], pulse_s=p["pulse_s"],
-            dwell_s=p["dwell_s"], joint_speed_pct=p["joint_speed_pct"], linear_speed_pct=p["linear_speed_pct"],
-            motion_timeout_s=p["motion_timeout_s"], reconnect_timeout_s=p["reconnect_timeout_s"],
-            on_disconnect=p["on_disconnect"])
-        limits = SafetyLimits(
-            workspace_min_m=tuple(p["workspace_min_m"]), workspace_max_m=tuple(p["workspace_max_m"]),
-            max_tool_tilt_deg=p["max_tool_tilt_deg"], yaw_step_deg=p["yaw_step_deg"],
-            max_joint_speed_pct=p["max_joint_speed_pct"], max_linear_speed_pct=p["max_linear_speed_pct"])
+        params, limits = job_config(self.p)
+        assert self.journal is not None
         return WeldSequence(self.client, self.journal, SafetyChecker(self.kin, limits, params.tool_T), params)
 
     @property
@@ -261,6 +320,8 @@ class DriverNode(Node):
         seq = self.sequence
         if self._estop:
             return ArmState.MODE_ESTOP
+        if self.journal_fault is not None:
+            return ArmState.MODE_FAULT
         if not self.client.connected:
             return ArmState.MODE_DISCONNECTED
         if reading is not None and reading.error_codes:
@@ -281,7 +342,8 @@ class DriverNode(Node):
         seq = self.sequence
         if seq is not None and seq.running:
             msg.current_stud, msg.done, msg.total = seq.current_stud, seq.done, seq.total
-        msg.message = self._message
+        fault = self.journal_fault
+        msg.message = self._fault_text(fault) if fault is not None else self._message
         if reading is not None:
             self._last_state = reading
             T_tool = self.kin.fk(reading.joints_rad) @ self.tool_T  # weld_tool in world, whatever the controller's tool frame
@@ -312,16 +374,22 @@ class DriverNode(Node):
 
     def _update_diagnostics(self, msg: ArmState) -> None:
         d = self.diag
+        journal, fault = self.journal, self.journal_fault
         values = dict(connected=msg.connected, mode=msg.mode, job=f"{msg.done}/{msg.total}",
                       current_stud=msg.current_stud, errors="; ".join(msg.errors) or "none",
-                      uncertain_studs=len(self.journal.uncertain_ids))
+                      uncertain_studs=len(journal.uncertain_ids) if journal is not None else "unknown",
+                      journal_file=str(self.journal_path),
+                      journal_damaged_lines=(", ".join(f"{Path(f).name}:{n}" for f, n in fault.report.lines[:20])
+                                             if isinstance(fault, JournalCorrupt) else "none"))
         if self._estop:
             d.set(d.ERROR, "e-stop engaged (publish false on /arm/estop to release)", **values)
+        elif fault is not None:
+            d.set(d.ERROR, self._fault_text(fault), **values)
         elif not msg.connected:
             d.set(d.ERROR, f"controller not connected: {self.client.last_error}", **values)
         elif msg.errors:
             d.set(d.ERROR, "controller error: " + "; ".join(msg.errors), **values)
-        elif self.journal.uncertain_ids:
+        elif journal is not None and journal.uncertain_ids:
             d.set(d.WARN, "uncertain studs need an operator decision (/arm/resolve_stud)", **values)
         else:
             d.set(d.OK, "connected", **values)
@@ -335,6 +403,8 @@ class DriverNode(Node):
         if seq is not None and seq.running:
             self.get_logger().warn("weld job rejected: a job is already running")
             return GoalResponse.REJECT
+        if self.journal_fault is not None:  # accepted, to be aborted with the reason (a rejection carries none)
+            self.get_logger().warn("weld job refused: the weld journal is in FAULT")
         return GoalResponse.ACCEPT
 
     def _on_cancel(self, _goal_handle) -> CancelResponse:
@@ -346,6 +416,11 @@ class DriverNode(Node):
 
     def _execute(self, goal_handle) -> WeldJob.Result:
         goal = goal_handle.request
+        fault = self.journal_fault
+        if fault is not None:
+            out = WeldJob.Result(success=False, message=f"refused: {self._fault_text(fault)}")
+            goal_handle.abort()
+            return out
         targets, pre_skipped = [], []
         for t in goal.targets:
             st, why = target_from_msg(t)
@@ -372,6 +447,8 @@ class DriverNode(Node):
                 seq.halt("internal error")
                 res = JobResult(message=f"internal error: {exc!r}")
         self._message = res.message
+        if self.journal_fault is not None:
+            self.get_logger().error(f"FAULT: {self.journal_fault}")
         out = result_to_msg(res, pre_skipped)
         if goal_handle.is_cancel_requested:
             goal_handle.canceled()
@@ -379,9 +456,13 @@ class DriverNode(Node):
             goal_handle.succeed()
         else:
             goal_handle.abort()
-        level = self.get_logger().info if res.success else self.get_logger().warn
-        level(f"weld job ended: {res.message}; welded {len(out.welded)}, skipped {len(out.skipped)}, "
-              f"failed {len(out.failed)}")
+        summary = (f"weld job ended: {res.message}; welded {len(out.welded)}, skipped {len(out.skipped)}, "
+                   f"failed {len(out.failed)}")
+        # one severity per call site: rclpy refuses a logging call whose severity changes between calls
+        if res.success:
+            self.get_logger().info(summary)
+        else:
+            self.get_logger().warn(summary)
         return out
 
     # -- services ---------------------------------------------------------------------------------
@@ -479,6 +560,10 @@ class DriverNode(Node):
             self.get_logger().warn("e-stop released from /arm/estop topic")
 
     def _on_resolve(self, req, resp):
+        if self.journal is None or self.journal_fault is not None:
+            resp.success = False
+            resp.message = f"{self._fault_text(self.journal_fault)}: resolve the journal first"  # type: ignore[arg-type]
+            return resp
         welded = req.decision == ResolveStud.Request.DECISION_WELDED
         if req.decision not in (ResolveStud.Request.DECISION_WELDED, ResolveStud.Request.DECISION_NOT_WELDED):
             resp.success, resp.message = False, f"unknown decision {req.decision}"
@@ -492,6 +577,45 @@ class DriverNode(Node):
             resp.success, resp.message = False, str(exc)
         return resp
 
+    def _on_resolve_journal(self, req, resp):
+        resp.success, resp.message = self.resolve_journal(req.action, req.note)
+        if resp.success:
+            self.get_logger().warn(f"resolve_journal: {resp.message}")
+        else:
+            self.get_logger().error(f"resolve_journal: {resp.message}")
+        return resp
+
+    def resolve_journal(self, action_code: int, note: str) -> tuple[bool, str]:
+        """Leave the journal FAULT by an operator's ``action_code`` (ResolveJournal.ACTION_*)."""
+        action = JOURNAL_ACTIONS.get(action_code)
+        if action is None:
+            return False, f"unknown action {action_code}: expected {sorted(JOURNAL_ACTIONS)}"
+        if self.journal_fault is None:
+            return False, f"the weld journal {self.journal_path} is not in FAULT: nothing to resolve"
+        seq = self.sequence
+        if seq is not None and seq.running:
+            return False, "a weld job is running"
+        with self._job_lock:
+            if self.journal is not None:
+                self.journal.close()  # it failed or changed while open: read it again from the disk
+                self.journal = None
+            done = ""
+            try:
+                done = repair_journal(self.journal_path, action, note=note or "operator via /arm/resolve_journal")
+            except (JournalError, OSError) as exc:
+                done = f"not repaired: {exc}"
+            try:
+                self._open_journal()
+            except OSError as exc:
+                self._journal_fault = JournalError(f"cannot open the weld journal {self.journal_path}: {exc}")
+        fault = self.journal_fault
+        if fault is not None:
+            return False, f"{done}; still in FAULT: {fault}"
+        assert self.journal is not None
+        self._message = f"weld journal resolved ({action}): {done}"
+        return True, (f"{done}; journal: {len(self.journal.welded_ids)} welded, "
+                      f"{len(self.journal.uncertain_ids)} uncertain stud(s)")
+
     # -- shutdown ---------------------------------------------------------------------------------
     def shutdown(self) -> None:
         self._running = False
@@ -501,7 +625,8 @@ class DriverNode(Node):
             seq.halt("driver shutting down")
         self._poller.join(timeout=2.0)
         self.client.close()
-        self.journal.close()
+        if self.journal is not None:
+            self.journal.close()
 
 
 def main(args=None) -> int:

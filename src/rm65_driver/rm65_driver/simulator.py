@@ -12,7 +12,8 @@ The arm moves in (scaled) real time: a joint move lasts as long as the slowest j
 speed; ``time_scale`` multiplies every duration (0.02 makes tests 50x faster). Targets outside
 the joint limits are refused with ``receive_state:false`` and error 0x1002 in the state,
 unreachable poses with 0x1003 (the exact channel is [UNCERTAIN] in the docs; this is the one
-the official SDK reports as "refused", §3).
+the official SDK reports as "refused", §3). Numbers no arm can reach -- non-finite, too large for
+a float, a flange beyond the working sphere -- are refused the same way at once, before any IK.
 
 For tests: every received command is recorded with its arrival time (``commands``), every
 digital-output change with the tool pose at that instant (``do_events``,
@@ -30,9 +31,9 @@ from __future__ import annotations
 import argparse
 import collections
 import logging
-import select
 import signal
 import socket
+import struct
 import sys
 import threading
 import time
@@ -240,6 +241,7 @@ class ArmSimulator:
         self.connection_count = 0
 
         self._server: socket.socket | None = None
+        self._bound_port: int | None = None
         self._threads: list[threading.Thread] = []
         self._running = threading.Event()
         self._changed = threading.Condition(self._lock)
@@ -253,9 +255,11 @@ class ArmSimulator:
         srv = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         srv.bind((self.host, self._requested_port))
-        srv.listen(8)
+        # A short backlog drops the SYNs of a burst of clients, which then retry after 1, 3, 7 s...
+        srv.listen(socket.SOMAXCONN)
         srv.settimeout(0.05)
         self._server = srv
+        self._bound_port = srv.getsockname()[1]
         self._running.set()
         for target, name in ((self._accept_loop, "sim-accept"), (self._motion_loop, "sim-motion")):
             t = threading.Thread(target=target, name=name, daemon=True)
@@ -286,9 +290,8 @@ class ArmSimulator:
 
     @property
     def port(self) -> int:
-        if self._server is None:
-            return self._requested_port
-        return self._server.getsockname()[1]
+        """The bound port (also after :meth:`stop`: a restarted controller binds it again)."""
+        return self._requested_port if self._bound_port is None else self._bound_port
 
     # ------------------------------------------------------------------------------------
     # inspection (tests)
@@ -442,7 +445,11 @@ class ArmSimulator:
                 sock.close()
                 continue
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            sock.settimeout(2.0)
+            # Blocking reads: _Conn.close (a drop, stop()) shuts the socket down, which ends recv;
+            # no per-connection polling, so hundreds of clients cost nothing while idle.
+            sock.settimeout(None)
+            # ...but a client that stops reading must not block the replies to everyone else for ever
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, struct.pack("ll", 2, 0))
             with self._lock:
                 conn = _Conn(self._next_conn_id, sock, peer)
                 self._next_conn_id += 1
@@ -450,17 +457,11 @@ class ArmSimulator:
                 self.connection_count += 1
             t = threading.Thread(target=self._serve, args=(conn,), name=f"sim-conn-{conn.id}", daemon=True)
             t.start()
-            self._threads.append(t)
+            self._threads = [x for x in self._threads if x.is_alive()] + [t]
 
     def _serve(self, conn: _Conn) -> None:
         try:
             while self._running.is_set() and conn.alive:
-                try:
-                    ready, _, _ = select.select([conn.sock], [], [], 0.05)
-                except (OSError, ValueError):
-                    break
-                if not ready:
-                    continue
                 try:
                     data = conn.sock.recv(65536)
                 except (OSError, ValueError):
@@ -517,7 +518,7 @@ class ArmSimulator:
             else:
                 try:
                     reply = handler(conn, msg, fault) if name in P.MOTION_COMMANDS else handler(msg)
-                except (KeyError, TypeError, ValueError, IndexError) as exc:
+                except (KeyError, TypeError, ValueError, IndexError, ArithmeticError) as exc:
                     _log.warning("simulator: bad %s request %r: %s", name, msg, exc)
                     reply = {"command": name, P.RESULT_KEY.get(name, "set_state"): False}
                 # A handler returns its reply, or a list: the reply, then (conn_id, event) pairs to
@@ -541,16 +542,22 @@ class ArmSimulator:
             raise ValueError(f"v={v}")
         frac = v / 100.0
         if name == "movej":
-            q_goal = P.joints_from_wire(msg["joint"])
-            if q_goal.shape != (6,):
-                raise ValueError("joint needs 6 values")
+            wire = _finite_floats(msg["joint"], 6)
+            if wire is None:
+                return None, 0.0, 0x1002  # no joint is at 1e300 degrees: out of its limits
+            q_goal = P.joints_from_wire(wire)
             if not self.kin.within_limits(q_goal):
                 return None, 0.0, 0x1002
             path = np.vstack([q_start, q_goal])
             return path, self.kin.joint_move_time(q_start, q_goal, frac), 0
+        wire = _finite_floats(msg["pose"], 6)
+        if wire is None or np.any(np.abs(wire[3:]) > 1e6):  # non-finite, or angles beyond +-1000 rad
+            return None, 0.0, 0x1003
         with self._lock:
             T_work, T_tool = self._frames_locked()
-        T_goal = T_work @ pose6_to_matrix(P.pose_from_wire(msg["pose"]))  # tool in base
+        T_goal = T_work @ pose6_to_matrix(P.pose_from_wire(wire))  # tool in base
+        if not self._within_reach(T_goal, T_tool):
+            return None, 0.0, 0x1003
         if name == "movej_p":
             res = self.kin.ik(T_goal, q_start, tool=T_tool, restarts=6, max_iterations=100)
             if not res.success:
@@ -569,6 +576,15 @@ class ArmSimulator:
         joint_t = float(np.sum(np.max(dq / self.kin.max_speed_rad_s, axis=1))) / frac
         t = max(length / (self.max_line_speed_m_s * frac), angle / (self.max_angular_speed_rad_s * frac), joint_t)
         return path, t, 0
+
+    def _within_reach(self, T_goal: np.ndarray, T_tool: np.ndarray) -> bool:
+        """Cheap necessary condition, checked before the IK: the flange inside the working sphere."""
+        dh = self.kin.dh
+        reach = dh.a[2] + dh.d[3] + dh.d[5]  # upper arm + forearm + flange: 0.61 m for the RM65-B
+        with np.errstate(all="ignore"):
+            flange = (T_goal @ invert_transform(T_tool))[:3, 3]
+            d = float(np.linalg.norm(flange - np.array([0.0, 0.0, dh.d[0]])))
+        return bool(np.isfinite(d) and d <= reach + 1e-3)
 
     def _motion_cmd(self, conn: _Conn, msg: dict[str, Any], fault: _Fault | None) -> Any:
         name = msg["command"]
@@ -940,6 +956,17 @@ class ArmSimulator:
             with self._lock:
                 self._tool_voltage = vt
         return {"command": "set_tool_voltage", "state": ok}
+
+
+def _finite_floats(values: Any, n: int) -> np.ndarray | None:
+    """``n`` wire numbers as floats, or None if any is not a finite number (NaN, 1e400, a 400-digit int)."""
+    if not isinstance(values, (list, tuple)) or len(values) != n:
+        raise ValueError(f"expected {n} numbers, got {values!r:.80}")
+    try:
+        out = np.array([float(v) for v in values], dtype=np.float64)
+    except OverflowError:
+        return None
+    return out if np.all(np.isfinite(out)) and np.all(np.abs(out) < 1e15) else None
 
 
 def _trajectory_msg(success: bool) -> dict[str, Any]:

@@ -30,16 +30,27 @@ drops the trigger output and ends the job with no further motion.
 
 Errors: a controller error (refused command, failed motion) aborts the job with the decoded
 error; the journal stays consistent (a stud that was triggered but not confirmed stays
-*uncertain*). A lost connection triggers a reconnect with back-off; then the output is forced low,
-the arm waits until idle and backs out along the normal. A stud not yet triggered is retried; a
-triggered one is reported *uncertain* (never re-welded) and the job continues with the next studs
-(``on_disconnect="continue"``, default) or ends (``"abort"``).
+*uncertain*). A lost connection triggers a reconnect with back-off; then everything a freshly
+started controller lacks is set again -- trigger IO in output mode and low first, then (once the
+arm is idle) the work-frame check and the tool frame -- and the arm backs out along the normal.
+A stud not yet triggered is retried; a triggered one is reported *uncertain* (never re-welded)
+and the job continues with the next studs (``on_disconnect="continue"``, default) or ends
+(``"abort"``).
+
+Journal: every record of a job carries the job's id (:attr:`WeldSequence.job_id`). A job does not
+start on a journal that failed or changed behind its back (:meth:`Journal.verify`), and a record
+that cannot be written (disk full, I/O error) ends the job before its next motion: a stud whose
+``started`` was not written is never triggered; one whose ``welded`` was not written stays
+uncertain.
 """
 from __future__ import annotations
 
+import datetime as _dt
 import logging
+import math
 import threading
 import time
+import uuid
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
@@ -100,7 +111,10 @@ class WeldParams:
     def __post_init__(self) -> None:
         if self.on_disconnect not in ("continue", "abort"):
             raise ValueError(f"on_disconnect={self.on_disconnect!r}: expected 'continue' or 'abort'")
-        for name in ("standoff_m", "tool_offset_m", "pulse_s", "dwell_s", "motion_timeout_s", "reconnect_timeout_s"):
+        for name in ("standoff_m", "tool_offset_m", "plunge_m", "tool_payload_kg", "pulse_s", "dwell_s",
+                     "motion_timeout_s", "reconnect_timeout_s"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"{name}={getattr(self, name)} must be a finite number")
             if getattr(self, name) < 0:
                 raise ValueError(f"{name}={getattr(self, name)} must not be negative")
         if self.standoff_m <= 0:
@@ -122,9 +136,15 @@ class JobResult:
     messages: list[str] = field(default_factory=list)
     success: bool = False
     message: str = ""
+    job_id: str = ""
 
 
 PhaseCallback = Callable[[str, str, int, int], None]  # (stud_id, phase, done, total)
+
+
+def new_job_id() -> str:
+    """``<UTC time>-<6 hex>``: sorts by start time, unique across restarts and cells."""
+    return f"{_dt.datetime.now(_dt.timezone.utc):%Y%m%dT%H%M%SZ}-{uuid.uuid4().hex[:6]}"
 
 
 class _JobEnded(Exception):
@@ -155,6 +175,7 @@ class WeldSequence:
         self.phase = ""
         self.done = 0
         self.total = 0
+        self.job_id = ""  # of the running (or last) job; in every journal record it writes
 
     # ------------------------------------------------------------------------------------
     # control from other threads
@@ -224,6 +245,7 @@ class WeldSequence:
             self.running = True
             self._cancel = self._halt = self._paused = False
             self.total, self.done = len(targets), 0
+            self.job_id = res.job_id = new_job_id()
         try:
             self._run(list(targets), resume, res)
         finally:
@@ -243,6 +265,11 @@ class WeldSequence:
             if why:
                 res.message = f"job refused: {why}"
                 return
+        try:
+            self.journal.verify()
+        except JournalError as exc:
+            res.message = f"job refused: {exc}"
+            return
         try:
             if not self.client.connected:
                 self.client.reconnect(self.params.reconnect_timeout_s)
@@ -365,7 +392,8 @@ class WeldSequence:
 
     # ------------------------------------------------------------------------------------
     def _prepare(self) -> None:
-        """Tool frame, work frame check, trigger output mode and level (idempotent)."""
+        """Work frame check, tool frame, trigger output mode and level (idempotent): everything a
+        job needs of the controller, and what a restarted controller no longer has."""
         p = self.params
         if p.require_base_work_frame:
             name, pose = self.client.current_work_frame()
@@ -374,6 +402,11 @@ class WeldSequence:
                                       f"active work frame {name!r} is not the base frame (pose {pose.tolist()}); "
                                       "weld targets are in the base frame")
         self.client.set_tool_frame(p.tool_frame_name, [0.0, 0.0, p.tool_offset_m, 0.0, 0.0, 0.0], p.tool_payload_kg)
+        self._prepare_trigger()
+
+    def _prepare_trigger(self) -> None:
+        """Trigger IO to output mode (a Gen-3 controller starts with its IO as inputs), then low."""
+        p = self.params
         if p.set_io_mode:
             self.client.set_io_output_mode(p.trigger_io, tool=p.trigger_on_tool)
         self.client.set_do(p.trigger_io, False, tool=p.trigger_on_tool)
@@ -420,7 +453,10 @@ class WeldSequence:
             raise _JobEnded(f"aborted at {t.stud_id}: cannot read the arm state: {exc}") from exc
         check = self.safety.check_target(t.position, t.normal, p.standoff_m, q_now, p.plunge_m)
         if not check.ok:
-            self.journal.skipped(t.stud_id, check.reason)
+            try:
+                self.journal.skipped(t.stud_id, check.reason, job=self.job_id)
+            except JournalError as exc:
+                raise _JobEnded(f"aborted at {t.stud_id}: {exc}") from exc
             res.skipped.append(t.stud_id)
             res.messages.append(f"{t.stud_id}: {check.reason}")
             self._finish_one(t, "skip")
@@ -469,7 +505,7 @@ class WeldSequence:
         # (forward kinematics), for the QA record and the demo's check against the true normal.
         q_at_weld = self.client.get_state().joints_rad
         # Durable *before* the trigger: after a crash this stud reads "uncertain", never "not welded".
-        self.journal.started(t.stud_id, position=t.position, normal=t.normal, joints=plan.q_contact,
+        self.journal.started(t.stud_id, job=self.job_id, position=t.position, normal=t.normal, joints=plan.q_contact,
                              joints_at_weld=q_at_weld)
         try:
             self.client.set_do(p.trigger_io, True, tool=p.trigger_on_tool)
@@ -482,7 +518,7 @@ class WeldSequence:
         self._set_phase(t, "dwell")
         self._sleep(p.dwell_s, interruptible=True)
         self._check_halt()
-        self.journal.welded(t.stud_id)
+        self.journal.welded(t.stud_id, job=self.job_id)
 
     def _back_out(self, plan: StudPlan) -> None:
         """Straight back out along the normal to the approach pose (after a cancel, not a halt)."""
@@ -501,13 +537,22 @@ class WeldSequence:
         self._trigger_low()
 
     def _recover(self, t: StudTarget, phase: str) -> None:
-        """After a connection loss: reconnect, wait until idle, output low, back out along the normal."""
+        """After a connection loss: reconnect, trigger low, wait until idle, set up the controller
+        again, back out along the normal.
+
+        The controller may have restarted (power cycle, watchdog): then its IO is back in input
+        mode, where a DO cannot be driven, and its tool frame is the factory one. So the trigger IO
+        is put in output mode and low at once, and everything else :meth:`_prepare` sets is set
+        again before the first motion.
+        """
         p = self.params
         self._check_halt()
         self.client.reconnect(p.reconnect_timeout_s)
+        try:
+            self._prepare_trigger()
+        except ArmError as exc:
+            raise ArmConnectionError(f"the trigger output could not be set low after reconnecting: {exc}") from exc
         self.client.wait_idle(p.motion_timeout_s)
-        if not self._trigger_low():
-            raise ArmConnectionError("the trigger output could not be set low after reconnecting")
         self._prepare()
         self._check_halt()
         if phase in ("descend", "weld", "dwell", "retract"):

@@ -237,7 +237,8 @@ def ns_to_stamp(ns: int) -> Time:
 class Param:
     """A node parameter: name, default, description, and an optional range or validator.
 
-    ``validate(value) -> str | None`` returns a reason to reject the value.
+    ``validate(value) -> str | None`` returns a reason to reject the value. Numbers (and lists of
+    numbers) must be finite whatever the range: NaN compares false with every bound.
     """
 
     name: str
@@ -249,17 +250,38 @@ class Param:
     read_only: bool = False
     validate: Callable[[Any], str | None] | None = None
 
+    def expected(self) -> str:
+        """What a valid value looks like, for error messages ("a number in [0.005, 0.3]")."""
+        if self.choices is not None:
+            return f"one of {list(self.choices)}"
+        d = self.default
+        kind = ("true or false" if isinstance(d, bool) else "an integer" if isinstance(d, int)
+                else "a number" if isinstance(d, float) else "a string" if isinstance(d, str)
+                else "a list of numbers" if isinstance(d, (list, tuple)) else type(d).__name__)
+        if self.min is not None and self.max is not None:
+            return f"{kind} in [{self.min}, {self.max}]"
+        if self.min is not None:
+            return f"{kind} >= {self.min}"
+        if self.max is not None:
+            return f"{kind} <= {self.max}"
+        return kind
+
     def check(self, value: Any) -> str | None:
         if self.choices is not None and value not in self.choices:
             return f"{self.name}={value!r}: expected one of {list(self.choices)}"
+        numbers = value if isinstance(value, (list, tuple)) else [value]
+        if any(isinstance(v, float) and not math.isfinite(v) for v in numbers):
+            return f"{self.name}={_show(value)}: expected {self.expected()}, finite"
         if isinstance(value, (int, float)) and not isinstance(value, bool):
-            if self.min is not None and value < self.min:
-                return f"{self.name}={value}: must be >= {self.min}"
-            if self.max is not None and value > self.max:
-                return f"{self.name}={value}: must be <= {self.max}"
+            if (self.min is not None and value < self.min) or (self.max is not None and value > self.max):
+                return f"{self.name}={value!r}: expected {self.expected()}"
         if self.validate is not None:
             return self.validate(value)
         return None
+
+
+def _show(value: Any) -> str:
+    return repr(list(value)) if isinstance(value, (list, tuple)) else repr(value)
 
 
 #: The matcher's and the registration's: which camera model the images follow.
@@ -268,19 +290,39 @@ IMAGES_RECTIFIED_PARAM = Param(
     "camera_info P and ignore D; false: raw images (image_raw), rectified here when D is non-zero")
 
 
-def declare_params(node: Node, params: list[Param], on_change: Callable[[dict], None] | None = None) -> dict:
-    """Declare ``params`` with descriptions and ranges, reject bad values (at start-up: exit with
-    the reason; at run time: through the parameter callback), and return the current values."""
+def declare_params(node: Node, params: list[Param], on_change: Callable[[dict], None] | None = None,
+                   check: Callable[[dict], str | None] | None = None) -> dict:
+    """Declare ``params`` with descriptions and ranges, reject bad values, return the current values.
+
+    At start-up a bad value (out of range, wrong type, non-finite, refused by a validator, or a
+    combination ``check(values)`` refuses, e.g. a box whose min is above its max) is logged as one
+    line naming the parameter, the value and what is expected, and ends the node with
+    ``SystemExit(2)`` -- never a traceback, never a node that starts and fails later. At run time
+    the same checks refuse the change through the parameter callback.
+    """
+    from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+
     by_name = {p.name: p for p in params}
+    problems = []
     for p in params:
         desc = ParameterDescriptor(description=p.description, read_only=p.read_only)
         if p.min is not None and p.max is not None and isinstance(p.default, float):
             desc.floating_point_range = [FloatingPointRange(from_value=float(p.min), to_value=float(p.max))]
         elif p.min is not None and p.max is not None and isinstance(p.default, int) and not isinstance(p.default, bool):
             desc.integer_range = [IntegerRange(from_value=int(p.min), to_value=int(p.max), step=1)]
-        node.declare_parameter(p.name, p.default, desc)
+        try:
+            node.declare_parameter(p.name, p.default, desc)
+        except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
+            # rclpy refused the override against the range/type: read it back untyped to say what it was
+            value = node.declare_parameter(p.name, p.default, ParameterDescriptor(dynamic_typing=True)).value
+            wrong_type = isinstance(exc, InvalidParameterTypeException)
+            problems.append(f"{p.name}={_show(value)}"
+                            + (f" ({type(value).__name__})" if wrong_type else "") + f": expected {p.expected()}")
     values = {p.name: node.get_parameter(p.name).value for p in params}
-    problems = [r for p in params if (r := p.check(values[p.name]))]
+    problems += [r for p in params if not any(x.startswith(p.name + "=") for x in problems)
+                 and (r := p.check(values[p.name]))]
+    if not problems and check is not None:
+        problems += [r for r in [check(values)] if r]
     if problems:
         for r in problems:
             node.get_logger().fatal(f"bad parameter {r}")
@@ -297,6 +339,11 @@ def declare_params(node: Node, params: list[Param], on_change: Callable[[dict], 
                 node.get_logger().warn(f"rejected parameter {reason}")
                 return SetParametersResult(successful=False, reason=reason)
             update[change.name] = change.value
+        if update and check is not None:
+            reason = check({**values, **update})
+            if reason:
+                node.get_logger().warn(f"rejected parameters {reason}")
+                return SetParametersResult(successful=False, reason=reason)
         values.update(update)
         if update and on_change is not None:
             on_change(update)

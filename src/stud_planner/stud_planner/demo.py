@@ -85,8 +85,9 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     out = args.out.resolve()
     if out.exists():
-        for stale in ("weld_journal.jsonl", "weld_report.json", "summary.json"):
-            (out / stale).unlink(missing_ok=True)  # a demo starts a new job: a new journal
+        # a demo starts a new job: a new journal (and its mirror, else the driver would see the journal missing)
+        for stale in ("weld_journal.jsonl", "weld_journal.jsonl.mirror", "weld_report.json", "summary.json"):
+            (out / stale).unlink(missing_ok=True)
         import shutil
 
         shutil.rmtree(out / "cell_bag", ignore_errors=True)
