@@ -71,7 +71,7 @@ def test_command_line_overrides_beat_mode_and_node_params(cfg):
 
 
 @pytest.mark.parametrize("mode, kw, message", [
-    ("weld", {}, "unknown mode 'weld' (this cell has: sim, replay, hardware)"),
+    ("weld", {}, "unknown mode 'weld' (this cell has: sim, replay, hardware, calibrate, "),
     ("replay", {}, "--mode replay needs --bag DIR"),
     ("sim", {"sets": ["matcher=fpm"]}, "expected NODE.PARAM=VALUE"),
     ("sim", {"sets": ["ghost.x=1"]}, "unknown node 'ghost'"),
