@@ -25,13 +25,13 @@ TRUE_VARS = ["--var", f"true_hand_eye_xyz_m={TRUE_XYZ}", "--var", f"true_hand_ey
 FAST = ["--var", "arm_time_scale=0.1"]
 
 
-def run_cell(out, *args: str, timeout_s: float = 300, env: dict | None = None) -> tuple[int, str]:
+def run_cell(out, *args: str, timeout_s: float = 300) -> tuple[int, str]:
     """`ros2 run stud_planner cell --out OUT ARGS` to its end (its own session: a time-out kills it all)."""
     log = out.parent / f"{out.name}.out"
     with open(log, "w") as f:
         proc = subprocess.Popen(["ros2", "run", "stud_planner", "cell", "--out", str(out), "--var",
                                  f"arm_port={free_port()}", *FAST, *args], stdout=f, stderr=subprocess.STDOUT,
-                                start_new_session=True, env=env)
+                                start_new_session=True)
         try:
             code = proc.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
@@ -42,13 +42,17 @@ def run_cell(out, *args: str, timeout_s: float = 300, env: dict | None = None) -
     return code, log.read_text()
 
 
-@pytest.fixture(scope="module")
+_CALIBRATION: list = []
+
+
+@pytest.fixture()
 def calibration(tmp_path_factory):
-    """One calibration for the module (its own DDS domain: module fixtures run outside the per-test one)."""
-    out = tmp_path_factory.mktemp("calibrate") / "run"
-    env = {**os.environ, "ROS_DOMAIN_ID": str(10 + (os.getpid() + 45) % 90)}
-    code, text = run_cell(out, "--mode", "calibrate", *TRUE_VARS, env=env)
-    return out, code, text
+    """One calibration for the module, run by the first test that needs it, in that test's own DDS domain
+    (a module-scoped fixture would run before the per-test domain is set, and share one with another test)."""
+    if not _CALIBRATION:
+        out = tmp_path_factory.mktemp("calibrate") / "run"
+        _CALIBRATION.append((out, *run_cell(out, "--mode", "calibrate", *TRUE_VARS)))
+    return _CALIBRATION[0]
 
 
 def test_calibrate_mode_writes_a_calibration_within_the_limits_close_to_the_true_hand_eye(calibration):

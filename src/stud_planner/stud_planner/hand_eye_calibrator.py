@@ -87,6 +87,11 @@ class Aborted(Exception):
     """The procedure cannot go on: the message says why."""
 
 
+#: /arm/move_to refusals that are about the arm, not the view (MoveTo answers with a message only): an
+#: unreachable view is skipped, but these stop the procedure, or it would skip every view.
+_ARM_BUSY = ("e-stop engaged", "a weld job is running")
+
+
 class HandEyeCalibrator(Node):
     def __init__(self) -> None:
         super().__init__("hand_eye_calibrator")
@@ -206,6 +211,8 @@ class HandEyeCalibrator(Node):
             if len(shots) >= wanted or self._stop.is_set():
                 break
             why = self._move(view)
+            if why is not None and why.startswith(_ARM_BUSY):
+                raise Aborted(f"the arm driver refused to move: {why}")
             if why is not None:
                 refused += 1
                 self.get_logger().info(f"{view.describe()}: refused by the arm driver ({why}); skipped")
