@@ -32,6 +32,7 @@ setup(
             "plan = stud_planner.offline_plan:main",
             "demo = stud_planner.demo:main",
             "cell = stud_planner.cell_launch:main",
+            "hand_eye_calibrator = stud_planner.hand_eye_calibrator:main",
         ],
     },
 )

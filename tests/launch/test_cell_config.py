@@ -71,7 +71,7 @@ def test_command_line_overrides_beat_mode_and_node_params(cfg):
 
 
 @pytest.mark.parametrize("mode, kw, message", [
-    ("weld", {}, "unknown mode 'weld' (this cell has: sim, replay, hardware)"),
+    ("weld", {}, "unknown mode 'weld' (this cell has: sim, replay, hardware, calibrate, "),
     ("replay", {}, "--mode replay needs --bag DIR"),
     ("sim", {"sets": ["matcher=fpm"]}, "expected NODE.PARAM=VALUE"),
     ("sim", {"sets": ["ghost.x=1"]}, "unknown node 'ghost'"),
@@ -178,3 +178,29 @@ def test_main_dry_run_prints_commands_with_params_files(capsys, tmp_path):
     assert f"--params-file {tmp_path}/params/matcher.yaml" in out and "{algorithm: bfs}" in out
     assert "# hmi" not in out and "--port 8080" in out
     assert not (tmp_path / "params").exists()  # a dry run writes nothing
+
+
+def test_the_hand_eye_vars_reach_every_node_that_poses_the_camera(cfg, tmp_path):
+    sim, _ = plan(cfg, "sim")
+    cam = sim["camera"].params
+    assert cam["true_hand_eye_xyz_m"] == cam["hand_eye_xyz_m"] == [0.05, 0.0, -0.1]  # true defaults to believed
+    assert cam["hand_eye_file"] == sim["arm_driver"].params["hand_eye_file"] == ""
+    # the empty limits mapping (the solver's defaults) is no parameter at all: rcl cannot parse "{}" before other keys
+    assert "hand_eye_limits" not in cam
+    assert "hand_eye_limits" not in yaml.safe_load(write_params_file(sim["camera"], tmp_path).read_text())["/**"][
+        "ros__parameters"]
+    nodes, _ = plan(cfg, "sim", cli_vars={"hand_eye_file": "/cal/hand_eye.yaml", "hand_eye_limits": {"max_rms_mm": 0.3},
+                                          "true_hand_eye_rpy_deg": [1.0, -0.5, 0.8]})
+    for name in ("camera", "arm_driver"):
+        assert nodes[name].params["hand_eye_file"] == "/cal/hand_eye.yaml"
+        assert nodes[name].params["hand_eye_limits"] == {"max_rms_mm": 0.3}
+    assert nodes["camera"].params["true_hand_eye_rpy_deg"] == [1.0, -0.5, 0.8]
+    assert nodes["camera"].params["hand_eye_rpy_deg"] == [0.0, 0.0, 0.0]  # believed stays
+    hw, _ = plan(cfg, "hardware", cli_vars={"hand_eye_file": "/cal/hand_eye.yaml"})
+    assert hw["shot"].params["hand_eye_file"] == hw["arm_driver"].params["hand_eye_file"] == "/cal/hand_eye.yaml"
+    for mode, task in (("calibrate", "calibrate"), ("verify", "verify"), ("calibrate_hardware", "calibrate"),
+                       ("verify_hardware", "verify")):
+        nodes, _ = plan(cfg, mode)
+        calibrator = nodes["hand_eye_calibrator"]
+        assert calibrator.exit_on and calibrator.params["task"] == task and calibrator.params["output_dir"] == "/out"
+        assert ("camera" in nodes) == (not mode.endswith("hardware")) and ("shot" in nodes) == mode.endswith("hardware")

@@ -226,7 +226,7 @@ BAD_PARAMS = [
     ("hand_eye_xyz_m", "[0.0,.inf,0.0]", "hand_eye_xyz_m=[0.0, inf, 0.0]: expected a list of numbers, finite"),
     ("workspace_min_m", "[0.0,0.0,2.0]",
      "workspace_min_m=[0.0, 0.0, 2.0] must be below workspace_max_m=[0.7, 0.7, 1.1] on every axis"),
-    ("stud_axis", "[0.0,0.0,0.0]", "combination refused by the weld job: stud_axis must be a non-zero vector"),
+    ("max_tool_tilt_deg", "95.0", "max_tool_tilt_deg=95.0: expected a number in [0.0, 90.0]"),
 ]
 
 

@@ -56,13 +56,13 @@ from stud_welding_msgs.action import WeldJob
 from stud_welding_msgs.msg import ArmState, WeldTarget
 from stud_welding_msgs.srv import MoveTo, ResolveJournal, ResolveStud
 
-from stud_perception import ros_io
+from stud_perception import hand_eye_ros, ros_io
 from stud_perception.ros_io import Param
 
 from . import protocol as P
 from .arm_client import ArmClient, ArmError
 from .journal import ACTION_ACCEPT_INTACT, ACTION_LOAD_BACKUP, Journal, JournalCorrupt, JournalError, repair_journal
-from .kinematics import D6_BY_VARIANT, DHModel, RM65Kinematics, euler_zyx_to_matrix
+from .kinematics import D6_BY_VARIANT, DHModel, RM65Kinematics
 from .safety import SafetyChecker, SafetyLimits
 from .weld_sequence import JobResult, StudTarget, WeldParams, WeldSequence
 
@@ -122,10 +122,7 @@ PARAMS = [
     Param("journal_file", "", "weld journal (JSON lines); empty: $ROS_HOME/stud_welding/weld_journal.jsonl",
           read_only=True),
     Param("publish_camera_pose", False, "publish /camera/pose = weld-tool pose x hand-eye (an eye-in-hand camera)"),
-    Param("hand_eye_xyz_m", [0.0, 0.0, 0.0], "optical frame origin in the weld-tool frame [m]",
-          validate=_vec3("hand_eye_xyz_m")),
-    Param("hand_eye_rpy_deg", [0.0, 0.0, 0.0], "optical frame orientation in the weld-tool frame, "
-          "roll-pitch-yaw [deg]", validate=_vec3("hand_eye_rpy_deg")),
+    *hand_eye_ros.PARAMS,  # hand_eye_xyz_m / hand_eye_rpy_deg, or hand_eye_file (/arm/move_to FRAME_CAMERA)
 ]
 
 
@@ -196,6 +193,8 @@ class DriverNode(Node):
         super().__init__("rm65_driver")
         self.p = ros_io.declare_params(self, PARAMS, check=job_config_problem)
         p = self.p
+        self.hand_eye = hand_eye_ros.hand_eye_in_use(self, p)
+        self.calibration_topic = hand_eye_ros.CalibrationTopic(self, self.hand_eye)
         self.kin = RM65Kinematics(dh=DHModel.rm65(D6_BY_VARIANT[p["arm_variant"]]))
         self.client = ArmClient(p["arm_ip"], p["tcp_port"], p["connect_timeout_s"], p["reply_timeout_s"])
         self.journal_path = Path(p["journal_file"] or _default_journal()).expanduser()
@@ -367,10 +366,7 @@ class DriverNode(Node):
         self._update_diagnostics(msg)
 
     def _hand_eye(self) -> np.ndarray:
-        T = np.eye(4)
-        T[:3, :3] = euler_zyx_to_matrix(*np.radians(self.p["hand_eye_rpy_deg"]))
-        T[:3, 3] = self.p["hand_eye_xyz_m"]
-        return T
+        return self.hand_eye.T_tool_cam
 
     def _update_diagnostics(self, msg: ArmState) -> None:
         d = self.diag

@@ -7,7 +7,10 @@ optical frame in ``world``), all with one stamp. Shots come on ``/camera/trigger
 (std_srvs/Trigger) or at ``rate_hz``.
 
 The camera pose comes from parameters, or from the arm (``pose_source:=arm``): the tool
-pose in ``/arm/state`` times the hand-eye transform (tool -> optical frame).
+pose in ``/arm/state`` times the hand-eye transform (tool -> optical frame). Like a real cell,
+the sim has two of those: the image is rendered with the TRUE one (``true_hand_eye_*``, by
+default the believed one), ``/camera/pose`` carries the BELIEVED one (``hand_eye_*``, or
+``hand_eye_file``), which is also published on ``/calibration/hand_eye`` (docs/CALIBRATION.md).
 
 With a real camera, run the vendor's ROS 2 driver instead and remap its topics onto the
 four above (see the package README); nothing downstream depends on this node.
@@ -23,7 +26,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import Trigger
 
-from stud_perception import ros_io
+from stud_perception import hand_eye_ros, ros_io
 from stud_perception.camera_model import CameraModel
 from stud_perception.rectify import FISHEYE_MODELS, PINHOLE_MODELS, has_distortion
 from stud_perception.ros_io import Param
@@ -67,10 +70,13 @@ PARAMS = [
     Param("camera_tilt_azimuth_deg", 0.0, "azimuth the camera leans toward [deg]", min=-360.0, max=360.0),
     Param("max_pose_age_s", 1.0, "pose_source=arm: refuse a shot when the last /arm/state is older [s]",
           min=0.01, max=60.0),
-    Param("hand_eye_xyz_m", [0.0, 0.0, 0.0], "optical frame origin in the tool frame [m] (pose_source=arm)",
-          validate=_three("hand_eye_xyz_m")),
-    Param("hand_eye_rpy_deg", [0.0, 0.0, 0.0], "optical frame orientation in the tool frame, roll-pitch-yaw [deg]",
-          validate=_three("hand_eye_rpy_deg")),
+    # pose_source=arm: the BELIEVED hand-eye (typed, or hand_eye_file) poses /camera/pose, as on a real
+    # cell; the image is rendered with the TRUE one, which a real cell never knows.
+    *hand_eye_ros.PARAMS,
+    Param("true_hand_eye_xyz_m", [math.nan] * 3, "sim only: the camera's TRUE optical frame origin in the tool "
+          "frame, used to render [m]; NaN: the believed hand-eye", validate=_three("true_hand_eye_xyz_m")),
+    Param("true_hand_eye_rpy_deg", [math.nan] * 3, "sim only: the camera's TRUE orientation in the tool frame, "
+          "roll-pitch-yaw, used to render [deg]; NaN: the believed hand-eye", validate=_three("true_hand_eye_rpy_deg")),
     Param("distortion_model", "plumb_bob", "lens distortion model of the raw images (CameraInfo distortion_model)",
           choices=PINHOLE_MODELS + FISHEYE_MODELS),
     Param("distortion_d", [0.0, 0.0, 0.0, 0.0, 0.0], "lens distortion coefficients of the raw images, OpenCV "
@@ -96,12 +102,15 @@ def depth_image(view, encoding: str, noise_m: float, seed: int) -> np.ndarray:
     return depth.astype(np.float32)
 
 
-def shot_messages(view, depth_encoding: str, stamp, noise_m: float = 0.0, seed: int = 0) -> dict:
-    """The four messages of one shot (colour, depth, camera info, optical-frame pose), one stamp."""
+def shot_messages(view, depth_encoding: str, stamp, noise_m: float = 0.0, seed: int = 0,
+                  pose_camera: CameraModel | None = None) -> dict:
+    """The four messages of one shot (colour, depth, camera info, optical-frame pose), one stamp.
+    ``/camera/pose`` is ``pose_camera``'s pose (the believed one) when given, else the rendered one."""
     camera = view.camera
+    posed = pose_camera if pose_camera is not None else camera
     pose = PoseStamped()
     pose.header.stamp, pose.header.frame_id = stamp, "world"
-    pose.pose = ros_io.rt_to_pose(camera.R_wc, camera.t_wc)
+    pose.pose = ros_io.rt_to_pose(posed.R_wc, posed.t_wc)
     return {
         "color": ros_io.numpy_to_image(view.color_bgr, "bgr8", stamp, OPTICAL_FRAME),
         "depth": ros_io.numpy_to_image(depth_image(view, depth_encoding, noise_m, seed), depth_encoding, stamp,
@@ -127,6 +136,13 @@ class CameraNode(Node):
         self.pub_pose = self.create_publisher(PoseStamped, "/camera/pose", q)
         self.create_service(Trigger, "/camera/trigger", self._on_trigger)
         self.diag = ros_io.Diagnostics(self, hardware_id="sim_rgbd_camera")
+        self.hand_eye = hand_eye_ros.hand_eye_in_use(self, self.p)  # believed: poses /camera/pose
+        self.true_hand_eye = (tuple(v if math.isfinite(v) else b for v, b in
+                                    zip(self.p["true_hand_eye_xyz_m"], self.hand_eye.xyz_m)),
+                              tuple(v if math.isfinite(v) else b for v, b in
+                                    zip(self.p["true_hand_eye_rpy_deg"], self.hand_eye.rpy_deg)))
+        if self.p["pose_source"] == "arm":
+            self.calibration_topic = hand_eye_ros.CalibrationTopic(self, self.hand_eye)
         self.create_timer(1.0, self.diag.publish)
         self._arm_tool_pose = None
         self._shots = 0
@@ -147,7 +163,9 @@ class CameraNode(Node):
         self._arm_tool_pose = ros_io.pose_to_rt(msg.tool_pose)
         self._arm_pose_time = self.get_clock().now()
 
-    def camera_model(self) -> CameraModel | None:
+    def camera_model(self, true_pose: bool = False) -> CameraModel | None:
+        """The camera as posed by the believed hand-eye (``/camera/pose``), or with ``true_pose`` by the
+        true one (what is rendered); the same for ``pose_source=param``."""
         p = self.p
         template = view_camera((0.0, 0.0, 0.0), distance_m=1.0, yaw_rad=math.radians(p["camera_yaw_deg"]),
                                tilt_rad=math.radians(p["camera_tilt_deg"]),
@@ -160,14 +178,14 @@ class CameraNode(Node):
             return None
         if (self.get_clock().now() - self._arm_pose_time).nanoseconds * 1e-9 > p["max_pose_age_s"]:
             return None  # a stale pose would put the picture somewhere else than the pose says
-        return template.with_pose(*camera_pose_from_tool(*self._arm_tool_pose, p["hand_eye_xyz_m"],
-                                                          p["hand_eye_rpy_deg"]))
+        xyz, rpy = self.true_hand_eye if true_pose else (self.hand_eye.xyz_m, self.hand_eye.rpy_deg)
+        return template.with_pose(*camera_pose_from_tool(*self._arm_tool_pose, xyz, rpy))
 
     # -- shots ------------------------------------------------------------------------------------
     def shoot(self) -> tuple[bool, str]:
         with self._lock:
-            camera = self.camera_model()
-            if camera is None:
+            camera, believed = self.camera_model(true_pose=True), self.camera_model()
+            if camera is None or believed is None:
                 self.get_logger().warn("no shot: no fresh /arm/state (pose_source=arm)", throttle_duration_sec=5.0)
                 return False, "no fresh camera pose: waiting for /arm/state"
             view = render(self.scene, camera, seed=self.p["seed"] + self._shots,
@@ -178,7 +196,7 @@ class CameraNode(Node):
             self._shots += 1
             stamp = self.get_clock().now().to_msg()
             shot = shot_messages(view, self.p["depth_encoding"], stamp, self.p["depth_noise_m"],
-                                 self.p["seed"] + self._shots - 1)
+                                 self.p["seed"] + self._shots - 1, pose_camera=believed)
             self.pub_color.publish(shot["color"])
             self.pub_depth.publish(shot["depth"])
             self.pub_info.publish(shot["info"])

@@ -7,7 +7,7 @@ the camera pose at that moment (the paper's "move, then take one overhead shot")
 depth, info matched by stamp within ``sync_slop_s``) stamped at least ``settle_s`` after the
 request, and republishes it on ``/camera/color/image_raw``, ``/camera/depth/image_raw``,
 ``/camera/color/camera_info`` with ``/camera/pose`` = the last ``/arm/state`` tool pose x the
-hand-eye transform, all with the frame's stamp. Point the ``input_*_topic`` parameters at the
+hand-eye transform (``hand_eye_*`` or ``hand_eye_file``), all with the frame's stamp. Point the ``input_*_topic`` parameters at the
 driver's topics (depth must be registered/aligned to colour).
 """
 from __future__ import annotations
@@ -21,13 +21,9 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import Trigger
 from stud_welding_msgs.msg import ArmState
 
-from stud_perception import ros_io
+from stud_perception import hand_eye_ros, ros_io
 from stud_perception.camera_node import OPTICAL_FRAME, camera_pose_from_tool
 from stud_perception.ros_io import Param
-
-
-def _three(name: str):
-    return lambda v: None if len(v) == 3 else f"{name} needs 3 numbers, got {list(v)}"
 
 
 PARAMS = [
@@ -41,10 +37,7 @@ PARAMS = [
     Param("timeout_s", 5.0, "give up a trigger without a frame after this [s]", min=0.1, max=60.0),
     Param("max_pose_age_s", 0.5, "refuse the shot if the last /arm/state is older than this at the frame [s]",
           min=0.01, max=60.0),
-    Param("hand_eye_xyz_m", [0.0, 0.0, 0.0], "optical frame origin in the weld-tool frame [m]",
-          validate=_three("hand_eye_xyz_m")),
-    Param("hand_eye_rpy_deg", [0.0, 0.0, 0.0], "optical frame orientation in the weld-tool frame, roll-pitch-yaw "
-          "[deg]", validate=_three("hand_eye_rpy_deg")),
+    *hand_eye_ros.PARAMS,  # hand_eye_xyz_m / hand_eye_rpy_deg, or hand_eye_file
 ]
 
 
@@ -71,6 +64,8 @@ class ShotNode(Node):
         self.create_subscription(ArmState, "/arm/state", self._on_arm, ros_io.RESULT_QOS, callback_group=group)
         self.create_service(Trigger, "/camera/trigger", self._on_trigger, callback_group=group)
         self.diag = ros_io.Diagnostics(self)
+        self.hand_eye = hand_eye_ros.hand_eye_in_use(self, self.p)
+        self.calibration_topic = hand_eye_ros.CalibrationTopic(self, self.hand_eye)
         self.create_timer(1.0, self.diag.publish, callback_group=group)
         self.get_logger().info(f"shots from {self.p['input_color_topic']}, {self.p['input_depth_topic']} on "
                                "/camera/trigger")
@@ -105,8 +100,7 @@ class ShotNode(Node):
         if self._arm is None or ros_io.stamp_to_ns(stamp) - self._arm[0] > self.p["max_pose_age_s"] * 1e9:
             resp.success, resp.message = False, "no fresh /arm/state for the camera pose"
             return resp
-        R, t = camera_pose_from_tool(*ros_io.pose_to_rt(self._arm[1]), self.p["hand_eye_xyz_m"],
-                                     self.p["hand_eye_rpy_deg"])
+        R, t = camera_pose_from_tool(*ros_io.pose_to_rt(self._arm[1]), self.hand_eye.xyz_m, self.hand_eye.rpy_deg)
         for key in ("color", "depth", "info"):
             msg = frame[key]
             msg.header.stamp = stamp  # one stamp for the whole shot

@@ -271,7 +271,8 @@ def parse_assignment(text: str, option: str) -> tuple[str, Any]:
 def _check_param(value: Any, where: str) -> Any:
     """ROS 2 parameter types: bool, int, float, str, homogeneous lists of those, nested namespaces."""
     if isinstance(value, dict):
-        return {str(k): _check_param(v, f"{where}.{k}") for k, v in value.items()}
+        # An empty namespace holds no parameters, and rcl's parser refuses a file with one before other keys.
+        return {str(k): _check_param(v, f"{where}.{k}") for k, v in value.items() if v != {}}
     if isinstance(value, _PARAM_SCALARS):
         return value
     if isinstance(value, list):

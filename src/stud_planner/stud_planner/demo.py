@@ -82,6 +82,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--time-scale", type=float, default=0.25, help="arm simulator motion time factor (1 = real time)")
     ap.add_argument("--max-xy-error-mm", type=float, default=1.0, help="accuracy limit on the weld points")
     ap.add_argument("--max-normal-error-deg", type=float, default=3.0, help="accuracy limit on the normals")
+    ap.add_argument("--var", dest="vars", action="append", default=[], metavar="NAME=VALUE",
+                    help="passed on to `cell` (a ${NAME} of cell.yaml), e.g. hand_eye_file=PATH or "
+                         "'true_hand_eye_xyz_m=[0.056, -0.004, -0.097]' (docs/CALIBRATION.md)")
     args = ap.parse_args(argv)
     out = args.out.resolve()
     if out.exists():
@@ -96,6 +99,8 @@ def main(argv: list[str] | None = None) -> int:
     cmd = ["ros2", "run", "stud_planner", "cell", "--mode", "sim", "--out", str(out),
            "--set", "cell_sequencer.auto_start=true", "--set", "cell_sequencer.exit_when_done=true",
            "--var", f"arm_time_scale={args.time_scale}", "--with", "bag_record"]
+    for var in args.vars:
+        cmd += ["--var", var]
     if args.no_hmi:
         cmd.append("--no-hmi")
     else:

@@ -1,0 +1,663 @@
+"""Hand-eye calibration of the eye-in-hand camera on the marking board (pure numpy, no ROS).
+
+Frames and names: ``T_a_b`` is the 4x4 pose of frame ``b`` in frame ``a`` (``p_a = T_a_b p_b``),
+metres. ``world`` is the RM-65 base, ``tool`` the weld-tool frame of ``ArmState.tool_pose``,
+``cam`` the optical frame ``camera_color_optical_frame``, ``board`` the drawing frame on the
+board's top (origin at mark O, the drawing's x and y, z = x cross y, up out of the board).
+
+The unknowns are the hand-eye transform ``X = T_tool_cam`` (what the cell's ``hand_eye_xyz_m`` /
+``hand_eye_rpy_deg`` are) and the board's pose ``T_world_board``. Every shot gives the arm's
+``T_world_tool_i`` and the marks O, A, B measured in ``cam`` (pixel + depth, Eq. 1). Three marks
+are a full board pose per shot, ``T_cam_board_i``, so the classical ``A X = X B`` applies with
+``A = T_tool_i^-1 T_tool_j`` (the tool's motion) and ``B = T_cam_board_i T_cam_board_j^-1``:
+
+1. closed-form estimates by several methods (Tsai-Lenz, Park-Martin, Andreff; OpenCV's
+   ``calibrateHandEye`` as well when the installed OpenCV has it -- the pinned 5.0 wheel does not),
+   and whether they agree;
+2. a least-squares refinement of ``X`` and ``T_world_board`` together on the 3D mark positions
+   (Levenberg-Marquardt over all shots), which is what the result is;
+3. residuals per shot (marks in mm, board orientation in degrees), the spread of the poses
+   used, the intrinsics' reprojection RMS, and the checks against :class:`HandEyeLimits`: too
+   few poses, rotations too small or about one axis only, a shot whose marks disagree with the
+   drawing, residuals too large. A result with problems is not ``accepted``.
+
+:func:`check_hand_eye` measures the residual of a given ``X`` on a few new shots (the board pose
+is fitted, ``X`` is held): the daily verification.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from stud_perception.rotations import matrix_to_quaternion, matrix_to_rpy, rpy_to_matrix
+
+__all__ = ["HandEyeError", "HandEyeLimits", "BoardShot", "MarkCheck", "HandEyeResult", "HandEyeCheck",
+           "board_points_m", "board_pose_from_marks", "check_marks", "rotation_spread_deg", "pose_set_problems",
+           "solve_ax_xb", "calibrate_hand_eye", "check_hand_eye", "transform", "transform_xyz_rpy",
+           "rotation_angle_deg", "METHODS"]
+
+
+class HandEyeError(ValueError):
+    """Shots from which no hand-eye transform can be computed at all (the message says why)."""
+
+
+@dataclass(frozen=True)
+class HandEyeLimits:
+    """What a calibration must meet to be used (and what ``verify`` checks).
+
+    ``min_poses``: usable shots. ``min_rotation_spread_deg``: the poses' orientations must span
+    at least this about each of two axes (:func:`rotation_spread_deg`; rotations about one axis
+    leave part of ``X`` undetermined). ``max_rms_mm`` / ``max_shot_mm``: RMS over shots and the
+    worst shot of the marks' residual (each shot: RMS of its three marks). ``max_rms_deg`` /
+    ``max_shot_deg``: the same for the board orientation. ``mark_distance_tol_mm`` /
+    ``mark_angle_tol_deg``: a shot's measured |OA|, |OB| and angle AOB against the drawing's.
+    ``max_reprojection_px``: above it the intrinsics need attention (a warning, not a refusal).
+    ``methods_agree_mm`` / ``methods_agree_deg``: closed-form methods within this of the refined
+    result agree (reported, not a refusal).
+    """
+
+    min_poses: int = 12
+    min_rotation_spread_deg: float = 30.0
+    max_rms_mm: float = 0.5
+    max_shot_mm: float = 1.0
+    max_rms_deg: float = 0.2
+    max_shot_deg: float = 0.5
+    mark_distance_tol_mm: float = 1.5
+    mark_angle_tol_deg: float = 1.0
+    max_reprojection_px: float = 0.5
+    methods_agree_mm: float = 2.0
+    methods_agree_deg: float = 0.3
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+                raise ValueError(f"hand-eye limit {f.name} must be a positive number, got {value!r}")
+        if self.min_poses < 3:
+            raise ValueError(f"hand-eye limit min_poses must be at least 3, got {self.min_poses}")
+
+    def as_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+@dataclass(frozen=True, eq=False)
+class BoardShot:
+    """One shot of the board: the arm's ``T_world_tool`` (4, 4) when the image was taken, the marks
+    O, A, B in the optical frame ``marks_cam_m`` (3, 3), metres, and optionally their sub-pixel
+    image centres ``marks_uv_px`` (3, 2) with the intrinsics ``K`` (3, 3) of those pixels (for the
+    reprojection RMS)."""
+
+    T_world_tool: np.ndarray
+    marks_cam_m: np.ndarray
+    marks_uv_px: np.ndarray | None = None
+    K: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        T = np.asarray(self.T_world_tool, dtype=np.float64)
+        P = np.asarray(self.marks_cam_m, dtype=np.float64)
+        if T.shape != (4, 4) or not np.isfinite(T).all():
+            raise HandEyeError(f"T_world_tool must be a finite 4x4 transform, got shape {T.shape}")
+        if P.shape != (3, 3) or not np.isfinite(P).all():
+            raise HandEyeError(f"marks_cam_m must be finite O, A, B (3, 3), got shape {P.shape}")
+        object.__setattr__(self, "T_world_tool", T)
+        object.__setattr__(self, "marks_cam_m", P)
+        if self.marks_uv_px is not None:
+            object.__setattr__(self, "marks_uv_px", np.asarray(self.marks_uv_px, dtype=np.float64).reshape(3, 2))
+        if self.K is not None:
+            object.__setattr__(self, "K", np.asarray(self.K, dtype=np.float64).reshape(3, 3))
+
+
+# -- small geometry ---------------------------------------------------------------------------------
+def transform(R: np.ndarray, t) -> np.ndarray:
+    """4x4 from a rotation (3, 3) and a translation (3,)."""
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, np.asarray(t, dtype=np.float64).reshape(3)
+    return T
+
+
+def transform_xyz_rpy(xyz_m, rpy_deg) -> np.ndarray:
+    """4x4 from a translation (m) and roll-pitch-yaw (deg, R = Rz Ry Rx): the cell's hand-eye form."""
+    return transform(rpy_to_matrix(*np.radians(np.asarray(rpy_deg, dtype=np.float64))), xyz_m)
+
+
+def _inv(T: np.ndarray) -> np.ndarray:
+    """Inverse of rigid transforms (..., 4, 4)."""
+    R = np.swapaxes(T[..., :3, :3], -1, -2)
+    out = np.zeros(T.shape)
+    out[..., :3, :3] = R
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", R, T[..., :3, 3])
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def _log(R: np.ndarray) -> np.ndarray:
+    """Rotation vectors (..., 3), radians, of rotations (..., 3, 3) (through quaternions: stable near pi)."""
+    q = matrix_to_quaternion(R)
+    s = np.linalg.norm(q[..., :3], axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(s, q[..., 3:4])
+    return np.where(s > 1e-12, q[..., :3] * angle / np.maximum(s, 1e-300), 2.0 * q[..., :3])
+
+
+def _exp(w: np.ndarray) -> np.ndarray:
+    """Rotation (3, 3) of a rotation vector (3,), radians (Rodrigues)."""
+    angle = float(np.linalg.norm(w))
+    if angle < 1e-12:
+        return np.eye(3) + _skew(w)
+    k = _skew(np.asarray(w) / angle)
+    return np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * k @ k
+
+
+def _skew(v) -> np.ndarray:
+    x, y, z = np.asarray(v, dtype=np.float64).reshape(3)
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def _project_so3(M: np.ndarray) -> np.ndarray:
+    """The rotation closest to M (3, 3) (Frobenius norm)."""
+    U, _, Vt = np.linalg.svd(M)
+    return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+
+
+def rotation_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
+    """Angle (deg) of ``R_a^T R_b`` for rotations (..., 3, 3)."""
+    c = (np.einsum("...ij,...ij->...", R_a, R_b) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+# -- per shot -----------------------------------------------------------------------------------------
+def board_points_m(drawing_marks_m) -> np.ndarray:
+    """(3, 3) marks O, A, B in the board frame: the drawing's (x, y) on the board top, z = 0."""
+    D = np.asarray(drawing_marks_m, dtype=np.float64)
+    if D.shape != (3, 2) or not np.isfinite(D).all():
+        raise HandEyeError(f"drawing marks must be finite O, A, B (3, 2), got shape {D.shape}")
+    return np.column_stack([D, np.zeros(3)])
+
+
+def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """T with ``dst ~ T src`` (least squares), points (N, 3)."""
+    cs, cd = src.mean(axis=0), dst.mean(axis=0)
+    H = (src - cs).T @ (dst - cd)
+    U, _, Vt = np.linalg.svd(H)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    return transform(R, cd - R @ cs)
+
+
+def board_pose_from_marks(marks_cam_m: np.ndarray, board_pts_m: np.ndarray) -> np.ndarray:
+    """``T_cam_board`` (4, 4) from the measured O, A, B (3, 3) in ``cam`` and the same marks in the
+    board frame (:func:`board_points_m`): three non-collinear points fix a full pose."""
+    return _kabsch(board_pts_m, marks_cam_m)
+
+
+@dataclass(frozen=True)
+class MarkCheck:
+    """A shot's marks against the drawing: measured minus drawing |OA|, |OB| (mm) and angle AOB (deg)."""
+
+    oa_error_mm: float
+    ob_error_mm: float
+    angle_error_deg: float
+
+    def problem(self, limits: HandEyeLimits) -> str | None:
+        bad = []
+        if abs(self.oa_error_mm) > limits.mark_distance_tol_mm:
+            bad.append(f"|OA| off by {self.oa_error_mm:+.2f} mm")
+        if abs(self.ob_error_mm) > limits.mark_distance_tol_mm:
+            bad.append(f"|OB| off by {self.ob_error_mm:+.2f} mm")
+        if abs(self.angle_error_deg) > limits.mark_angle_tol_deg:
+            bad.append(f"angle AOB off by {self.angle_error_deg:+.2f} deg")
+        return None if not bad else (
+            f"marks disagree with the drawing ({', '.join(bad)}; tolerance {limits.mark_distance_tol_mm:g} mm, "
+            f"{limits.mark_angle_tol_deg:g} deg)")
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    return math.degrees(math.atan2(float(np.linalg.norm(np.cross(a, b))), float(a @ b)))
+
+
+def check_marks(marks_m: np.ndarray, drawing_marks_m) -> MarkCheck:
+    """|OA|, |OB| and angle AOB of measured marks (3, 3), any frame, against the drawing's (3, 2)."""
+    P = np.asarray(marks_m, dtype=np.float64)
+    D = board_points_m(drawing_marks_m)
+    return MarkCheck(
+        oa_error_mm=1e3 * float(np.linalg.norm(P[1] - P[0]) - np.linalg.norm(D[1] - D[0])),
+        ob_error_mm=1e3 * float(np.linalg.norm(P[2] - P[0]) - np.linalg.norm(D[2] - D[0])),
+        angle_error_deg=_angle_deg(P[1] - P[0], P[2] - P[0]) - _angle_deg(D[1] - D[0], D[2] - D[0]))
+
+
+# -- the pose set -------------------------------------------------------------------------------------
+def rotation_spread_deg(R_world_tool: np.ndarray) -> np.ndarray:
+    """How far the orientations (N, 3, 3) spread, about their three principal axes: (3,) degrees,
+    largest first.
+
+    Each orientation's rotation vector relative to the set's mean orientation; the extents
+    (max - min) of those vectors along their principal directions. Tilting the camera both ways
+    about one axis by 15 deg spreads 30 deg about that axis and 0 about the others.
+    """
+    R = np.asarray(R_world_tool, dtype=np.float64)
+    if len(R) < 2:
+        return np.zeros(3)
+    R_mean = _project_so3(R.sum(axis=0))
+    r = np.degrees(_log(R @ R_mean.T))
+    r = r - r.mean(axis=0)
+    _, _, Vt = np.linalg.svd(r, full_matrices=False)
+    proj = r @ Vt.T
+    spread = np.zeros(3)
+    spread[:proj.shape[1]] = np.ptp(proj, axis=0)
+    return np.sort(spread)[::-1]
+
+
+def pose_set_problems(R_world_tool: np.ndarray, limits: HandEyeLimits) -> list[str]:
+    """Why a set of tool orientations (N, 3, 3) cannot give a trustworthy calibration (empty: it can)."""
+    n = len(R_world_tool)
+    problems = []
+    if n < limits.min_poses:
+        problems.append(f"too few poses: {n} usable shot(s), need at least {limits.min_poses}")
+    spread = rotation_spread_deg(R_world_tool) if n >= 2 else np.zeros(3)
+    need = limits.min_rotation_spread_deg
+    if spread[0] < need:
+        problems.append(f"rotations too small: the poses' orientations span {spread[0]:.1f} deg, need {need:g} deg "
+                        "about two axes")
+    elif spread[1] < need:
+        problems.append(f"rotations about one axis only: {spread[0]:.1f} deg about one axis but {spread[1]:.1f} deg "
+                        f"about any other, need {need:g} deg about two axes")
+    return problems
+
+
+# -- closed form: A X = X B -----------------------------------------------------------------------------
+def _motion_pairs(T_world_tool: np.ndarray, T_cam_board: np.ndarray, min_angle_deg: float = 2.0):
+    """(A, B) motions (M, 4, 4) of every pair of shots whose tool rotates by at least ``min_angle_deg``."""
+    n = len(T_world_tool)
+    i, j = np.triu_indices(n, k=1)
+    A = _inv(T_world_tool[i]) @ T_world_tool[j]
+    B = T_cam_board[i] @ _inv(T_cam_board[j])
+    keep = np.linalg.norm(_log(A[:, :3, :3]), axis=1) > math.radians(min_angle_deg)
+    if keep.sum() < 2:
+        raise HandEyeError("fewer than two motions between the shots rotate the tool: the hand-eye "
+                           "rotation is undetermined")
+    return A[keep], B[keep]
+
+
+def _translation_ls(A: np.ndarray, B: np.ndarray, R_X: np.ndarray) -> np.ndarray:
+    """t_X from (R_A - I) t_X = R_X t_B - t_A, least squares over the motions."""
+    M = (A[:, :3, :3] - np.eye(3)).reshape(-1, 3)
+    b = (np.einsum("ij,mj->mi", R_X, B[:, :3, 3]) - A[:, :3, 3]).reshape(-1)
+    return np.linalg.lstsq(M, b, rcond=None)[0]
+
+
+def _tsai(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Tsai & Lenz (1989): rotation from modified Rodrigues vectors, then the translation."""
+    def rodrigues_mod(R):
+        w = _log(R)
+        angle = np.linalg.norm(w, axis=1, keepdims=True)
+        return 2.0 * np.sin(angle / 2.0) * w / np.maximum(angle, 1e-300)
+
+    Pg, Pc = rodrigues_mod(A[:, :3, :3]), rodrigues_mod(B[:, :3, :3])
+    M = np.concatenate([_skew(s) for s in Pg + Pc])
+    p_prime = np.linalg.lstsq(M, (Pc - Pg).reshape(-1), rcond=None)[0]
+    p = 2.0 * p_prime / math.sqrt(1.0 + p_prime @ p_prime)
+    n2 = p @ p
+    R = (1.0 - n2 / 2.0) * np.eye(3) + 0.5 * (np.outer(p, p) + math.sqrt(max(4.0 - n2, 0.0)) * _skew(p))
+    R = _project_so3(R)
+    return transform(R, _translation_ls(A, B, R))
+
+
+def _park(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Park & Martin (1994): R_X = (M^T M)^(-1/2) M^T with M = sum beta alpha^T (log maps)."""
+    alpha, beta = _log(A[:, :3, :3]), _log(B[:, :3, :3])
+    M = beta.T @ alpha  # sum_i beta_i alpha_i^T
+    w, V = np.linalg.eigh(M.T @ M)
+    if w.min() <= 1e-12 * max(w.max(), 1e-300):
+        raise HandEyeError("the tool's rotations are all about one axis: the hand-eye rotation is undetermined")
+    R = _project_so3(V @ np.diag(w ** -0.5) @ V.T @ M.T)
+    return transform(R, _translation_ls(A, B, R))
+
+
+def _andreff(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Andreff et al. (2001), linear: R_A R_X = R_X R_B as (R_A (x) I - I (x) R_B^T) vec(R_X) = 0."""
+    rows = [np.kron(a[:3, :3], np.eye(3)) - np.kron(np.eye(3), b[:3, :3].T) for a, b in zip(A, B)]
+    _, _, Vt = np.linalg.svd(np.concatenate(rows))
+    R = Vt[-1].reshape(3, 3)  # row-major vec
+    R = _project_so3(R * np.sign(np.linalg.det(R)))
+    return transform(R, _translation_ls(A, B, R))
+
+
+def _opencv_methods() -> dict:
+    """OpenCV's calibrateHandEye methods, when this OpenCV has the function (5.0's Python wheel has not)."""
+    try:
+        import cv2
+    except ImportError:
+        return {}
+    if not hasattr(cv2, "calibrateHandEye"):
+        return {}
+
+    def method(flag):
+        def solve(T_world_tool, T_cam_board):
+            R, t = cv2.calibrateHandEye(list(T_world_tool[:, :3, :3]), list(T_world_tool[:, :3, 3]),
+                                        list(T_cam_board[:, :3, :3]), list(T_cam_board[:, :3, 3]), method=flag)
+            return transform(np.asarray(R), np.asarray(t).reshape(3))
+        return solve
+
+    names = {"opencv_tsai": "CALIB_HAND_EYE_TSAI", "opencv_park": "CALIB_HAND_EYE_PARK",
+             "opencv_horaud": "CALIB_HAND_EYE_HORAUD", "opencv_andreff": "CALIB_HAND_EYE_ANDREFF",
+             "opencv_daniilidis": "CALIB_HAND_EYE_DANIILIDIS"}
+    return {name: method(getattr(cv2, flag)) for name, flag in names.items() if hasattr(cv2, flag)}
+
+
+#: The closed-form methods on motion pairs (A, B) -> X.
+METHODS = {"tsai": _tsai, "park": _park, "andreff": _andreff}
+
+
+def solve_ax_xb(T_world_tool: np.ndarray, T_cam_board: np.ndarray) -> dict[str, np.ndarray]:
+    """``X = T_tool_cam`` by every closed-form method: name -> (4, 4). Inputs (N, 4, 4). A method
+    that fails numerically is left out; :class:`HandEyeError` when none can work."""
+    T_world_tool = np.asarray(T_world_tool, dtype=np.float64)
+    T_cam_board = np.asarray(T_cam_board, dtype=np.float64)
+    A, B = _motion_pairs(T_world_tool, T_cam_board)
+    out = {}
+    for name, solve in METHODS.items():
+        try:
+            X = solve(A, B)
+        except (HandEyeError, np.linalg.LinAlgError):
+            continue
+        if np.isfinite(X).all():
+            out[name] = X
+    for name, solve in _opencv_methods().items():
+        try:
+            X = solve(T_world_tool, T_cam_board)
+        except Exception:  # noqa: BLE001 -- a cross-check only; our own methods decide
+            continue
+        if np.isfinite(X).all():
+            out[name] = X
+    if not out:
+        raise HandEyeError("no closed-form method found a hand-eye transform (degenerate motions)")
+    return out
+
+
+# -- least squares on the marks --------------------------------------------------------------------------
+def _predict(X: np.ndarray, T_world_board: np.ndarray, T_world_tool: np.ndarray, board_pts: np.ndarray):
+    """Marks predicted in ``cam`` (N, 3, 3) and the predicted ``T_cam_board`` (N, 4, 4)."""
+    T_cam_board = _inv(T_world_tool @ X) @ T_world_board
+    P = np.einsum("nij,kj->nki", T_cam_board[:, :3, :3], board_pts) + T_cam_board[:, None, :3, 3]
+    return P, T_cam_board
+
+
+def _perturb(T: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """T moved by d = (rotation vector (3,), translation (3,)): R <- exp(w) R, t <- t + v."""
+    return transform(_exp(d[:3]) @ T[:3, :3], T[:3, 3] + d[3:])
+
+
+def _refine(X: np.ndarray, T_world_board: np.ndarray, T_world_tool: np.ndarray, marks: np.ndarray,
+            board_pts: np.ndarray, solve_x: bool = True, ray_weight: float = 1.0,
+            iterations: int = 50) -> tuple[np.ndarray, np.ndarray]:
+    """Levenberg-Marquardt on the marks' 3D residuals in ``cam`` (metres): ``X`` and ``T_world_board``
+    (or the board alone when ``solve_x`` is false). The problem is tiny (12 unknowns), so the
+    Jacobian is by central differences."""
+    n_free = 12 if solve_x else 6
+
+    def unpack(x):
+        return (_perturb(X, x[:6]) if solve_x else X), _perturb(T_world_board, x[-6:])
+
+    # The residual along each mark's viewing ray (its depth) counts ``ray_weight`` as much as across
+    # it: structured-light depth is several times noisier than the sub-pixel centre.
+    rays = marks / np.linalg.norm(marks, axis=2, keepdims=True)
+
+    def residual(x):
+        Xi, Bi = unpack(x)
+        e = _predict(Xi, Bi, T_world_tool, board_pts)[0] - marks
+        along = np.sum(e * rays, axis=2, keepdims=True)
+        return (e - (1.0 - ray_weight) * along * rays).ravel()
+
+    lam = 1e-3
+    r = residual(np.zeros(n_free))
+    cost = cost_old = float(r @ r)
+    eps = 1e-7
+    for _ in range(iterations):
+        J = np.empty((r.size, n_free))
+        for k in range(n_free):
+            d = np.zeros(n_free)
+            d[k] = eps
+            J[:, k] = (residual(d) - residual(-d)) / (2 * eps)
+        H, g = J.T @ J, J.T @ r
+        improved = False
+        while lam < 1e8:
+            step = -np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), g)
+            r_new = residual(step)
+            if r_new @ r_new < cost:
+                X, T_world_board = unpack(step)
+                r, cost_old, cost = r_new, cost, float(r_new @ r_new)
+                lam = max(lam / 10, 1e-9)
+                improved = True
+                break
+            lam *= 10
+        if not improved or (cost_old - cost) < 1e-14 * max(cost_old, 1e-30) or np.linalg.norm(step) < 1e-12:
+            break
+    return X, T_world_board
+
+
+def _mean_pose(T: np.ndarray) -> np.ndarray:
+    return transform(_project_so3(T[:, :3, :3].sum(axis=0)), T[:, :3, 3].mean(axis=0))
+
+
+# -- results ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class _Residuals:
+    shot_mm: np.ndarray       # (N,) RMS of each shot's three marks
+    shot_deg: np.ndarray      # (N,) board orientation, predicted vs measured
+    reprojection_px: float    # RMS over every mark with pixels and K (NaN without)
+
+
+def _residuals(X, T_world_board, shots, board_pts) -> _Residuals:
+    T_world_tool = np.stack([s.T_world_tool for s in shots])
+    marks = np.stack([s.marks_cam_m for s in shots])
+    P, T_cb_pred = _predict(X, T_world_board, T_world_tool, board_pts)
+    shot_mm = 1e3 * np.sqrt(np.mean(np.sum((P - marks) ** 2, axis=2), axis=1))
+    T_cb_meas = np.stack([board_pose_from_marks(s.marks_cam_m, board_pts) for s in shots])
+    shot_deg = rotation_angle_deg(T_cb_pred[:, :3, :3], T_cb_meas[:, :3, :3])
+    err2 = []
+    for s, p in zip(shots, P):
+        if s.marks_uv_px is None or s.K is None:
+            continue
+        uvw = p @ s.K.T
+        err2.append(np.sum((uvw[:, :2] / uvw[:, 2:3] - s.marks_uv_px) ** 2, axis=1))
+    reproj = float(np.sqrt(np.mean(np.concatenate(err2)))) if err2 else float("nan")
+    return _Residuals(shot_mm, shot_deg, reproj)
+
+
+def _rms(a: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(a)))) if len(a) else float("nan")
+
+
+def _residual_problems(res: _Residuals, limits: HandEyeLimits) -> list[str]:
+    problems = []
+    rms_mm, rms_deg = _rms(res.shot_mm), _rms(res.shot_deg)
+    worst = int(np.argmax(res.shot_mm))
+    worst_deg = int(np.argmax(res.shot_deg))
+    if rms_mm > limits.max_rms_mm:
+        problems.append(f"residual RMS {rms_mm:.3f} mm exceeds {limits.max_rms_mm:g} mm")
+    if res.shot_mm[worst] > limits.max_shot_mm:
+        problems.append(f"shot {worst + 1}: residual {res.shot_mm[worst]:.3f} mm exceeds {limits.max_shot_mm:g} mm")
+    if rms_deg > limits.max_rms_deg:
+        problems.append(f"orientation residual RMS {rms_deg:.3f} deg exceeds {limits.max_rms_deg:g} deg")
+    if res.shot_deg[worst_deg] > limits.max_shot_deg:
+        problems.append(f"shot {worst_deg + 1}: orientation residual {res.shot_deg[worst_deg]:.3f} deg exceeds "
+                        f"{limits.max_shot_deg:g} deg")
+    return problems
+
+
+def _difference(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
+    """(translation mm, rotation deg) between two transforms."""
+    return (1e3 * float(np.linalg.norm(T_a[:3, 3] - T_b[:3, 3])),
+            float(rotation_angle_deg(T_a[:3, :3], T_b[:3, :3])))
+
+
+@dataclass(frozen=True, eq=False)
+class HandEyeResult:
+    """A hand-eye calibration. ``T_tool_cam`` (4, 4): the result (refined); ``T_world_board`` (4, 4):
+    the board; ``methods``: closed-form estimates, name -> (4, 4), and ``method_differences``:
+    name -> (mm, deg) from the refined result; ``shot_residual_mm`` / ``shot_residual_deg`` (N,);
+    ``reprojection_rms_px`` (NaN without pixels); ``rotation_spread_deg`` (3,); ``problems``:
+    why it must not be used (empty: ``accepted``); ``warnings``: what needs attention anyway."""
+
+    T_tool_cam: np.ndarray
+    T_world_board: np.ndarray
+    methods: dict
+    method_differences: dict
+    shot_residual_mm: np.ndarray
+    shot_residual_deg: np.ndarray
+    reprojection_rms_px: float
+    rotation_spread_deg: np.ndarray
+    n_shots: int
+    limits: HandEyeLimits
+    problems: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
+    mark_checks: tuple[MarkCheck, ...] = field(default=())
+
+    @property
+    def accepted(self) -> bool:
+        return not self.problems
+
+    @property
+    def methods_agree(self) -> bool:
+        return all(mm <= self.limits.methods_agree_mm and deg <= self.limits.methods_agree_deg
+                   for mm, deg in self.method_differences.values())
+
+    @property
+    def xyz_m(self) -> np.ndarray:
+        return self.T_tool_cam[:3, 3].copy()
+
+    @property
+    def rpy_deg(self) -> np.ndarray:
+        return np.degrees(matrix_to_rpy(self.T_tool_cam[:3, :3]))
+
+    @property
+    def quaternion_xyzw(self) -> np.ndarray:
+        return matrix_to_quaternion(self.T_tool_cam[:3, :3])
+
+    @property
+    def rms_mm(self) -> float:
+        return _rms(self.shot_residual_mm)
+
+    @property
+    def max_mm(self) -> float:
+        return float(np.max(self.shot_residual_mm))
+
+    @property
+    def rms_deg(self) -> float:
+        return _rms(self.shot_residual_deg)
+
+    @property
+    def max_deg(self) -> float:
+        return float(np.max(self.shot_residual_deg))
+
+
+def _shot_problems(shots, drawing_marks_m, limits) -> tuple[list[str], list[MarkCheck]]:
+    checks = [check_marks(s.marks_cam_m, drawing_marks_m) for s in shots]
+    problems = [f"shot {i + 1}: {p}" for i, c in enumerate(checks) if (p := c.problem(limits))]
+    return problems, checks
+
+
+#: Weight of a mark's residual along its viewing ray (its depth) relative to across it in the least
+#: squares: structured-light depth (about 0.06 mm at the board after the plane fit) is several times
+#: noisier than the sub-pixel centre (about 0.01 mm at 0.3 m), measured on rendered shots.
+RAY_WEIGHT = 0.2
+
+
+def calibrate_hand_eye(shots: list[BoardShot], drawing_marks_m, limits: HandEyeLimits = HandEyeLimits(),
+                       ray_weight: float = RAY_WEIGHT) -> HandEyeResult:
+    """Solve ``X = T_tool_cam`` and ``T_world_board`` from board shots (module docstring).
+
+    Always returns a result when one can be computed (its ``problems`` say whether it may be
+    used); :class:`HandEyeError` when none can (fewer than three shots, degenerate motions)."""
+    shots = list(shots)
+    if len(shots) < 3:
+        raise HandEyeError(f"too few poses: {len(shots)} usable shot(s), need at least {limits.min_poses}")
+    board_pts = board_points_m(drawing_marks_m)
+    problems, checks = _shot_problems(shots, drawing_marks_m, limits)
+    T_world_tool = np.stack([s.T_world_tool for s in shots])
+    problems += pose_set_problems(T_world_tool[:, :3, :3], limits)
+    T_cam_board = np.stack([board_pose_from_marks(s.marks_cam_m, board_pts) for s in shots])
+    methods = solve_ax_xb(T_world_tool, T_cam_board)
+    # Start from the closed-form estimate that fits the marks best, then refine X and the board together.
+    marks = np.stack([s.marks_cam_m for s in shots])
+
+    def fit(X):
+        T_wb = _mean_pose(T_world_tool @ X @ T_cam_board)
+        return float(np.sum((_predict(X, T_wb, T_world_tool, board_pts)[0] - marks) ** 2)), T_wb
+
+    start = min(methods, key=lambda name: fit(methods[name])[0])
+    X, T_world_board = _refine(methods[start], fit(methods[start])[1], T_world_tool, marks, board_pts,
+                                 ray_weight=ray_weight)
+    res = _residuals(X, T_world_board, shots, board_pts)
+    problems += _residual_problems(res, limits)
+    warnings = []
+    if np.isfinite(res.reprojection_px) and res.reprojection_px > limits.max_reprojection_px:
+        warnings.append(f"the camera intrinsics need attention: the marks reproject with an RMS of "
+                        f"{res.reprojection_px:.2f} px (above {limits.max_reprojection_px:g} px)")
+    diffs = {name: _difference(T, X) for name, T in methods.items()}
+    disagree = [f"{n} {mm:.2f} mm / {deg:.3f} deg" for n, (mm, deg) in diffs.items()
+                if mm > limits.methods_agree_mm or deg > limits.methods_agree_deg]
+    if disagree:
+        warnings.append("closed-form methods disagree with the refined result: " + ", ".join(disagree))
+    return HandEyeResult(
+        T_tool_cam=X, T_world_board=T_world_board, methods=methods, method_differences=diffs,
+        shot_residual_mm=res.shot_mm, shot_residual_deg=res.shot_deg, reprojection_rms_px=res.reprojection_px,
+        rotation_spread_deg=rotation_spread_deg(T_world_tool[:, :3, :3]), n_shots=len(shots), limits=limits,
+        problems=tuple(problems), warnings=tuple(warnings), mark_checks=tuple(checks))
+
+
+@dataclass(frozen=True, eq=False)
+class HandEyeCheck:
+    """:func:`check_hand_eye`: the residuals of a given hand-eye on new shots and whether they pass."""
+
+    shot_residual_mm: np.ndarray
+    shot_residual_deg: np.ndarray
+    reprojection_rms_px: float
+    T_world_board: np.ndarray
+    problems: tuple[str, ...]
+
+    @property
+    def passed(self) -> bool:
+        return not self.problems
+
+    @property
+    def rms_mm(self) -> float:
+        return _rms(self.shot_residual_mm)
+
+    @property
+    def max_mm(self) -> float:
+        return float(np.max(self.shot_residual_mm))
+
+    @property
+    def rms_deg(self) -> float:
+        return _rms(self.shot_residual_deg)
+
+    @property
+    def max_deg(self) -> float:
+        return float(np.max(self.shot_residual_deg))
+
+
+def check_hand_eye(shots: list[BoardShot], T_tool_cam: np.ndarray, drawing_marks_m,
+                   limits: HandEyeLimits = HandEyeLimits()) -> HandEyeCheck:
+    """How well ``T_tool_cam`` explains a few shots of the board: the board pose is fitted (it may
+    have been moved since the calibration), the hand-eye is held. A wrong hand-eye shows as shots
+    that disagree about where the board is. Needs two shots at least (more, at different tilts,
+    see more)."""
+    shots = list(shots)
+    if len(shots) < 2:
+        raise HandEyeError(f"a check needs at least 2 shots, got {len(shots)}")
+    board_pts = board_points_m(drawing_marks_m)
+    problems, _ = _shot_problems(shots, drawing_marks_m, limits)
+    T_world_tool = np.stack([s.T_world_tool for s in shots])
+    marks = np.stack([s.marks_cam_m for s in shots])
+    X = np.asarray(T_tool_cam, dtype=np.float64)
+    T_cam_board = np.stack([board_pose_from_marks(s.marks_cam_m, board_pts) for s in shots])
+    _, T_world_board = _refine(X, _mean_pose(T_world_tool @ X @ T_cam_board), T_world_tool, marks, board_pts,
+                               solve_x=False, ray_weight=RAY_WEIGHT)
+    res = _residuals(X, T_world_board, shots, board_pts)
+    problems += _residual_problems(res, limits)
+    return HandEyeCheck(res.shot_mm, res.shot_deg, res.reprojection_px, T_world_board, tuple(problems))
+
+
+
