@@ -26,7 +26,7 @@ from stud_perception.scene import load_scene, surface_height, surface_normal
 
 RECORDED_TOPICS = ["/drawing/layout", "/registration/result", "/weld_targets", "/weld_targets/poses",
                    "/weld_targets/markers", "/weld_targets/overlay", "/arm/state", "/joint_states", "/cell/status",
-                   "/camera/pose", "/camera/color/camera_info"]
+                   "/camera/pose", "/camera/color/camera_info", "/tf", "/tf_static", "/robot_description"]
 
 
 def share_file(package: str, relative: str) -> Path:
