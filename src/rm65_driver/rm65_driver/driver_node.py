@@ -376,9 +376,14 @@ class DriverNode(Node):
             goal_handle.succeed()
         else:
             goal_handle.abort()
-        level = self.get_logger().info if res.success else self.get_logger().warn
-        level(f"weld job ended: {res.message}; welded {len(out.welded)}, skipped {len(out.skipped)}, "
-              f"failed {len(out.failed)}")
+        text = (f"weld job ended: {res.message}; welded {len(out.welded)}, skipped {len(out.skipped)}, "
+                f"failed {len(out.failed)}")
+        # Two call sites: rclpy refuses one call site logging at two severities (ValueError), which
+        # used to lose the result of every job that ended otherwise than the one before it.
+        if res.success:
+            self.get_logger().info(text)
+        else:
+            self.get_logger().warn(text)
         return out
 
     # -- services ---------------------------------------------------------------------------------
