@@ -2,7 +2,8 @@
 
 Parameters go through the node's rcl_interfaces services (rclpy's AsyncParameterClient), as ros2param.
 ``--timeout`` (how long to wait for the node to be discovered) defaults to 5 s here, not 1 s:
-without a daemon, discovery starts from nothing.
+without a daemon, discovery starts from nothing. A refused ``param set`` prints ros2cli's
+"Setting parameter failed: ..." and exits 1 (ros2cli exits 0), so a script can tell.
 """
 from __future__ import annotations
 
