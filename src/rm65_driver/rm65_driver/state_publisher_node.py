@@ -80,7 +80,9 @@ class StatePublisherNode(Node):
             self.create_subscription(Registration, self.p["registration_topic"], self._on_registration,
                                      ros_io.LATCHED_QOS)
         self.diag = ros_io.Diagnostics(self)
-        self.diag.set(self.diag.WARN, "waiting for /joint_states")
+        # Not a warning: a cell without an arm (replay) never sends joints, and the model and static
+        # frames are out already.
+        self.diag.set(self.diag.OK, "model and static frames published; no /joint_states yet")
         self.create_timer(1.0, self.diag.publish)
         self.get_logger().info(f"robot '{self.model.name}': {len(self.model.links)} links, "
                                f"{len(self._moving)} moving joints; static frames "
