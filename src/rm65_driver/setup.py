@@ -14,6 +14,7 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", glob("config/*")),
         (f"share/{PACKAGE}/data", glob("data/*")),
+        (f"share/{PACKAGE}/urdf", glob("urdf/*")),
     ],
     install_requires=["setuptools"],
     zip_safe=False,
@@ -24,6 +25,7 @@ setup(
         "console_scripts": [
             "driver = rm65_driver.driver_node:main",
             "simulator = rm65_driver.simulator:main",
+            "state_publisher = rm65_driver.state_publisher_node:main",
         ],
     },
 )

@@ -28,14 +28,16 @@ def plan(cfg, mode, **kw):
 def test_shipped_modes_run_the_documented_nodes(cfg):
     sim, _ = plan(cfg, "sim")
     assert list(sim) == ["drawing", "camera", "registration", "matcher", "arm_simulator", "arm_driver",
-                         "cell_sequencer", "hmi"]
+                         "state_publisher", "cell_sequencer", "hmi"]
+    # the TF of the camera is the hand-eye the camera and the driver use
+    assert sim["state_publisher"].params["hand_eye_xyz_m"] == sim["arm_driver"].params["hand_eye_xyz_m"]
     assert sim["camera"].params["pose_source"] == "arm"
     assert sim["arm_driver"].params["tcp_port"] == 8080 and sim["arm_driver"].start_after == ("arm_simulator",)
     assert sim["arm_simulator"].argv[-4:] == ["--port", "8080", "--time-scale", "1.0"]  # typed vars in a string list
     assert sim["arm_driver"].params["journal_file"] == "/out/weld_journal.jsonl"
     assert sim["cell_sequencer"].exit_on and sim["drawing"].required
     replay, _ = plan(cfg, "replay", cli_vars={"bag": "/bags/run1"})
-    assert list(replay) == ["bag_play", "drawing", "registration", "matcher", "hmi"]
+    assert list(replay) == ["bag_play", "drawing", "registration", "matcher", "state_publisher", "hmi"]
     assert replay["bag_play"].argv[:7] == ["ros2", "bag", "play", "/bags/run1", "--delay", "1.0",
                                            "--wait-for-subscribers"]
     # only the sensor topics: the cell's own drawing and registration nodes publish the rest
@@ -50,6 +52,7 @@ def test_shipped_modes_run_the_documented_nodes(cfg):
     assert "shot" in hw and not hw["arm_driver"].params.get("publish_camera_pose", False)
     assert hw["shot"].params["hand_eye_xyz_m"] == hw["arm_driver"].params["hand_eye_xyz_m"]
     assert hw["arm_driver"].start_after == ()  # the simulator is not part of this launch
+    assert "state_publisher" in hw
 
 
 def test_command_line_overrides_beat_mode_and_node_params(cfg):

@@ -452,13 +452,14 @@ class DriverNode(Node):
             goal_handle.succeed()
         else:
             goal_handle.abort()
-        summary = (f"weld job ended: {res.message}; welded {len(out.welded)}, skipped {len(out.skipped)}, "
-                   f"failed {len(out.failed)}")
-        # one severity per call site: rclpy refuses a logging call whose severity changes between calls
+        text = (f"weld job ended: {res.message}; welded {len(out.welded)}, skipped {len(out.skipped)}, "
+                f"failed {len(out.failed)}")
+        # Two call sites: rclpy refuses one call site logging at two severities (ValueError), which
+        # used to lose the result of every job that ended otherwise than the one before it.
         if res.success:
-            self.get_logger().info(summary)
+            self.get_logger().info(text)
         else:
-            self.get_logger().warn(summary)
+            self.get_logger().warn(text)
         return out
 
     # -- services ---------------------------------------------------------------------------------

@@ -23,7 +23,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
                        qos_profile_sensor_data)
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 from stud_perception.camera_model import CameraModel
 from stud_perception.rectify import Rectifier, rectifier_for
@@ -91,6 +91,23 @@ def numpy_to_image(arr: np.ndarray, encoding: str, stamp: Time | None = None, fr
     msg.is_bigendian = 0
     msg.step = int(arr.shape[1] * channels * arr.dtype.itemsize)
     msg.data = arr.tobytes()
+    return msg
+
+
+def bgr_to_compressed(bgr: np.ndarray, stamp: Time | None = None, frame_id: str = "",
+                      jpeg_quality: int = 80) -> CompressedImage:
+    """BGR uint8 (H, W, 3) -> sensor_msgs/CompressedImage, JPEG (what image_transport's ``compressed``
+    plugin sends; Foxglove and RViz show it). ``jpeg_quality`` 1..100."""
+    import cv2
+
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(bgr, dtype=np.uint8),
+                           [int(cv2.IMWRITE_JPEG_QUALITY), int(jpeg_quality)])
+    if not ok:
+        raise MessageError(f"JPEG encoding of a {bgr.shape} image failed")
+    msg = CompressedImage(format="jpeg", data=buf.tobytes())
+    if stamp is not None:
+        msg.header.stamp = stamp
+    msg.header.frame_id = frame_id
     return msg
 
 

@@ -26,7 +26,7 @@ from stud_perception.scene import load_scene, surface_height, surface_normal
 
 RECORDED_TOPICS = ["/drawing/layout", "/registration/result", "/weld_targets", "/weld_targets/poses",
                    "/weld_targets/markers", "/weld_targets/overlay", "/arm/state", "/joint_states", "/cell/status",
-                   "/camera/pose", "/camera/color/camera_info"]
+                   "/camera/pose", "/camera/color/camera_info", "/tf", "/tf_static", "/robot_description"]
 
 
 def share_file(package: str, relative: str) -> Path:
@@ -85,6 +85,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--var", dest="vars", action="append", default=[], metavar="NAME=VALUE",
                     help="passed on to `cell` (a ${NAME} of cell.yaml), e.g. hand_eye_file=PATH or "
                          "'true_hand_eye_xyz_m=[0.056, -0.004, -0.097]' (docs/CALIBRATION.md)")
+    ap.add_argument("--arm-port", type=int, default=8080, help="TCP port of the arm simulator (default: 8080)")
+    ap.add_argument("--hmi-port", type=int, default=8090, help="port of the operator page (default: 8090)")
     args = ap.parse_args(argv)
     out = args.out.resolve()
     if out.exists():
@@ -98,13 +100,17 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     cmd = ["ros2", "run", "stud_planner", "cell", "--mode", "sim", "--out", str(out),
            "--set", "cell_sequencer.auto_start=true", "--set", "cell_sequencer.exit_when_done=true",
-           "--var", f"arm_time_scale={args.time_scale}", "--with", "bag_record"]
+           "--var", f"arm_time_scale={args.time_scale}", "--var", f"arm_port={args.arm_port}",
+           "--var", f"hmi_port={args.hmi_port}", "--with", "bag_record"]
     for var in args.vars:
         cmd += ["--var", var]
+    # Another cell on this machine with the same domain would mix with ours: say which one we use.
+    print(f"demo: ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')} (set ROS_DOMAIN_ID to run beside another "
+          "cell; `ros2 topic list` in a shell with the same value sees this one)", flush=True)
     if args.no_hmi:
         cmd.append("--no-hmi")
     else:
-        print("demo: the operator screen is at http://127.0.0.1:8090/ while the job runs", flush=True)
+        print(f"demo: the operator screen is at http://127.0.0.1:{args.hmi_port}/ while the job runs", flush=True)
     print("demo: " + " ".join(cmd), flush=True)
     t0 = time.monotonic()
     code = subprocess.call(cmd, env={**os.environ, "PYTHONUNBUFFERED": "1"})

@@ -8,13 +8,16 @@ estimate the surface pose, and publish
 
 * ``/weld_targets`` (WeldTargetArray: every stud of the drawing, in drawing order, with status),
 * ``/weld_targets/poses`` (PoseArray, same order, frame ``world``),
-* ``/weld_targets/markers`` (MarkerArray: an arrow per in-view stud along its normal, coloured by status),
-* ``/weld_targets/overlay`` (the colour image with matched pixels and ids, the paper's Fig. 11),
+* ``/weld_targets/markers`` (MarkerArray: per in-view stud an arrow along its normal and its id as text,
+  coloured by status: stud_planner.target_markers),
+* ``/weld_targets/overlay`` (the colour image with matched pixels and ids, the paper's Fig. 11), and the
+  same as JPEG on ``/weld_targets/overlay/compressed`` (sensor_msgs/CompressedImage, for remote viewers;
+  encoded only while it has a subscriber),
 * ``/diagnostics`` (input ages and rates, last match time, counts by status).
 
 Colour is needed only for the overlay, so the node subscribes to ``/camera/color/image_raw`` only
-while ``/weld_targets/overlay`` has a subscriber (and ``publish_overlay`` is true), and the colour
-never holds back ``/weld_targets``: the overlay of a view follows when its colour image (same stamp)
+while ``/weld_targets/overlay`` or its ``compressed`` topic has a subscriber (and ``publish_overlay``
+is true), and the colour never holds back ``/weld_targets``: the overlay of a view follows when its colour image (same stamp)
 arrives. A 1280x960 colour frame costs as much transport as the matching (the lazy subscription of
 ROS image pipelines).
 
@@ -27,22 +30,21 @@ from __future__ import annotations
 import time
 from collections import OrderedDict, deque
 
-import numpy as np
-from geometry_msgs.msg import Point, Pose, PoseArray, PoseStamped, Quaternion, Vector3
+from geometry_msgs.msg import Point, Pose, PoseArray, PoseStamped, Quaternion
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
-from sensor_msgs.msg import CameraInfo, Image
-from std_msgs.msg import ColorRGBA, Header
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+from std_msgs.msg import Header
 from stud_welding_msgs.msg import Registration, StudLayout, WeldTargetArray
-from visualization_msgs.msg import Marker, MarkerArray
+from visualization_msgs.msg import MarkerArray
 
 from stud_perception import ros_io
 from stud_perception.ros_io import Param
 from stud_planner.gun_clearance import GunModel
 from stud_planner.msg_convert import layout_from_msg, registration_from_msg
 from stud_planner.target_cdr import weld_target_array_cdr
-from stud_planner.view_planning import (ALGORITHMS, STATUS_BGR, STATUS_OUT_OF_VIEW, PlannerConfig,
-                                        draw_targets_overlay, plan_view)
+from stud_planner.target_markers import target_markers
+from stud_planner.view_planning import ALGORITHMS, PlannerConfig, draw_targets_overlay, plan_view
 
 PARAMS = [
     Param("algorithm", "batch", "matcher: 'batch' (ours), 'fpm' or 'bfs' (the paper's)", choices=ALGORITHMS),
@@ -69,7 +71,8 @@ PARAMS = [
     Param("max_registration_age_s", 0.0, "a registration older than this (stamps) is stale [s]; 0: never",
           min=0.0, max=1e6),
     Param("sync_slop_s", 0.0, "stamps closer than this belong to one view [s] (0: equal stamps)", min=0.0, max=1.0),
-    Param("publish_overlay", True, "publish /weld_targets/overlay"),
+    Param("publish_overlay", True, "publish /weld_targets/overlay (and /weld_targets/overlay/compressed)"),
+    Param("overlay_jpeg_quality", 80, "JPEG quality of /weld_targets/overlay/compressed", min=1, max=100),
     ros_io.IMAGES_RECTIFIED_PARAM,
 ]
 _ODD = ("fpm_window_px", "hole_window_px")
@@ -102,6 +105,9 @@ class MatcherNode(Node):
         self.pub_markers = self.create_publisher(MarkerArray, "/weld_targets/markers", ros_io.RESULT_QOS)
         self.pub_overlay = self.create_publisher(
             Image, "/weld_targets/overlay", ros_io.RESULT_QOS,
+            event_callbacks=PublisherEventCallbacks(matched=lambda _info: self._update_color_subscription()))
+        self.pub_overlay_jpeg = self.create_publisher(
+            CompressedImage, "/weld_targets/overlay/compressed", ros_io.RESULT_QOS,
             event_callbacks=PublisherEventCallbacks(matched=lambda _info: self._update_color_subscription()))
         self.diag = ros_io.Diagnostics(self)
         self.diag.set(self.diag.WARN, "waiting for inputs")
@@ -136,7 +142,8 @@ class MatcherNode(Node):
 
     def _update_color_subscription(self) -> None:
         """Subscribe to colour while the overlay is wanted and watched; unsubscribe otherwise."""
-        wanted = bool(self.p["publish_overlay"]) and self.pub_overlay.get_subscription_count() > 0
+        wanted = bool(self.p["publish_overlay"]) and (self.pub_overlay.get_subscription_count() > 0
+                                                       or self.pub_overlay_jpeg.get_subscription_count() > 0)
         if wanted and self._color_sub is None:
             self._color_sub = self.create_subscription(Image, "/camera/color/image_raw", self._on_color,
                                                        ros_io.SENSOR_QOS)
@@ -248,8 +255,13 @@ class MatcherNode(Node):
         except (ros_io.MessageError, ValueError) as exc:
             self.get_logger().warn(f"no overlay: unusable colour image: {exc}", throttle_duration_sec=10.0)
             return
-        self.pub_overlay.publish(ros_io.numpy_to_image(draw_targets_overlay(color, targets, camera), "bgr8",
-                                                       color_msg.header.stamp, color_msg.header.frame_id))
+        overlay = draw_targets_overlay(color, targets, camera)
+        stamp, frame = color_msg.header.stamp, color_msg.header.frame_id
+        if self.pub_overlay.get_subscription_count():
+            self.pub_overlay.publish(ros_io.numpy_to_image(overlay, "bgr8", stamp, frame))
+        if self.pub_overlay_jpeg.get_subscription_count():
+            self.pub_overlay_jpeg.publish(ros_io.bgr_to_compressed(overlay, stamp, frame,
+                                                                   self.p["overlay_jpeg_quality"]))
 
     @staticmethod
     def _poses(targets, header: Header) -> PoseArray:
@@ -261,19 +273,7 @@ class MatcherNode(Node):
 
     @staticmethod
     def _markers(targets, header: Header) -> MarkerArray:
-        """An arrow along the normal for every stud in view with a position and a normal."""
-        markers = MarkerArray(markers=[Marker(action=Marker.DELETEALL)])
-        shown = ((targets.status != STATUS_OUT_OF_VIEW) & np.all(np.isfinite(targets.position_w), axis=1)
-                 & np.all(np.isfinite(targets.normal_w), axis=1))
-        for i in np.flatnonzero(shown).tolist():
-            b, g, r = STATUS_BGR.get(int(targets.status[i]), (0, 0, 255))
-            p, n = targets.position_w[i].tolist(), targets.normal_w[i].tolist()
-            markers.markers.append(Marker(
-                header=header, ns="weld_targets", id=i, type=Marker.ARROW, action=Marker.ADD,
-                points=[Point(x=p[0], y=p[1], z=p[2]),
-                        Point(x=p[0] + 0.05 * n[0], y=p[1] + 0.05 * n[1], z=p[2] + 0.05 * n[2])],
-                scale=Vector3(x=0.003, y=0.006, z=0.01), color=ColorRGBA(r=r / 255, g=g / 255, b=b / 255, a=1.0)))
-        return markers
+        return target_markers(targets, header)
 
     def _publish_diagnostics(self) -> None:
         self._update_color_subscription()  # in case a matched event was missed

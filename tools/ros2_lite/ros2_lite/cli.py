@@ -1,4 +1,5 @@
-"""`ros2` for machines without ros2cli: `run`, `pkg`, `interface`, `bag`.
+"""`ros2` for machines without ros2cli: `run`, `pkg`, `interface`, `bag`, and the introspection verbs
+`topic`, `node`, `param`, `service`, `action` (on rclpy; ros2cli's arguments and output).
 
 ROS 2 Jazzy comes from PyPI wheels here and those do not include ros2cli, so this
 covers what our users run. Lookups follow ros2cli exactly: a package's prefix comes
@@ -7,7 +8,9 @@ under ``<prefix>/lib/<package>/`` (ros2run's ``get_executable_paths``). When a r
 ros2cli is importable we hand over to it and do nothing ourselves.
 
 Exit codes: 0 success, 1 a lookup or runtime failure (the message ros2cli prints),
-2 a usage error. A child started by ``ros2 run`` returns its own exit code.
+2 a usage error, 130 Ctrl-C. A child started by ``ros2 run`` returns its own exit code. Output
+into a closed pipe (``ros2 topic list | head -1``) ends the command quietly with 141, as a tool killed
+by SIGPIPE.
 """
 from __future__ import annotations
 
@@ -20,7 +23,11 @@ import subprocess
 import sys
 from pathlib import Path
 
-from ros2_lite import ament
+from ros2_lite import ament, node, service, topic
+from ros2_lite.msg_yaml import InterfaceError
+
+#: A verb's failure, printed as one line on stderr with exit code 1.
+_VERB_ERRORS = (topic.TopicError, node.NodeError, service.ServiceError, InterfaceError)
 
 
 class UsageError(Exception):
@@ -135,7 +142,8 @@ def cmd_bag(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="ros2", description="ros2 commands (run, pkg, interface, bag) without ros2cli")
+    parser = _Parser(prog="ros2", description="ros2 commands (run, pkg, interface, bag, topic, node, param, "
+                                              "service, action) without ros2cli")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
 
     run = sub.add_parser("run", help="run a package's executable")
@@ -171,6 +179,10 @@ def build_parser() -> argparse.ArgumentParser:
     bag = sub.add_parser("bag", help="record, play and inspect rosbag2 MCAP bags")
     bag.add_argument("bag_argv", nargs=argparse.REMAINDER)
     bag.set_defaults(func=cmd_bag)
+
+    topic.register(sub, _Parser)
+    node.register(sub, _Parser)
+    service.register(sub, _Parser)
     return parser
 
 
@@ -189,11 +201,20 @@ def main(argv: list[str] | None = None) -> int:
     except UsageError as exc:
         print(f"{exc}", file=sys.stderr)
         return 2
-    except CommandError as exc:
+    except (CommandError, *_VERB_ERRORS) as exc:
         print(f"{exc}", file=sys.stderr)
         return 1
+    except BrokenPipeError:
+        # The reader went away (`| head`): stop quietly, and keep the interpreter's final flush of
+        # stdout from failing again on the closed pipe.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except KeyboardInterrupt:
         return 130
+    except Exception as exc:  # rclpy raises this when Ctrl-C shut its context down mid-spin
+        if type(exc).__name__ == "ExternalShutdownException":
+            return 130
+        raise
 
 
 if __name__ == "__main__":
