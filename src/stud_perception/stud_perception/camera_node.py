@@ -74,9 +74,11 @@ PARAMS = [
     # cell; the image is rendered with the TRUE one, which a real cell never knows.
     *hand_eye_ros.PARAMS,
     Param("true_hand_eye_xyz_m", [math.nan] * 3, "sim only: the camera's TRUE optical frame origin in the tool "
-          "frame, used to render [m]; NaN: the believed hand-eye", validate=_three("true_hand_eye_xyz_m")),
+          "frame, used to render [m]; NaN: the believed hand-eye", validate=_three("true_hand_eye_xyz_m"),
+          nan_means="the believed hand-eye"),
     Param("true_hand_eye_rpy_deg", [math.nan] * 3, "sim only: the camera's TRUE orientation in the tool frame, "
-          "roll-pitch-yaw, used to render [deg]; NaN: the believed hand-eye", validate=_three("true_hand_eye_rpy_deg")),
+          "roll-pitch-yaw, used to render [deg]; NaN: the believed hand-eye", validate=_three("true_hand_eye_rpy_deg"),
+          nan_means="the believed hand-eye"),
     Param("distortion_model", "plumb_bob", "lens distortion model of the raw images (CameraInfo distortion_model)",
           choices=PINHOLE_MODELS + FISHEYE_MODELS),
     Param("distortion_d", [0.0, 0.0, 0.0, 0.0, 0.0], "lens distortion coefficients of the raw images, OpenCV "

@@ -255,7 +255,9 @@ class Param:
     """A node parameter: name, default, description, and an optional range or validator.
 
     ``validate(value) -> str | None`` returns a reason to reject the value. Numbers (and lists of
-    numbers) must be finite whatever the range: NaN compares false with every bound.
+    numbers) must be finite whatever the range: NaN compares false with every bound -- unless
+    ``nan_means`` says what a NaN stands for (a documented "not set" value, e.g. "the believed
+    hand-eye"), in which case NaN is accepted and inf still is not.
     """
 
     name: str
@@ -266,6 +268,7 @@ class Param:
     choices: tuple | None = None
     read_only: bool = False
     validate: Callable[[Any], str | None] | None = None
+    nan_means: str | None = None
 
     def expected(self) -> str:
         """What a valid value looks like, for error messages ("a number in [0.005, 0.3]")."""
@@ -287,8 +290,10 @@ class Param:
         if self.choices is not None and value not in self.choices:
             return f"{self.name}={value!r}: expected one of {list(self.choices)}"
         numbers = value if isinstance(value, (list, tuple)) else [value]
-        if any(isinstance(v, float) and not math.isfinite(v) for v in numbers):
-            return f"{self.name}={_show(value)}: expected {self.expected()}, finite"
+        allowed = (lambda v: math.isfinite(v) or math.isnan(v)) if self.nan_means else math.isfinite
+        if any(isinstance(v, float) and not allowed(v) for v in numbers):
+            extra = f" (or NaN: {self.nan_means})" if self.nan_means else ""
+            return f"{self.name}={_show(value)}: expected {self.expected()}, finite{extra}"
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             if (self.min is not None and value < self.min) or (self.max is not None and value > self.max):
                 return f"{self.name}={value!r}: expected {self.expected()}"
