@@ -29,7 +29,8 @@ from stud_perception import ros_io
 from stud_perception.markers import MarkDetectorConfig
 from stud_perception.view_registration import config_for_layout, register_view
 from stud_planner import dxf_layout
-from stud_planner.view_planning import ALGORITHMS, STATUS_OUT_OF_VIEW, PlannerConfig, draw_targets_overlay, plan_view
+from stud_planner.view_planning import (ALGORITHMS, STATUS_OK, STATUS_OUT_OF_VIEW, STATUS_TEXT, PlannerConfig,
+                                        draw_targets_overlay, plan_view)
 
 DEFAULT_TOPICS = {"color": "/camera/color/image_raw", "depth": "/camera/depth/image_raw",
                   "info": "/camera/color/camera_info", "pose": "/camera/pose"}
@@ -280,9 +281,7 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
 
     ids = [s.id for s in layout.studs]
     xy = layout.studs_xy_m()
-    best: list[dict | None] = [None] * len(ids)
-    best_score = np.full((len(ids), 2), np.inf)  # (centrality, view index): ties go to the earlier view
-    fallback: list[tuple[int, dict] | None] = [None] * len(ids)
+    chosen = _BestTargets(len(ids))
     totals = {"iterations": 0, "match_time": 0.0, "views": 0}
 
     def match_view(v: View, camera, color, depth) -> None:
@@ -296,16 +295,7 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
 
             overlay_dir.mkdir(parents=True, exist_ok=True)
             cv2.imwrite(str(overlay_dir / f"view_{v.index:03d}.png"), draw_targets_overlay(color, t, camera))
-        centre = np.array([camera.cx, camera.cy])
-        half_diag = np.hypot(camera.width, camera.height) / 2
-        for i in range(len(ids)):
-            entry = _entry(ids[i], xy[i], t, i, v.index)
-            if t.status[i] == 0:
-                score = (np.linalg.norm(t.matches.pixel_uv[i] - centre) / half_diag, v.index)  # most central wins
-                if score < tuple(best_score[i]):
-                    best[i], best_score[i] = entry, score
-            elif t.status[i] != STATUS_OUT_OF_VIEW and (fallback[i] is None or v.index < fallback[i][0]):
-                fallback[i] = (v.index, entry)
+        chosen.add_view(t, v.index, camera)
 
     # One pass over the bag: register on the first view (in logged order) where the marks are found,
     # then match it and every later view; the views before it take a second pass.
@@ -329,13 +319,8 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
         raise PlanError(f"{bag}: {len(views) - totals['views']} of {len(views)} views lost their images between "
                         "two reads of the bag (was it written to meanwhile?)")
     iterations_total, match_time = totals["iterations"], totals["match_time"]
-    fallback = [f[1] if f is not None else None for f in fallback]
     _progress(len(views), len(views), quiet, "matching")
-    targets = []
-    for i, sid in enumerate(ids):
-        entry = best[i] or fallback[i] or {"stud_id": sid, "drawing_xy_mm": [xy[i, 0] * 1e3, xy[i, 1] * 1e3],
-                                          "status": "out_of_view"}
-        targets.append(entry)
+    targets = chosen.entries(ids, xy)
     return {
         "drawing": str(drawing), "bag": str(bag), "algorithm": config.algorithm,
         "registration": {"M_local2world": registration.M_local2world.tolist(),
@@ -345,19 +330,74 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
     }
 
 
-def _num(x) -> float | None:
-    x = float(x)
-    return x if np.isfinite(x) else None
+class _BestTargets:
+    """Per stud, the view whose target the report keeps, updated one view at a time (arrays over
+    all studs: a bridge has 250,000 of them, and a bag many views).
+
+    A usable (``ok``) target wins over any other; among usable ones the match most central in
+    its image (distance from the principal point over the half diagonal), ties to the earlier
+    view. A stud with no usable target anywhere keeps its first view (lowest index) that saw it
+    with another status; a stud out of every view is ``out_of_view``."""
+
+    NONE, OK, FALLBACK = 2, 0, 1
+
+    def __init__(self, n: int):
+        self.rank = np.full(n, self.NONE, np.int8)
+        self.centrality = np.full(n, np.inf)
+        self.view = np.full(n, np.iinfo(np.int64).max, np.int64)
+        self.status = np.zeros(n, np.uint8)
+        self.position = np.full((n, 3), np.nan)
+        self.normal = np.full((n, 3), np.nan)
+        self.pixel = np.full((n, 2), np.nan)
+        self.iterations = np.zeros(n, np.int64)
+        self.xy_error_mm = np.full(n, np.nan)
+        self.inclination = np.full(n, np.nan)
+
+    def add_view(self, t, view_index: int, camera) -> None:
+        ok = t.status == STATUS_OK
+        centre = np.array([camera.cx, camera.cy])
+        half_diag = np.hypot(camera.width, camera.height) / 2
+        centrality = np.linalg.norm(t.matches.pixel_uv - centre, axis=1) / half_diag
+        take_ok = ok & ((self.rank != self.OK) | (centrality < self.centrality)
+                        | ((centrality == self.centrality) & (view_index < self.view)))
+        take_other = (~ok & (t.status != STATUS_OUT_OF_VIEW) & (self.rank != self.OK)
+                      & (view_index < self.view))
+        take = take_ok | take_other
+        self.rank[take_ok], self.rank[take_other] = self.OK, self.FALLBACK
+        self.centrality[take_ok] = centrality[take_ok]
+        self.view[take] = view_index
+        self.status[take] = t.status[take]
+        self.position[take] = t.position_w[take]
+        self.normal[take] = t.normal_w[take]
+        self.pixel[take] = t.matches.pixel_uv[take]
+        self.iterations[take] = t.matches.iterations[take]
+        self.xy_error_mm[take] = t.matches.xy_residual_m[take] * 1e3
+        self.inclination[take] = t.inclination_deg[take]
+
+    def entries(self, ids: list[str], xy_m: np.ndarray) -> list[dict]:
+        """The report's ``targets``, one per stud in drawing order (INTERFACES.md)."""
+        xy_mm = (np.asarray(xy_m, dtype=np.float64).reshape(-1, 2) * 1e3).tolist()
+        names = [STATUS_TEXT[s] for s in self.status.tolist()]
+        pos, nrm, pix = _nullable(self.position), _nullable(self.normal), _nullable(self.pixel)
+        err, inc = _nullable(self.xy_error_mm), _nullable(self.inclination)
+        views, its = self.view.tolist(), self.iterations.tolist()
+        out = []
+        for i, (sid, rank) in enumerate(zip(ids, self.rank.tolist())):
+            if rank == self.NONE:
+                out.append({"stud_id": sid, "drawing_xy_mm": xy_mm[i], "status": "out_of_view"})
+            else:
+                out.append({"stud_id": sid, "drawing_xy_mm": xy_mm[i], "status": names[i], "position_m": pos[i],
+                            "normal": nrm[i], "pixel": pix[i], "view": views[i], "iterations": its[i],
+                            "xy_error_mm": err[i], "inclination_deg": inc[i]})
+        return out
 
 
-def _entry(sid: str, xy_m, t, i: int, view_index: int) -> dict:
-    return {
-        "stud_id": sid, "drawing_xy_mm": [xy_m[0] * 1e3, xy_m[1] * 1e3], "status": t.status_text[i],
-        "position_m": [_num(v) for v in t.position_w[i]], "normal": [_num(v) for v in t.normal_w[i]],
-        "pixel": [_num(v) for v in t.matches.pixel_uv[i]], "view": view_index,
-        "iterations": int(t.matches.iterations[i]), "xy_error_mm": _num(t.matches.xy_residual_m[i] * 1e3),
-        "inclination_deg": _num(t.inclination_deg[i]),
-    }
+def _nullable(values: np.ndarray) -> list:
+    """``values.tolist()`` with None where a value is not finite (JSON's null: no value)."""
+    values = np.asarray(values, dtype=np.float64)
+    out = values.astype(object)
+    out[~np.isfinite(values)] = None
+    return out.tolist()
 
 
 def write_csv(report: dict, path: Path) -> None:

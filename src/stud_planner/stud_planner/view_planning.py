@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -81,9 +82,11 @@ class ViewTargets:
     algorithm: str
     match_time_s: float
 
-    @property
+    @cached_property
     def status_text(self) -> list[str]:
-        return [STATUS_TEXT[int(s)] for s in self.status]
+        """(N,) status names, built once (read per stud by callers: a property rebuilding the
+        list on each access made a per-stud loop quadratic)."""
+        return [STATUS_TEXT[s] for s in self.status.tolist()]
 
     @property
     def ok(self) -> np.ndarray:
