@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
+import math
 import struct
 import sys
 import time
@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from stud_perception import ros_io
+from stud_perception.strict_json import write_json
 from stud_perception.markers import MarkDetectorConfig
 from stud_perception.view_registration import config_for_layout, register_view
 from stud_planner import dxf_layout
@@ -377,27 +378,30 @@ class _BestTargets:
     def entries(self, ids: list[str], xy_m: np.ndarray) -> list[dict]:
         """The report's ``targets``, one per stud in drawing order (INTERFACES.md)."""
         xy_mm = (np.asarray(xy_m, dtype=np.float64).reshape(-1, 2) * 1e3).tolist()
-        names = [STATUS_TEXT[s] for s in self.status.tolist()]
-        pos, nrm, pix = _nullable(self.position), _nullable(self.normal), _nullable(self.pixel)
-        err, inc = _nullable(self.xy_error_mm), _nullable(self.inclination)
-        views, its = self.view.tolist(), self.iterations.tolist()
-        out = []
-        for i, (sid, rank) in enumerate(zip(ids, self.rank.tolist())):
-            if rank == self.NONE:
-                out.append({"stud_id": sid, "drawing_xy_mm": xy_mm[i], "status": "out_of_view"})
-            else:
-                out.append({"stud_id": sid, "drawing_xy_mm": xy_mm[i], "status": names[i], "position_m": pos[i],
-                            "normal": nrm[i], "pixel": pix[i], "view": views[i], "iterations": its[i],
-                            "xy_error_mm": err[i], "inclination_deg": inc[i]})
+        out = [{"stud_id": sid, "drawing_xy_mm": xy, "status": "out_of_view"} for sid, xy in zip(ids, xy_mm)]
+        seen = np.flatnonzero(self.rank != self.NONE)
+        names = [STATUS_TEXT[s] for s in self.status[seen].tolist()]
+        pos, nrm, pix = (_nullable(a[seen]) for a in (self.position, self.normal, self.pixel))
+        err, inc = _nullable(self.xy_error_mm[seen]), _nullable(self.inclination[seen])
+        views, its = self.view[seen].tolist(), self.iterations[seen].tolist()
+        for k, i in enumerate(seen.tolist()):
+            out[i].update(status=names[k], position_m=pos[k], normal=nrm[k], pixel=pix[k], view=views[k],
+                          iterations=its[k], xy_error_mm=err[k], inclination_deg=inc[k])
         return out
 
 
 def _nullable(values: np.ndarray) -> list:
     """``values.tolist()`` with None where a value is not finite (JSON's null: no value)."""
     values = np.asarray(values, dtype=np.float64)
-    out = values.astype(object)
-    out[~np.isfinite(values)] = None
-    return out.tolist()
+    out = values.tolist()
+    bad = ~np.isfinite(values)
+    if values.ndim == 1:
+        for i in np.flatnonzero(bad).tolist():
+            out[i] = None
+    else:
+        for i in np.flatnonzero(bad.any(axis=1)).tolist():
+            out[i] = [v if math.isfinite(v) else None for v in out[i]]
+    return out
 
 
 def write_csv(report: dict, path: Path) -> None:
@@ -444,8 +448,7 @@ def main(argv: list[str] | None = None) -> int:
         for warning in report["warnings"]:
             print(f"plan: warning: {warning}", file=sys.stderr)
         if args.out:
-            args.out.parent.mkdir(parents=True, exist_ok=True)
-            args.out.write_text(json.dumps(report, indent=1) + "\n")
+            write_json(args.out, report)  # strict JSON: a missing value is null, never NaN
         if args.csv:
             write_csv(report, args.csv)
     except PlanError as exc:
