@@ -266,8 +266,8 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
          sync_slop_ms: float = DEFAULT_SYNC_SLOP_MS, allow_damaged: bool = False,
          images_rectified: bool = False) -> dict:
     """Run the offline planning and return the report (see the module docstring). ``report["warnings"]``
-    lists what the user must know about the result (a damaged bag read anyway). Raw images with
-    lens distortion are rectified; ``images_rectified``: they were already (see
+    lists what the user must know about the result (a damaged bag read anyway, drawing circles left
+    out for non-finite or out-of-range values). Raw images with lens distortion are rectified; ``images_rectified``: they were already (see
     :func:`ros_io.camera_model_from_msgs`)."""
     topics = topics or DEFAULT_TOPICS
     try:
@@ -276,6 +276,11 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
         raise PlanError(str(exc)) from None
     config = config or PlannerConfig(algorithm=algorithm)
     warnings: list[str] = []
+    if layout.invalid_entities:  # not studs of the report: the user must hear of them here
+        bad = layout.invalid_entities
+        warnings.append(f"{drawing}: {len(bad)} circle{'s' if len(bad) != 1 else ''} with non-finite or out-of-range "
+                        f"values left out, not planned: " + "; ".join(bad[:5])
+                        + (f"; ... (+{len(bad) - 5})" if len(bad) > 5 else ""))
     views = read_views(bag, topics, sync_slop_ms, warnings, allow_damaged)
     marks = np.array([(m.x_m, m.y_m) for m in (layout.mark_o, layout.mark_a, layout.mark_b)])
     det_config = config_for_layout(MarkDetectorConfig(), layout.mark_diameter_m)
