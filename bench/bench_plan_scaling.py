@@ -15,12 +15,13 @@ fresh process, as a user runs it:
   (imports included), and its peak resident memory (``ru_maxrss``).
 
 It prints the figures per size, the time per stud and the ratio of the per-stud cost against
-the smallest size (1.0 = linear), and the targets: 250k parsed and planned in <= 20 s, peak
+the smallest size (1.0 = linear; below 1 while the fixed cost -- imports, the bag, registration --
+still weighs), the marginal cost per added stud between sizes (equal = linear), and the targets: 250k parsed and planned in <= 20 s, peak
 memory <= 1.5 GB. Exit code 1 when a target is missed (0 with ``--no-check``).
 
 Usage::
 
-    python bench/bench_plan_scaling.py              # 10k, 50k, 250k (about 2 min, most of it writing DXFs)
+    python bench/bench_plan_scaling.py              # 10k, 50k, 250k (about a minute, most of it writing DXFs)
     python bench/bench_plan_scaling.py --sizes 1000 5000 --no-check   # quick
     python bench/bench_plan_scaling.py --profile 250000               # cProfile of plan at that size
 """
@@ -180,6 +181,13 @@ def main(argv: list[str] | None = None) -> int:
             ratio_cli = per_cli / (base["cli_s"] / base["studs"] * 1e6)
             ratio_in = per_in / ((base["parse_s"] + base["plan_s"]) / base["studs"] * 1e6)
             print(f"  {m['studs']:>8,}: {per_cli:6.1f} us/stud (x{ratio_cli:.2f}), {per_in:6.1f} us/stud (x{ratio_in:.2f})")
+        if len(rows) > 1:
+            print("marginal cost per added stud (removes the fixed cost: imports, the bag, registration):")
+            for a, b in zip(rows, rows[1:]):
+                dn = b["studs"] - a["studs"]
+                print(f"  {a['studs']:>8,} -> {b['studs']:>8,}: plan command {(b['cli_s'] - a['cli_s']) / dn * 1e6:6.1f} "
+                      f"us/stud, parse + plan {(b['parse_s'] + b['plan_s'] - a['parse_s'] - a['plan_s']) / dn * 1e6:6.1f} "
+                      "us/stud")
         big = rows[-1]
         ok_time = big["cli_s"] <= TARGET_S
         ok_rss = max(big["cli_rss_mb"], big["rss_mb"]) <= TARGET_RSS_MB

@@ -82,10 +82,12 @@ Warnings (``StudLayout.warnings``, one line each) and errors
 from __future__ import annotations
 
 import fnmatch
+import gc
 import io
 import math
 import re
 from collections import Counter
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Sequence
@@ -235,7 +237,11 @@ class StudLayout:
 
     def studs_xy_m(self) -> np.ndarray:
         """(N, 2) float64 stud centres, drawing frame, metres, id order."""
-        return np.array([(s.x_m, s.y_m) for s in self.studs], dtype=np.float64).reshape(-1, 2)
+        n = len(self.studs)
+        xy = np.empty((n, 2), dtype=np.float64)  # column by column: a list of N tuples costs 10x more
+        xy[:, 0] = np.fromiter((s.x_m for s in self.studs), np.float64, n)
+        xy[:, 1] = np.fromiter((s.y_m for s in self.studs), np.float64, n)
+        return xy
 
     def drawing_to_wcs(self, xy_m: np.ndarray) -> np.ndarray:
         """(N, 2) drawing-frame metres -> (N, 2) DXF WCS in drawing units."""
@@ -1140,17 +1146,33 @@ def read_layout(
         DrawingError: one line naming the file and the problem.
     """
     path = Path(path)
-    cs = read_circles(path, units_if_unitless=units_if_unitless, include_hidden_layers=include_hidden_layers)
+    with _bulk_allocation():
+        cs = read_circles(path, units_if_unitless=units_if_unitless, include_hidden_layers=include_hidden_layers)
+        try:
+            return _build_layout(
+                path, cs, stud_layers, mark_layer, min_diameter_m, max_diameter_m, min_spacing_m,
+                duplicate_tol_m, diameter_outlier_ratio, label_distance_factor, perpendicular_tol_deg,
+                collinear_tol_deg, right_angle_ambiguity_deg,
+            )
+        except DrawingError:
+            raise
+        except Exception as exc:
+            raise DrawingError(f"{path}: cannot interpret the drawing ({type(exc).__name__}: {_one_line(exc)})") from exc
+
+
+@contextmanager
+def _bulk_allocation():
+    """Python's cyclic garbage collector paused while a drawing's hundreds of thousands of objects
+    (ezdxf entities, studs) are built, none of which is garbage before the layout is done: its
+    collections, which revisit every live object, made reading a 250,000-stud drawing
+    superlinear. What ezdxf leaves behind is collected once the collector runs again."""
+    enabled = gc.isenabled()
+    gc.disable()
     try:
-        return _build_layout(
-            path, cs, stud_layers, mark_layer, min_diameter_m, max_diameter_m, min_spacing_m,
-            duplicate_tol_m, diameter_outlier_ratio, label_distance_factor, perpendicular_tol_deg,
-            collinear_tol_deg, right_angle_ambiguity_deg,
-        )
-    except DrawingError:
-        raise
-    except Exception as exc:
-        raise DrawingError(f"{path}: cannot interpret the drawing ({type(exc).__name__}: {_one_line(exc)})") from exc
+        yield
+    finally:
+        if enabled:
+            gc.enable()
 
 
 def _ids_list(ids: Sequence[str], limit: int = 5) -> str:
