@@ -1,8 +1,19 @@
-"""Test-wide set-up: import our packages from the source tree, isolate DDS.
+"""Test-wide set-up: import our packages from the source tree, isolate DDS, and the rules for
+what may be missing.
 
 Pure-Python core modules are tested straight from ``src/<package>`` so a change is
 tested without a rebuild; the generated message package comes from the built
 workspace (``source ros2_ws/setup.bash``).
+
+Missing prerequisites (:func:`require`): the shared test corpus (``../shared/data``: real CAD
+files and rosbag2 bags) and Chromium for the HMI's browser test. On a developer's machine a test
+that needs one skips, saying why; with ``CI=true`` (``.ci/run``) it *fails* with that reason, so a
+CI run never turns dozens of tests into silent skips.
+
+Property tests (hypothesis): profile ``dev`` (20 examples, random) by default, ``ci`` with
+``CI=true`` -- derandomised (reproducible, no example database) and 100 examples for the tests
+that leave ``max_examples`` to the profile (the matcher's and the normals' geometry properties).
+``HYPOTHESIS_PROFILE`` picks one explicitly.
 """
 from __future__ import annotations
 
@@ -30,6 +41,39 @@ _domains = itertools.count()
 sys.path.insert(0, str(REPO / "tests" / "ros"))
 
 import pytest  # noqa: E402
+from hypothesis import settings  # noqa: E402
+
+CI = os.environ.get("CI", "").strip().lower() in ("1", "true", "yes")
+
+settings.register_profile("dev", max_examples=20, deadline=None)
+settings.register_profile("ci", max_examples=100, derandomize=True, database=None, deadline=None, print_blob=True)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE") or ("ci" if CI else "dev"))
+
+
+def require(available: bool, what: str) -> None:
+    """Skip the test (fail it under ``CI=true``) unless ``available``; ``what`` says what is missing."""
+    if available:
+        return
+    if CI:
+        pytest.fail(f"{what} -- CI=true: a missing prerequisite fails the run instead of skipping the test",
+                    pytrace=False)
+    pytest.skip(what)
+
+
+@pytest.fixture()
+def prerequisite():
+    """:func:`require` for a test module (``prerequisite(available, "what is missing")``)."""
+    return require
+
+
+@pytest.fixture()
+def require_shared_data():
+    """``require_shared_data(path)``: the shared test corpus at ``path`` (under ../shared/data) is there."""
+    def check(path: Path) -> Path:
+        path = Path(path)
+        require(path.exists(), f"shared test corpus {path} is not on this machine (expected next to the repository)")
+        return path
+    return check
 
 
 @pytest.fixture(autouse=True)

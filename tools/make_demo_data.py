@@ -13,7 +13,6 @@ Run: source ros2_ws/setup.bash && python tools/make_demo_data.py
 """
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
@@ -24,6 +23,7 @@ for pkg in ("stud_perception", "stud_planner"):
 import numpy as np  # noqa: E402
 
 from stud_perception.scene import SceneSpec, demo_dome_scene, scene_from_dict, scene_to_dict  # noqa: E402
+from stud_perception.strict_json import write_json  # noqa: E402
 from stud_planner.dxf_layout import read_layout  # noqa: E402
 from stud_planner.dxf_writer import write_layout_dxf  # noqa: E402
 
@@ -79,7 +79,7 @@ def main() -> int:
                      mark_diameter_m=scene.board.mark_diameter_m, dxfversion="R2010", units="mm")
     scene = scene_with_drawing_ids(scene, DXF)
     SCENE.parent.mkdir(parents=True, exist_ok=True)
-    SCENE.write_text(json.dumps(scene_to_dict(scene), indent=1) + "\n")
+    write_json(SCENE, scene_to_dict(scene))
     print(f"wrote {DXF.relative_to(REPO)} ({DXF.stat().st_size} bytes) and {SCENE.relative_to(REPO)}")
     return 0
 

@@ -13,7 +13,6 @@ Run: source ros2_ws/setup.bash && python tools/record_demo_bag.py [--out bags/do
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 import sys
 from pathlib import Path
@@ -28,6 +27,7 @@ from stud_perception import ros_io  # noqa: E402
 from stud_perception.camera_model import nadir_rotation  # noqa: E402
 from stud_perception.camera_node import shot_messages  # noqa: E402
 from stud_perception.scene import load_scene, render, view_camera  # noqa: E402
+from stud_perception.strict_json import write_json  # noqa: E402
 from stud_planner.cell_sequencer import PARAMS as SEQ_PARAMS  # noqa: E402
 from stud_planner.dxf_layout import read_layout  # noqa: E402
 from stud_planner.msg_convert import layout_to_msg  # noqa: E402
@@ -83,7 +83,7 @@ def main() -> int:
         "studs": [{"stud_id": s.id, "position_m": exact.studs_world_m[order[s.id]].tolist(),
                    "normal": exact.stud_normals_w[order[s.id]].tolist()} for s in layout.studs],
     }
-    (args.out / "ground_truth.json").write_text(json.dumps(truth, indent=1) + "\n")
+    write_json(args.out / "ground_truth.json", truth)
     size = sum(f.stat().st_size for f in args.out.iterdir())
     print(f"wrote {args.out} ({len(stations)} views, {size / 1e6:.1f} MB)")
     return 0

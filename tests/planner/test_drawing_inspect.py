@@ -126,10 +126,10 @@ def test_unwritable_outputs_are_errors(plate, tmp_path, capsys):
     assert "cannot write JSON" in line
 
 
-@pytest.mark.skipif(not CORPUS.is_dir(), reason=f"DXF corpus not found at {CORPUS}")
 @pytest.mark.parametrize("name", ["broken/libredwg_r1.4_entities.dxf", "broken/dxfparser_blocks_fragment.dxf",
                                   "netdxf_sample_2004.dxf"])
-def test_corpus_files_fail_cleanly(capsys, name):
+def test_corpus_files_fail_cleanly(capsys, name, require_shared_data):
+    require_shared_data(CORPUS / name)
     line = one_error_line(capsys, main([str(CORPUS / name)]))
     assert name.split("/")[-1] in line
 

@@ -729,7 +729,15 @@ def _corpus_table() -> dict[str, dict]:
 
 
 CORPUS_ROWS = _corpus_table()
-corpus = pytest.mark.skipif(not CORPUS_ROWS, reason=f"DXF corpus not found at {CORPUS}")
+
+
+@pytest.fixture()
+def dxf_corpus(prerequisite):
+    """The shared DXF corpus and its README table (skips, or fails under CI=true, without them)."""
+    prerequisite(bool(CORPUS_ROWS), f"DXF corpus not found at {CORPUS} (its README.md lists the files)")
+
+
+corpus = pytest.mark.usefixtures("dxf_corpus")
 
 
 @corpus

@@ -6,7 +6,6 @@ BFS is a per-pixel Python loop by design: it only runs on the 160x120 crop.
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -117,7 +116,8 @@ def test_batch_converges_where_plain_fixed_point_crawls(scenes, cam_full):
     assert np.abs(r.point_w[:, 2] - truth).max() < 1e-4 * math.tan(th) + 1e-5
 
 
-@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+# examples: the profile's (tests/conftest.py: 20 locally, 100 derandomised with CI=true)
+@settings(deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     yaw_deg=st.floats(-180, 180),
     tilt_deg=st.floats(0, 15),
@@ -158,16 +158,14 @@ def test_batch_and_fpm_match_every_visible_stud_for_any_camera(
     assert np.abs(f.point_w[both, 2] - b.point_w[both, 2]).max(initial=0) < 1e-3 + 8 * noise
 
 
-def test_batch_handles_ten_thousand_studs_quickly(scenes, cam_full):
+def test_batch_handles_ten_thousand_studs(scenes, cam_full):
+    # Its speed (target 50 ms for 10k studs on one free core) is measured by bench/bench_matchers.py,
+    # not here: a wall-clock limit in a unit test on a shared 2-core machine is flakiness.
     depth = scenes.render_depth(cam_full, scenes.Dome(), noise_m=0.0005, hole_fraction=0.02, seed=2)
     xy = np.random.default_rng(2).uniform([-0.2, -0.15], [0.2, 0.15], (10_000, 2))
-    match_batch(xy[:100], depth, cam_full)  # warm-up
-    t0 = time.perf_counter()
     r = match_batch(xy, depth, cam_full)
-    elapsed = time.perf_counter() - t0
     assert r.ok.mean() > 0.99
     assert r.iterations[r.ok].mean() < 4
-    assert elapsed < 0.5, f"10k studs took {elapsed * 1e3:.0f} ms (target 50 ms on one free core; see bench/)"
 
 
 def test_line_in_view_interval_agrees_with_projection(scenes, cam_full):
@@ -206,6 +204,40 @@ def test_small_hole_takes_paper_rule_and_larger_hole_the_plane_fallback(scenes, 
     assert np.abs(r.point_w[:, 2] - truth[:, 2]).max() < 3e-4
     f = match_fpm(xy, depth, cam_full)
     assert np.all(f.ok)
+
+
+def _stud_at_pixel_centre(depth, camera, u: int, v: int) -> np.ndarray:
+    """World XY of the surface point seen at the centre of pixel (u, v): a stud the batch matcher
+    finds at (u, v) itself, so that its hole-fill windows are centred on that pixel."""
+    return camera.pixel_to_world(np.array([float(u)]), np.array([float(v)]), np.array([float(depth[v, u])]))[0, :2]
+
+
+@pytest.mark.parametrize("radius_px, rule", [
+    (2.9, FillRule.MEAN_WINDOW),  # the 5x5 block around the pixel is empty, the 7x7 ring at 3 px is not
+    (4.3, FillRule.PLANE_FIT),    # the 7x7 window's corners (4.24 px away) are in the hole too
+])
+def test_the_paper_7x7_window_decides_between_mean_and_plane_fit(scenes, cam_full, radius_px, rule):
+    """Pins the paper's 7x7 hole window: a 5x5 one would take the plane fit for the 2.9 px hole,
+    a 9x9 one the mean for the 4.3 px hole."""
+    dome = scenes.Dome()
+    depth = scenes.render_depth(cam_full, dome)
+    pixels = [(700, 520), (560, 430), (800, 400)]
+    xy = np.array([_stud_at_pixel_centre(depth, cam_full, u, v) for u, v in pixels])
+    truth = truth_points(dome, xy)
+    for k in range(len(xy)):
+        u, v, _ = cam_full.world_to_pixel(truth[k])
+        assert abs(u - pixels[k][0]) < 1e-3 and abs(v - pixels[k][1]) < 1e-3  # float32 depth
+        depth = punch_hole(depth, cam_full, truth[k], radius_px)
+    r = match_batch(xy, depth, cam_full)
+    assert np.all(r.ok)
+    assert [FillRule(x) for x in r.hole_rule] == [rule] * len(xy)
+    assert np.all(np.abs(r.pixel_uv - np.array(pixels)) < 0.5)  # the windows were centred on those pixels
+    assert np.abs(r.point_w[:, 2] - truth[:, 2]).max() < 3e-4
+    # ... and the planner's default configuration is that rule too (the matcher node and plan use it)
+    from stud_planner.view_planning import PlannerConfig, plan_view
+
+    planned = plan_view([f"S{k}" for k in range(len(xy))], xy, np.eye(3), depth, cam_full, PlannerConfig())
+    assert [FillRule(x) for x in planned.matches.hole_rule] == [rule] * len(xy)
 
 
 def test_big_hole_gives_no_depth(scenes, cam_full):

@@ -6,7 +6,11 @@ import math
 import numpy as np
 import pytest
 
+from stud_perception.camera_model import CameraModel, nadir_rotation
 from stud_planner.station_planning import StationPlanningError, footprint_m, plan_stations
+
+#: The camera the footprint stands for: 640x480 (aspect 0.75), spanning 0.46 m at 0.5 m.
+CAMERA = CameraModel.from_fov(640, 480, 0.46, 0.5)
 
 
 def _in_footprint(station, xy: np.ndarray, fov, overlap: float) -> np.ndarray:
@@ -14,6 +18,16 @@ def _in_footprint(station, xy: np.ndarray, fov, overlap: float) -> np.ndarray:
     local = (xy - np.asarray(station.camera_xyz_w[:2])) @ np.array([[c, -s], [s, c]])
     half = np.asarray(fov) * (1.0 - overlap) / 2 + 1e-9
     return np.all(np.abs(local) <= half, axis=1)
+
+
+def _inner_part_of_image(station, xyz_w: np.ndarray, overlap: float) -> np.ndarray:
+    """Each point projected by the camera model from the station (nadir, the station's yaw) lies
+    in the inner part of the image (``overlap`` of it left at the border): the reference is the
+    camera, not footprint_m, the function under test."""
+    cam = CAMERA.with_pose(nadir_rotation(station.yaw_rad), np.asarray(station.camera_xyz_w, dtype=float))
+    u, v, z = cam.world_to_pixel(xyz_w)
+    half = (1.0 - overlap) * np.array([cam.width, cam.height]) / 2 * (1 + 1e-9)
+    return (z > 0) & (np.abs(u - cam.cx) <= half[0]) & (np.abs(v - cam.cy) <= half[1])
 
 
 @pytest.mark.parametrize("yaw_deg", [0.0, 35.0, -90.0])
@@ -25,8 +39,11 @@ def test_every_stud_is_assigned_once_to_a_station_that_sees_it(yaw_deg, plane_z_
     plan = plan_stations(xy, fov, 0.3, overlap=0.15, yaw_rad=math.radians(yaw_deg), plane_z_m=plane_z_m)
     assigned = np.concatenate([s.stud_indices for s in plan.stations])
     assert sorted(assigned.tolist()) == list(range(len(xy))) and plan.unreachable == ()
+    part_top_w = plane_z_m + 0.05  # footprint_m(..., part_height_m=0.05): the studs stand on the part's top
     for st in plan.stations:
         assert _in_footprint(st, xy[list(st.stud_indices)], fov, 0.15).all()
+        mine = np.column_stack([xy[list(st.stud_indices)], np.full(len(st.stud_indices), part_top_w)])
+        assert _inner_part_of_image(st, mine, 0.15).all(), st.index
         # the world is the arm's base frame: the camera stands camera_height_m above the plane
         assert st.camera_xyz_w[2] == pytest.approx(plane_z_m + 0.3)
 

@@ -85,3 +85,25 @@ def test_targets_without_colour_and_colour_only_while_the_overlay_is_watched(ros
     ros_node.destroy_subscription(sub)
     wait_for(lambda: ros_node.count_subscribers(COLOR) == 0, 20, spin=ros_node.spin,
              what="the matcher unsubscribing from colour")
+
+
+def test_poses_hold_only_the_usable_targets_in_target_order_and_no_nan():
+    """/weld_targets/poses: the k-th pose is the k-th OK target (RViz and Foxglove cannot draw NaN)."""
+    from std_msgs.msg import Header
+
+    from stud_planner.matcher_node import MatcherNode
+    from stud_planner.view_planning import plan_view
+
+    scene = load_scene(DEMO_SCENE)
+    cam = view_camera((0, 0, 0), 1.0)
+    cam = cam.with_pose(cam.R_wc, np.array([0.28, 0.10, 0.5]))
+    view = render(scene, cam, seed=1)
+    ids = list(scene.stud_ids) + ["FAR"]
+    xy = np.vstack([scene.studs_drawing_m, [[5.0, 5.0]]])  # 5 m away: out of view, no pose
+    targets = plan_view(ids, xy, scene.M_local2world, view.depth_m, cam)
+    assert targets.ok.sum() >= 5 and not targets.ok.all()
+    pa = MatcherNode._poses(targets, Header(frame_id="world"))
+    got = np.array([(p.position.x, p.position.y, p.position.z, p.orientation.x, p.orientation.y, p.orientation.z,
+                     p.orientation.w) for p in pa.poses])
+    assert np.all(np.isfinite(got)) and pa.header.frame_id == "world"
+    np.testing.assert_array_equal(got, np.hstack([targets.position_w, targets.message_quat_xyzw])[targets.ok])

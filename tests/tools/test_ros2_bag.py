@@ -206,6 +206,30 @@ def test_bag_writer_splits_by_duration_and_reader_joins_the_files(tmp_path, mode
         assert [f.message_count for f in reader.metadata.files] == [6, 6, 6, 2]
 
 
+def test_split_files_whose_times_overlap_are_merged_by_log_time_not_concatenated(tmp_path):
+    # Split files need not cover disjoint times (a recorder splitting by size while a late topic
+    # arrives, files from two recorders joined): the reader merges them by log time.
+    from std_msgs.msg import String
+
+    t0 = 10**18
+    for name, topic, times in (("a", "/a", range(0, 20, 2)), ("b", "/b", range(1, 20, 2))):
+        with BagWriter(tmp_path / name) as bag:
+            for k in times:
+                bag.write(topic, String(data=str(k)), t0 + k * 1_000_000)
+    joined = tmp_path / "joined"
+    joined.mkdir()
+    (tmp_path / "a" / "a_0.mcap").rename(joined / "joined_0.mcap")
+    (tmp_path / "b" / "b_0.mcap").rename(joined / "joined_1.mcap")
+    with BagReader(joined) as reader:
+        got = [(m.topic, m.message().data, m.log_time_ns) for m in reader.messages()]
+        assert [int(d) for _t, d, _n in got] == list(range(20))
+        assert [n for _t, _d, n in got] == sorted(n for _t, _d, n in got)
+        assert [t for t, _d, _n in got][:4] == ["/a", "/b", "/a", "/b"]
+        assert [m.message().data for m in reader.messages(["/b"])] == [str(k) for k in range(1, 20, 2)]
+        late = [int(m.message().data) for m in reader.messages(start_time_ns=t0 + 15_000_000)]
+        assert late == [15, 16, 17, 18, 19]
+
+
 def test_a_recording_that_was_never_closed_is_read_up_to_its_last_message(tmp_path):
     from std_msgs.msg import String
 

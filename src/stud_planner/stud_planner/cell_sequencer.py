@@ -19,11 +19,9 @@ ends the process (exit 0 only when every stud was welded).
 """
 from __future__ import annotations
 
-import json
 import math
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import rclpy
@@ -39,6 +37,7 @@ from stud_welding_msgs.srv import MoveTo
 from stud_perception import ros_io
 from stud_perception.camera_model import nadir_rotation
 from stud_perception.ros_io import Param
+from stud_perception.strict_json import write_json
 from stud_planner.msg_convert import layout_from_msg, registration_from_msg
 from stud_planner.station_planning import footprint_m, plan_stations
 
@@ -500,12 +499,11 @@ class CellSequencer(Node):
         self._set(state, message, studs_welded=welded,
                   studs_failed=max(0, len(self.stud_report) - welded) if self.stud_report else 0)
         if self.p["report_file"]:
-            path = Path(self.p["report_file"])
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(json.dumps({"state": STATE_TEXT[state], "message": message,
-                                        "stations": int(self.status.stations_total),
-                                        "unreachable": list(self.status.unreachable),
-                                        "targets": list(self.stud_report.values())}, indent=1) + "\n")
+            # strict JSON: an unmatched stud's NaN position is null (RFC 8259 has no NaN)
+            write_json(self.p["report_file"], {"state": STATE_TEXT[state], "message": message,
+                                               "stations": int(self.status.stations_total),
+                                               "unreachable": list(self.status.unreachable),
+                                               "targets": list(self.stud_report.values())})
         all_welded = bool(self.stud_report) and welded == len(self.stud_report)
         self.exit_code = 0 if state == CellStatus.STATE_DONE and all_welded else 1
 

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from stud_perception.scene import load_scene, surface_height, surface_normal
+from stud_perception.strict_json import write_json
 
 RECORDED_TOPICS = ["/drawing/layout", "/registration/result", "/weld_targets", "/weld_targets/poses",
                    "/weld_targets/markers", "/weld_targets/overlay", "/arm/state", "/joint_states", "/cell/status",
@@ -132,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
                "stations": report.get("stations"), "unreachable": report.get("unreachable", []),
                "time_s": round(elapsed, 1), "accuracy": {k: v for k, v in acc.items() if k != "studs"},
                "overlays": overlays}
-    (out / "summary.json").write_text(json.dumps({**summary, "per_stud": acc["studs"]}, indent=1) + "\n")
+    write_json(out / "summary.json", {**summary, "per_stud": acc["studs"]})
     print()
     print("=" * 72)
     print(f" weld-cell demo: {'PASSED' if ok else 'FAILED'}")

@@ -11,7 +11,6 @@ line ``drawing_inspect: error: <message>`` on stderr and exit code 2; never a tr
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 import sys
@@ -19,6 +18,8 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+
+from stud_perception.strict_json import write_json
 
 from .dxf_layout import DrawingError, StudLayout, read_layout, units_to_metres
 
@@ -181,8 +182,7 @@ def _run(argv: Sequence[str] | None) -> int:
     print(summary(layout))
     if args.json:
         try:
-            args.json.parent.mkdir(parents=True, exist_ok=True)
-            args.json.write_text(json.dumps(layout.to_dict(), indent=1) + "\n", encoding="utf-8")
+            write_json(args.json, layout.to_dict())
         except OSError as exc:
             raise DrawingError(f"{args.json}: cannot write JSON ({exc.strerror or exc})") from exc
         print(f"json:         {args.json}")

@@ -17,7 +17,9 @@ integrator needs to build another HMI on the same interfaces is in docs/HMI.md.
   publishes   /diagnostics (address, connected browsers)
 
 The server binds to 127.0.0.1 unless ``bind_address`` says otherwise: the page can start and
-stop the cell, so opening it to a network is the integrator's decision. The E-stop button is a
+stop the cell, so opening it to a network is the integrator's decision, and takes an
+``access_token`` to command anything (without one the page is view only); requests that name
+another host (DNS rebinding) or come from another site's page are refused (docs/HMI.md). The E-stop button is a
 *software* stop (see rm65_driver); it does not replace the cell's hardware e-stop chain.
 """
 from __future__ import annotations
@@ -48,7 +50,11 @@ PARAMS = [
     Param("bind_address", "127.0.0.1", "address to listen on: 127.0.0.1 = this computer only; 0.0.0.0 = every "
           "network interface (only on a cell network you trust: the page starts and stops the cell)", read_only=True),
     Param("allowed_origins", "", "comma-separated extra browser origins allowed to open the WebSocket "
-          "(e.g. 'http://cell-pc:8090' behind a proxy); the page's own origin is always allowed", read_only=True),
+          "(e.g. 'http://cell-pc:8090' behind a proxy); the page's own origin is always allowed; their host names "
+          "pass the Host check", read_only=True),
+    Param("access_token", "", "token (or PIN) a browser must give to open the WebSocket: open the page as "
+          "http://host:port/?token=...; empty: none -- then, bound beyond loopback, the page is view only (its "
+          "buttons move the arm)", read_only=True),
     Param("static_dir", "", "folder holding index.html (a custom page); empty: the page shipped with stud_planner",
           read_only=True),
     Param("overlay_max_width", 960, "downscale the overlay to at most this width for the browser [px]",
@@ -146,7 +152,8 @@ class HmiNode(Node):
         logging.getLogger("stud_planner.hmi_server").setLevel(logging.INFO)
         try:
             self.server = HmiServer(static_dir, self.p["bind_address"], self.p["port"], on_command=self._on_command,
-                                    allowed_origins=origins, hello={"version": 1, "commands": list(COMMANDS)})
+                                    allowed_origins=origins, hello={"version": 1, "commands": list(COMMANDS)},
+                                    access_token=self.p["access_token"])
         except (OSError, FileNotFoundError) as exc:
             self.get_logger().fatal(f"cannot serve the HMI on {self.p['bind_address']}:{self.p['port']}: {exc} "
                                     "(set the port / bind_address / static_dir parameters)")
@@ -159,8 +166,12 @@ class HmiNode(Node):
         self._table_timer = self.create_timer(1.0 / self.p["table_rate_hz"], self._flush)
         self._overlay_timer = self.create_timer(1.0 / self.p["overlay_rate_hz"], self._send_overlay)
         self.get_logger().info(f"HMI on {self.server.address} (WebSocket /ws); "
-                               + ("reachable from this computer only" if self.p["bind_address"] == "127.0.0.1"
-                                  else f"listening on {self.p['bind_address']}"))
+                               + ("reachable from this computer only" if self.server.loopback_only
+                                  else f"listening on {self.p['bind_address']}")
+                               + ("; the WebSocket needs the access token" if self.p["access_token"] else ""))
+        if self.server.commands_need_token:
+            self.get_logger().warn(f"bound to {self.p['bind_address']} without an access_token: the page is VIEW ONLY "
+                                   "(its buttons move the arm); set access_token to command from the network")
 
     def _on_params(self, update: dict) -> None:
         if "overlay_rate_hz" in update:

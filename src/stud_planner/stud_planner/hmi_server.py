@@ -10,21 +10,37 @@ blocks on a client: every client has an outbox that keeps only the *latest* mess
 retained type (a slow browser skips overlay frames instead of stalling the ROS executor), while
 replies are queued in order. :meth:`HmiServer.stop` closes every connection and joins every thread.
 
-Security: the server binds to 127.0.0.1 by default. Browsers let any web page open a WebSocket to
-any host, so a WebSocket handshake whose ``Origin`` is neither this server's own (``Host``) nor in
-``allowed_origins`` is refused (403): a page from elsewhere cannot press Start. Clients that send
-no ``Origin`` (not a browser: scripts, other HMIs) are accepted.
+Security (the page's buttons move the arm; docs/HMI.md says it for operators):
+
+* the server binds to 127.0.0.1 by default;
+* **Host check** (DNS rebinding): a request -- HTTP or WebSocket -- whose ``Host`` names anything but
+  an address this server serves (the loopback names, the bind address, this computer's name when
+  bound beyond loopback, the local address the request came in on) or the host of an
+  ``allowed_origins`` entry is refused (403). A page on evil.example whose DNS name is re-pointed at
+  127.0.0.1 still sends ``Host: evil.example:PORT``;
+* **Origin check**: browsers let any page open a WebSocket to any host, so a handshake whose
+  ``Origin`` is neither this server's own (``Host``) nor in ``allowed_origins`` is refused (403).
+  Clients that send no ``Origin`` (not a browser: scripts, other HMIs) are accepted;
+* **access token**: with ``access_token`` set, a WebSocket handshake must carry it (``/ws?token=``,
+  or ``Authorization: Bearer``), else 403. Bound beyond loopback without a token, every client is
+  *view only*: commands are answered ``ok: false`` and never reach ``on_command``;
+* **bounded messages**: a message over ``MAX_INCOMING_BYTES`` closes the connection with 1009, one
+  nested deeper than ``MAX_MESSAGE_DEPTH`` with 1008 (before it is parsed: 64 KB of brackets must
+  not exhaust the parser's recursion), invalid UTF-8 with 1007.
 """
 from __future__ import annotations
 
 import base64
 import hashlib
+import hmac
 import http.server
+import ipaddress
+import itertools
 import json
 import logging
-import math
 import mimetypes
 import os
+import re
 import socket
 import socketserver
 import struct
@@ -33,16 +49,23 @@ import time
 from collections import OrderedDict
 from pathlib import Path
 from typing import Any, Callable
-from urllib.parse import urlsplit
+from urllib.parse import parse_qs, urlsplit
 
+from stud_perception.strict_json import dumps, json_safe
+
+__all__ = ["HmiServer", "WebSocketConnection", "WebSocketError", "json_safe", "to_json", "json_depth"]
 _log = logging.getLogger(__name__)
 
 WS_GUID = "258EAFA5-E914-47DA-95CA-C5AB0DC85B11"  # RFC 6455 Sec. 1.3
 OP_CONT, OP_TEXT, OP_BINARY, OP_CLOSE, OP_PING, OP_PONG = 0x0, 0x1, 0x2, 0x8, 0x9, 0xA
 CLOSE_NORMAL, CLOSE_GOING_AWAY, CLOSE_PROTOCOL_ERROR, CLOSE_UNSUPPORTED = 1000, 1001, 1002, 1003
-CLOSE_INVALID_DATA, CLOSE_TOO_BIG = 1007, 1009
+CLOSE_INVALID_DATA, CLOSE_POLICY, CLOSE_TOO_BIG = 1007, 1008, 1009
 #: Largest message a browser may send us (commands are a few dozen bytes).
 MAX_INCOMING_BYTES = 64 * 1024
+#: Deepest nesting of a message's JSON (commands are flat objects).
+MAX_MESSAGE_DEPTH = 16
+#: Names that always mean this computer.
+LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
 
 
 class WebSocketError(Exception):
@@ -54,27 +77,21 @@ class WebSocketError(Exception):
 
 
 # -- JSON -----------------------------------------------------------------------------------------
-def json_safe(obj: Any) -> Any:
-    """A copy of ``obj`` that strict JSON can carry: NaN/inf floats -> None, tuples -> lists,
-    objects with ``item()`` (numpy scalars) -> their Python value."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, (str, int, bool)) or obj is None:
-        return obj
-    if isinstance(obj, dict):
-        return {str(k): json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [json_safe(v) for v in obj]
-    if hasattr(obj, "item"):  # numpy scalar, without importing numpy here
-        return json_safe(obj.item())
-    if hasattr(obj, "tolist"):
-        return json_safe(obj.tolist())
-    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
-
-
 def to_json(obj: Any) -> str:
-    """Strict JSON text (no NaN tokens, which browsers' JSON.parse rejects)."""
-    return json.dumps(json_safe(obj), allow_nan=False, separators=(",", ":"))
+    """Strict, compact JSON text (no NaN tokens, which browsers' JSON.parse rejects):
+    :func:`stud_perception.strict_json.dumps`."""
+    return dumps(obj, compact=True)
+
+
+_JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"')
+_NOT_BRACKET = re.compile(r"[^\[\]{}]")
+
+
+def json_depth(text: str) -> int:
+    """The deepest nesting of arrays/objects in JSON ``text`` (brackets inside strings do not
+    count), without parsing it: linear in the text, no recursion."""
+    brackets = _NOT_BRACKET.sub("", _JSON_STRING.sub("", text))
+    return max(itertools.accumulate(1 if c in "[{" else -1 for c in brackets), default=0)
 
 
 # -- RFC 6455 framing -----------------------------------------------------------------------------
@@ -150,10 +167,11 @@ def read_frame(sock_file, require_mask: bool, max_bytes: int = MAX_INCOMING_BYTE
 class WebSocketConnection:
     """A connected browser: :meth:`send` queues (never blocks), a writer thread sends."""
 
-    def __init__(self, sock: socket.socket, rfile, peer: str, max_fifo: int = 200):
+    def __init__(self, sock: socket.socket, rfile, peer: str, max_fifo: int = 200, may_command: bool = True):
         self.sock = sock
         self.rfile = rfile
         self.peer = peer
+        self.may_command = may_command  # False: view only (bound beyond loopback without a token)
         self.max_fifo = max_fifo
         self._cv = threading.Condition()
         self._latest: OrderedDict[str, bytes] = OrderedDict()  # retained type -> newest frame
@@ -263,6 +281,8 @@ class WebSocketConnection:
                             text = data.decode("utf-8")
                         except UnicodeDecodeError:
                             raise WebSocketError(CLOSE_INVALID_DATA, "text message is not UTF-8") from None
+                        if len(text) > 2 * MAX_MESSAGE_DEPTH and json_depth(text) > MAX_MESSAGE_DEPTH:
+                            raise WebSocketError(CLOSE_POLICY, f"message nests deeper than {MAX_MESSAGE_DEPTH}")
                         on_text(self, text)
                 else:
                     raise WebSocketError(CLOSE_PROTOCOL_ERROR, f"unknown opcode {opcode:#x}")
@@ -296,7 +316,7 @@ class HmiServer:
 
     def __init__(self, static_dir: str | Path, host: str = "127.0.0.1", port: int = 8090,
                  on_command: CommandHandler | None = None, allowed_origins: list[str] | tuple = (),
-                 hello: dict | None = None):
+                 hello: dict | None = None, access_token: str = ""):
         self.static_dir = Path(static_dir).resolve()
         if not (self.static_dir / "index.html").is_file():
             raise FileNotFoundError(f"HMI page not found: {self.static_dir / 'index.html'}")
@@ -310,6 +330,57 @@ class HmiServer:
         self._started = time.monotonic()
         self._httpd = _ThreadingServer((host, port), self._handler_class())
         self._thread: threading.Thread | None = None
+        self.access_token = access_token
+        bind = self._httpd.server_address[0]
+        self.loopback_only = _is_loopback(bind)
+        #: without a token, a server reachable from the network shows but does not command
+        self.commands_need_token = not self.loopback_only and not access_token
+        self.served_names = self._served_names(bind, self.allowed_origins)
+
+    @staticmethod
+    def _served_names(bind: str, allowed_origins: set[str]) -> frozenset[str]:
+        """Host names a browser may use for this server (the Host check, module docstring)."""
+        names = set(LOOPBACK_NAMES)
+        if bind not in ("", "0.0.0.0", "::"):
+            names.add(bind.lower())
+        if not _is_loopback(bind):
+            for name in (socket.gethostname(), socket.getfqdn()):
+                if name:
+                    names.add(name.lower().rstrip("."))
+        for origin in allowed_origins:
+            if origin == "*":
+                continue
+            try:
+                host = urlsplit(origin).hostname
+            except ValueError:
+                host = None
+            if host:
+                names.add(host.rstrip("."))
+        return frozenset(names)
+
+    def host_allowed(self, host: str | None, local_address: str = "") -> bool:
+        """The Host check: ``host`` (the request's header, ``name[:port]``) names this server.
+        ``local_address``: the address the request came in on (an IP literal of it is served).
+        No Host header (HTTP/1.0 tools, not a browser) passes."""
+        if host is None:
+            return True
+        try:
+            name = urlsplit("//" + host.strip()).hostname
+        except ValueError:
+            return False
+        if not name:
+            return False
+        name = name.rstrip(".")
+        return name in self.served_names or (bool(local_address) and name == local_address.lower())
+
+    def token_ok(self, path: str, authorization: str | None) -> bool:
+        """With ``access_token`` set: the handshake carries it (``?token=`` or ``Authorization: Bearer``)."""
+        if not self.access_token:
+            return True
+        given = parse_qs(urlsplit(path).query).get("token", [""])[0]
+        if authorization and authorization.lower().startswith("bearer "):
+            given = given or authorization[7:].strip()
+        return hmac.compare_digest(given.encode("utf-8"), self.access_token.encode("utf-8"))
 
     @property
     def port(self) -> int:
@@ -388,7 +459,10 @@ class HmiServer:
         with self._lock:
             self._clients.add(conn)
             retained = list(self._retained.items())
-        conn.send(to_json({"type": "hello", **self.hello}))
+        hello = {"type": "hello", **self.hello}
+        if not conn.may_command:
+            hello.update(commands=[], read_only=True)
+        conn.send(to_json(hello))
         for key, text in retained:
             conn.send(text, key)
         _log.info("WebSocket client %s connected (%d connected)", conn.peer, self.client_count)
@@ -404,8 +478,15 @@ class HmiServer:
         except ValueError:
             self.reply(conn, {"type": "reply", "ok": False, "error": "message is not JSON"})
             return
+        except RecursionError:  # json_depth bounds nesting first; this is the last line of defence
+            raise WebSocketError(CLOSE_POLICY, "message nests too deeply") from None
         if not isinstance(msg, dict):
             self.reply(conn, {"type": "reply", "ok": False, "error": "message is not a JSON object"})
+            return
+        if not conn.may_command:
+            self.reply(conn, {"type": "reply", "cmd": msg.get("cmd"), "id": msg.get("id"), "ok": False,
+                              "error": "view only: this HMI listens beyond loopback without an access_token, so it "
+                                       "takes no commands (set access_token and open the page with ?token=...)"})
             return
         if self.on_command is None:
             self.reply(conn, {"type": "reply", "cmd": msg.get("cmd"), "id": msg.get("id"), "ok": False,
@@ -451,16 +532,33 @@ class HmiServer:
             def log_message(self, fmt, *args):  # quiet: the node logs what matters
                 _log.debug("%s %s", self.address_string(), fmt % args)
 
+            def _host_refused(self) -> bool:
+                """The Host check (DNS rebinding): answer 403 and say so when the Host is not ours."""
+                host = self.headers.get("Host")
+                if server.host_allowed(host, self.connection.getsockname()[0]):
+                    return False
+                _log.warning("refused %s %s with Host %r (not an address this server serves; allowed_origins "
+                             "adds names)", self.command, urlsplit(self.path).path, host)
+                self._error(403, f"Host {host!r} is not served here (a DNS-rebinding page?); add the name to "
+                                 "allowed_origins if it is yours")
+                return True
+
             def do_GET(self):
+                if self._host_refused():
+                    return
                 path = urlsplit(self.path).path
                 if path == "/ws":
                     self._websocket()
                 elif path == "/healthz":
-                    self._send(200, json.dumps(server.health()).encode(), "application/json")
+                    self._send(200, to_json(server.health()).encode(), "application/json")
                 else:
                     self._static(path)
 
             def do_HEAD(self):
+                if not server.host_allowed(self.headers.get("Host"), self.connection.getsockname()[0]):
+                    self.send_response(403)
+                    self.end_headers()
+                    return
                 self.send_response(200 if urlsplit(self.path).path in ("/", "/healthz") else 404)
                 self.end_headers()
 
@@ -509,6 +607,10 @@ class HmiServer:
                     _log.warning("refused WebSocket from origin %s (Host %s)", h.get("Origin"), h.get("Host"))
                     self._error(403, f"origin {h.get('Origin')} not allowed (set the allowed_origins parameter)")
                     return
+                if not server.token_ok(self.path, h.get("Authorization")):
+                    _log.warning("refused WebSocket from %s: missing or wrong access token", self.client_address[0])
+                    self._error(403, "access token missing or wrong (open the page with ?token=...)")
+                    return
                 self.send_response(101, "Switching Protocols")
                 self.send_header("Upgrade", "websocket")
                 self.send_header("Connection", "Upgrade")
@@ -518,7 +620,8 @@ class HmiServer:
                 self.connection.settimeout(None)  # a WebSocket idles between messages
                 self.close_connection = True
                 peer = f"{self.client_address[0]}:{self.client_address[1]}"
-                conn = WebSocketConnection(self.connection, self.rfile, peer)
+                conn = WebSocketConnection(self.connection, self.rfile, peer,
+                                           may_command=not server.commands_need_token)
                 server._add(conn)
                 try:
                     conn.read_loop(server._on_text)
@@ -526,6 +629,15 @@ class HmiServer:
                     server._remove(conn)
 
         return Handler
+
+
+def _is_loopback(bind: str) -> bool:
+    if bind == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(bind).is_loopback
+    except ValueError:
+        return False
 
 
 def default_static_dir() -> Path:

@@ -7,7 +7,10 @@ with the ``algorithm`` parameter (``batch`` default, ``fpm``, ``bfs`` the paper'
 estimate the surface pose, and publish
 
 * ``/weld_targets`` (WeldTargetArray: every stud of the drawing, in drawing order, with status),
-* ``/weld_targets/poses`` (PoseArray, same order, frame ``world``),
+* ``/weld_targets/poses`` (PoseArray, frame ``world``, same stamp): the poses of the targets whose
+  status is OK, in ``/weld_targets`` order -- the k-th pose is the k-th OK target of the
+  WeldTargetArray with the same stamp; studs without a usable pose are left out (RViz and
+  Foxglove cannot draw NaN),
 * ``/weld_targets/markers`` (MarkerArray: per in-view stud an arrow along its normal and its id as text,
   coloured by status: stud_planner.target_markers),
 * ``/weld_targets/overlay`` (the colour image with matched pixels and ids, the paper's Fig. 11), and the
@@ -93,6 +96,7 @@ class MatcherNode(Node):
                   for p in PARAMS]
         self.p = ros_io.declare_params(self, params, on_change=lambda _changes: self._update_color_subscription())
         self.layout: StudLayout | None = None
+        self._layout_view = None  # layout_from_msg(self.layout), converted once per layout, not per view
         self.registration: Registration | None = None
         self.view_index = 0
         self._pending: dict | None = None  # the last view that came before the layout or registration
@@ -125,6 +129,7 @@ class MatcherNode(Node):
     # -- inputs ------------------------------------------------------------------------------------
     def _on_layout(self, msg: StudLayout) -> None:
         self.layout = msg
+        self._layout_view = layout_from_msg(msg)
         self.get_logger().info(f"layout '{msg.source_file}' with {len(msg.studs)} studs")
 
     def _on_registration(self, msg: Registration) -> None:
@@ -217,7 +222,7 @@ class MatcherNode(Node):
             self.get_logger().error(f"unusable view: {exc}", throttle_duration_sec=5.0)
             self.diag.set(self.diag.ERROR, f"unusable view: {exc}")
             return
-        layout = layout_from_msg(self.layout)
+        layout = self._layout_view
         targets = plan_view(layout.ids, layout.xy_m, registration_from_msg(self.registration), depth, camera,
                             self.planner_config())
         self._publish(targets, camera, rectifier, stamp)
@@ -265,11 +270,13 @@ class MatcherNode(Node):
 
     @staticmethod
     def _poses(targets, header: Header) -> PoseArray:
-        """Every stud's pose, in stud order (NaN position where unmatched, identity orientation
-        where there is no normal), as in /weld_targets."""
+        """The usable targets' poses (status OK: matched, with a trusted normal, so finite), in
+        /weld_targets order: the k-th pose is the k-th OK target of that view's WeldTargetArray.
+        The others are left out: a NaN pose is nothing RViz or Foxglove can draw."""
+        ok = targets.ok
         return PoseArray(header=header, poses=[
             Pose(position=Point(x=p[0], y=p[1], z=p[2]), orientation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3]))
-            for p, q in zip(targets.position_w.tolist(), targets.message_quat_xyzw.tolist())])
+            for p, q in zip(targets.position_w[ok].tolist(), targets.message_quat_xyzw[ok].tolist())])
 
     @staticmethod
     def _markers(targets, header: Header) -> MarkerArray:

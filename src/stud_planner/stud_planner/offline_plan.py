@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
+import math
 import struct
 import sys
 import time
@@ -26,12 +26,13 @@ from pathlib import Path
 import numpy as np
 
 from stud_perception import ros_io
+from stud_perception.strict_json import write_json
 from stud_perception.markers import MarkDetectorConfig
 from stud_perception.view_registration import config_for_layout, register_view
 from stud_planner import dxf_layout
 from stud_planner.gun_clearance import GunModel
-from stud_planner.view_planning import (ALGORITHMS, STATUS_OUT_OF_VIEW, STATUS_TEXT, PlannerConfig, draw_targets_overlay,
-                                        plan_view)
+from stud_planner.view_planning import (ALGORITHMS, STATUS_OK, STATUS_OUT_OF_VIEW, STATUS_TEXT, PlannerConfig,
+                                        draw_targets_overlay, plan_view)
 
 DEFAULT_TOPICS = {"color": "/camera/color/image_raw", "depth": "/camera/depth/image_raw",
                   "info": "/camera/color/camera_info", "pose": "/camera/pose"}
@@ -266,8 +267,8 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
          sync_slop_ms: float = DEFAULT_SYNC_SLOP_MS, allow_damaged: bool = False,
          images_rectified: bool = False) -> dict:
     """Run the offline planning and return the report (see the module docstring). ``report["warnings"]``
-    lists what the user must know about the result (a damaged bag read anyway). Raw images with
-    lens distortion are rectified; ``images_rectified``: they were already (see
+    lists what the user must know about the result (a damaged bag read anyway, drawing circles left
+    out for non-finite or out-of-range values). Raw images with lens distortion are rectified; ``images_rectified``: they were already (see
     :func:`ros_io.camera_model_from_msgs`)."""
     topics = topics or DEFAULT_TOPICS
     try:
@@ -276,15 +277,18 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
         raise PlanError(str(exc)) from None
     config = config or PlannerConfig(algorithm=algorithm)
     warnings: list[str] = []
+    if layout.invalid_entities:  # not studs of the report: the user must hear of them here
+        bad = layout.invalid_entities
+        warnings.append(f"{drawing}: {len(bad)} circle{'s' if len(bad) != 1 else ''} with non-finite or out-of-range "
+                        f"values left out, not planned: " + "; ".join(bad[:5])
+                        + (f"; ... (+{len(bad) - 5})" if len(bad) > 5 else ""))
     views = read_views(bag, topics, sync_slop_ms, warnings, allow_damaged)
     marks = np.array([(m.x_m, m.y_m) for m in (layout.mark_o, layout.mark_a, layout.mark_b)])
     det_config = config_for_layout(MarkDetectorConfig(), layout.mark_diameter_m)
 
     ids = [s.id for s in layout.studs]
     xy = layout.studs_xy_m()
-    best: list[dict | None] = [None] * len(ids)
-    best_score = np.full((len(ids), 2), np.inf)  # (centrality, view index): ties go to the earlier view
-    fallback: list[tuple[int, dict] | None] = [None] * len(ids)
+    chosen = _BestTargets(len(ids))
     totals = {"iterations": 0, "match_time": 0.0, "views": 0}
 
     def match_view(v: View, camera, color, depth) -> None:
@@ -298,16 +302,7 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
 
             overlay_dir.mkdir(parents=True, exist_ok=True)
             cv2.imwrite(str(overlay_dir / f"view_{v.index:03d}.png"), draw_targets_overlay(color, t, camera))
-        centre = np.array([camera.cx, camera.cy])
-        half_diag = np.hypot(camera.width, camera.height) / 2
-        for i in range(len(ids)):
-            entry = _entry(ids[i], xy[i], t, i, v.index)
-            if t.status[i] == 0:
-                score = (np.linalg.norm(t.matches.pixel_uv[i] - centre) / half_diag, v.index)  # most central wins
-                if score < tuple(best_score[i]):
-                    best[i], best_score[i] = entry, score
-            elif t.status[i] != STATUS_OUT_OF_VIEW and (fallback[i] is None or v.index < fallback[i][0]):
-                fallback[i] = (v.index, entry)
+        chosen.add_view(t, v.index, camera)
 
     # One pass over the bag: register on the first view (in logged order) where the marks are found,
     # then match it and every later view; the views before it take a second pass.
@@ -331,13 +326,8 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
         raise PlanError(f"{bag}: {len(views) - totals['views']} of {len(views)} views lost their images between "
                         "two reads of the bag (was it written to meanwhile?)")
     iterations_total, match_time = totals["iterations"], totals["match_time"]
-    fallback = [f[1] if f is not None else None for f in fallback]
     _progress(len(views), len(views), quiet, "matching")
-    targets = []
-    for i, sid in enumerate(ids):
-        entry = best[i] or fallback[i] or {"stud_id": sid, "drawing_xy_mm": [xy[i, 0] * 1e3, xy[i, 1] * 1e3],
-                                          "status": "out_of_view"}
-        targets.append(entry)
+    targets = chosen.entries(ids, xy)
     return {
         "drawing": str(drawing), "bag": str(bag), "algorithm": config.algorithm,
         "registration": {"M_local2world": registration.M_local2world.tolist(),
@@ -347,27 +337,97 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
     }
 
 
-def _num(x) -> float | None:
-    x = float(x)
-    return x if np.isfinite(x) else None
+class _BestTargets:
+    """Per stud, the view whose target the report keeps, updated one view at a time (arrays over
+    all studs: a bridge has 250,000 of them, and a bag many views).
+
+    A usable (``ok``) target wins over any other; among usable ones the match most central in
+    its image (distance from the principal point over the half diagonal), ties to the earlier
+    view. A stud with no usable target anywhere keeps its first view (lowest index) that saw it
+    with another status; a stud out of every view is ``out_of_view``."""
+
+    NONE, OK, FALLBACK = 2, 0, 1
+
+    def __init__(self, n: int):
+        self.rank = np.full(n, self.NONE, np.int8)
+        self.centrality = np.full(n, np.inf)
+        self.view = np.full(n, np.iinfo(np.int64).max, np.int64)
+        self.status = np.zeros(n, np.uint8)
+        self.position = np.full((n, 3), np.nan)
+        self.normal = np.full((n, 3), np.nan)
+        self.pixel = np.full((n, 2), np.nan)
+        self.iterations = np.zeros(n, np.int64)
+        self.xy_error_mm = np.full(n, np.nan)
+        self.inclination = np.full(n, np.nan)
+        self.normal_sigma = np.full(n, np.nan)
+        self.lean_bound = np.full(n, np.nan)
+        self.fill_ratio = np.full(n, np.nan)
+        self.gun_clearance_mm = np.full(n, np.nan)
+        self.reason: dict[int, str] = {}  # why a stud kept as a fallback is not usable
+
+    def add_view(self, t, view_index: int, camera) -> None:
+        ok = t.status == STATUS_OK
+        centre = np.array([camera.cx, camera.cy])
+        half_diag = np.hypot(camera.width, camera.height) / 2
+        centrality = np.linalg.norm(t.matches.pixel_uv - centre, axis=1) / half_diag
+        take_ok = ok & ((self.rank != self.OK) | (centrality < self.centrality)
+                        | ((centrality == self.centrality) & (view_index < self.view)))
+        take_other = (~ok & (t.status != STATUS_OUT_OF_VIEW) & (self.rank != self.OK)
+                      & (view_index < self.view))
+        take = take_ok | take_other
+        self.rank[take_ok], self.rank[take_other] = self.OK, self.FALLBACK
+        self.centrality[take_ok] = centrality[take_ok]
+        self.view[take] = view_index
+        self.status[take] = t.status[take]
+        self.position[take] = t.position_w[take]
+        self.normal[take] = t.normal_w[take]
+        self.pixel[take] = t.matches.pixel_uv[take]
+        self.iterations[take] = t.matches.iterations[take]
+        self.xy_error_mm[take] = t.matches.xy_residual_m[take] * 1e3
+        self.inclination[take] = t.inclination_deg[take]
+        self.normal_sigma[take] = t.normal_sigma_deg[take]
+        self.lean_bound[take] = t.lean_bound_deg[take]
+        self.fill_ratio[take] = t.poses.fill_ratio[take]
+        self.gun_clearance_mm[take] = t.gun_clearance_m[take] * 1e3
+        for i in np.flatnonzero(take_ok).tolist():
+            self.reason.pop(i, None)
+        for i in np.flatnonzero(take_other).tolist():  # the few studs not usable here: a text each
+            self.reason[i] = t.reason(i)
+
+    def entries(self, ids: list[str], xy_m: np.ndarray) -> list[dict]:
+        """The report's ``targets``, one per stud in drawing order (INTERFACES.md)."""
+        xy_mm = (np.asarray(xy_m, dtype=np.float64).reshape(-1, 2) * 1e3).tolist()
+        out = [{"stud_id": sid, "drawing_xy_mm": xy, "status": "out_of_view"} for sid, xy in zip(ids, xy_mm)]
+        seen = np.flatnonzero(self.rank != self.NONE)
+        names = [STATUS_TEXT[s] for s in self.status[seen].tolist()]
+        pos, nrm, pix = (_nullable(a[seen]) for a in (self.position, self.normal, self.pixel))
+        err, inc = _nullable(self.xy_error_mm[seen]), _nullable(self.inclination[seen])
+        views, its = self.view[seen].tolist(), self.iterations[seen].tolist()
+        sig, lean, fill, clear = (_nullable(a[seen]) for a in (self.normal_sigma, self.lean_bound, self.fill_ratio,
+                                                                self.gun_clearance_mm))
+        for k, i in enumerate(seen.tolist()):
+            # the schema's keys, then ours: the normal's 1-sigma, the lean it could give, the
+            # window's fill, the gun's clearance, and why a stud is not usable
+            out[i].update(status=names[k], position_m=pos[k], normal=nrm[k], pixel=pix[k], view=views[k],
+                          iterations=its[k], xy_error_mm=err[k], inclination_deg=inc[k], normal_sigma_deg=sig[k],
+                          lean_bound_deg=lean[k], fill_ratio=fill[k], gun_clearance_mm=clear[k])
+            if self.reason.get(i):
+                out[i]["reason"] = self.reason[i]
+        return out
 
 
-def _entry(sid: str, xy_m, t, i: int, view_index: int) -> dict:
-    """One stud's report entry: the schema's keys, then the normal's uncertainty, the lean it could
-    give, the window's fill and the gun's clearance (added keys), and why it is not usable."""
-    entry = {
-        "stud_id": sid, "drawing_xy_mm": [xy_m[0] * 1e3, xy_m[1] * 1e3], "status": STATUS_TEXT[int(t.status[i])],
-        "position_m": [_num(v) for v in t.position_w[i]], "normal": [_num(v) for v in t.normal_w[i]],
-        "pixel": [_num(v) for v in t.matches.pixel_uv[i]], "view": view_index,
-        "iterations": int(t.matches.iterations[i]), "xy_error_mm": _num(t.matches.xy_residual_m[i] * 1e3),
-        "inclination_deg": _num(t.inclination_deg[i]),
-        "normal_sigma_deg": _num(t.normal_sigma_deg[i]), "lean_bound_deg": _num(t.lean_bound_deg[i]),
-        "fill_ratio": _num(t.poses.fill_ratio[i]), "gun_clearance_mm": _num(t.gun_clearance_m[i] * 1e3),
-    }
-    reason = t.reason(i)
-    if reason:
-        entry["reason"] = reason
-    return entry
+def _nullable(values: np.ndarray) -> list:
+    """``values.tolist()`` with None where a value is not finite (JSON's null: no value)."""
+    values = np.asarray(values, dtype=np.float64)
+    out = values.tolist()
+    bad = ~np.isfinite(values)
+    if values.ndim == 1:
+        for i in np.flatnonzero(bad).tolist():
+            out[i] = None
+    else:
+        for i in np.flatnonzero(bad.any(axis=1)).tolist():
+            out[i] = [v if math.isfinite(v) else None for v in out[i]]
+    return out
 
 
 def write_csv(report: dict, path: Path) -> None:
@@ -432,8 +492,7 @@ def main(argv: list[str] | None = None) -> int:
         for warning in report["warnings"]:
             print(f"plan: warning: {warning}", file=sys.stderr)
         if args.out:
-            args.out.parent.mkdir(parents=True, exist_ok=True)
-            args.out.write_text(json.dumps(report, indent=1) + "\n")
+            write_json(args.out, report)  # strict JSON: a missing value is null, never NaN
         if args.csv:
             write_csv(report, args.csv)
     except PlanError as exc:

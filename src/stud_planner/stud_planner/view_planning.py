@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -117,9 +118,11 @@ class ViewTargets:
     match_time_s: float
     config: "PlannerConfig"
 
-    @property
+    @cached_property
     def status_text(self) -> list[str]:
-        return [STATUS_TEXT[int(s)] for s in self.status]
+        """(N,) status names, built once (read per stud by callers: a property rebuilding the
+        list on each access made a per-stud loop quadratic)."""
+        return [STATUS_TEXT[s] for s in self.status.tolist()]
 
     def reason(self, i: int) -> str:
         """Why stud ``i`` is not usable, with the figure behind it ("" when it is)."""

@@ -20,8 +20,12 @@ function setConnected(up, why) {
   document.querySelectorAll("#controls button").forEach((b) => { b.disabled = !up; });
 }
 
+// The access token (docs/HMI.md), when the page was opened as http://host:port/?token=...
+const token = new URLSearchParams(location.search).get("token");
+
 function connect() {
-  const url = (location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws";
+  const url = (location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws"
+    + (token ? "?token=" + encodeURIComponent(token) : "");
   let ws;
   try { ws = new WebSocket(url); } catch (e) { scheduleReconnect(); return; }
   hmi.ws = ws;
@@ -174,7 +178,15 @@ function onTargets(m) {
   text($("table-info"), m.total + " studs, " + m.welded + " welded" + (counts ? " – " + counts : "") + (m.view >= 0 ? " – view " + m.view + " (" + m.algorithm + ")" : ""));
 }
 
-const HANDLERS = { hello: () => {}, targets: onTargets, overlay: onOverlay, arm: onArm, cell: onCell,
+function onHello(msg) {
+  hmi.readOnly = !!msg.read_only;
+  if (hmi.readOnly) {
+    text($("connection-text"), "connected, view only (no access token)");
+    document.querySelectorAll("#controls button[data-cmd]").forEach((b) => { b.disabled = true; });
+  }
+}
+
+const HANDLERS = { hello: onHello, targets: onTargets, overlay: onOverlay, arm: onArm, cell: onCell,
                    errors: onErrors, registration: onRegistration, job: onJob, reply: onReply };
 
 setConnected(false, "connecting…");
