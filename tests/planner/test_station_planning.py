@@ -64,3 +64,19 @@ def test_bad_settings_are_named(kwargs, match):
         plan_stations(**args)
     with pytest.raises(StationPlanningError, match="not above the part top"):
         footprint_m(0.46, 0.5, 0.75, 0.05, 0.05)
+
+
+def test_a_reshoot_station_sees_the_stud_from_a_new_direction_each_attempt():
+    from stud_planner.station_planning import reshoot_station
+
+    stud = np.array([0.30, -0.05])
+    seen = []
+    for attempt in range(4):
+        st = reshoot_station(stud, attempt, 0.08, 0.30, plane_z_m=0.005, stud_index=7)
+        offset = np.asarray(st.camera_xyz_w[:2]) - stud
+        assert np.linalg.norm(offset) == pytest.approx(0.08)
+        assert st.camera_xyz_w[2] == pytest.approx(0.305) and st.stud_indices == (7,)
+        seen.append(np.arctan2(offset[1], offset[0]))
+    # four different sides of the stud, 90 deg apart: the viewing direction changes every time
+    gaps = np.diff(np.unwrap(seen))
+    np.testing.assert_allclose(gaps, np.radians(90.0))

@@ -42,6 +42,7 @@ def _check(targets, view_index=7, sec=1_700_000_123, nanosec=456_789_000, frame_
     assert [t.stud_id for t in msg.targets] == targets.ids
     assert [t.status for t in msg.targets] == targets.status.tolist()
     assert [t.status_text for t in msg.targets] == targets.status_text
+    assert [t.reason for t in msg.targets] == [targets.reason(i) for i in range(len(targets.ids))]
 
     def col(f, width):
         return np.array([f(t) for t in msg.targets], dtype=np.float64).reshape(len(msg.targets), width)

@@ -369,6 +369,12 @@ def _scan(path: Path) -> _Scan:
     return s
 
 
+def read_records(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
+    """The intact records of a journal file, in order, read only (for reports: the QA record, the
+    demo's check of each weld's gun axis); a damaged line is left out, never guessed at."""
+    return [ln.rec for ln in _scan(Path(path)).records if ln.rec is not None]
+
+
 def _line_ranges(nos: Iterable[int]) -> str:
     nos = sorted(set(nos))
     out, i = [], 0

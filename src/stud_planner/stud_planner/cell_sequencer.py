@@ -38,8 +38,12 @@ from stud_perception import ros_io
 from stud_perception.camera_model import nadir_rotation
 from stud_perception.ros_io import Param
 from stud_perception.strict_json import write_json
-from stud_planner.msg_convert import layout_from_msg, registration_from_msg
-from stud_planner.station_planning import footprint_m, plan_stations
+from stud_planner.msg_convert import layout_from_msg, registration_from_msg, target_report_entry
+from stud_planner.station_planning import footprint_m, plan_stations, reshoot_station
+from stud_planner.view_planning import STATUS_TEXT, VIEW_DEPENDENT_STATUSES
+
+#: Status texts another view may cure: such studs are shot again before the cell gives up on them.
+RESHOOT_STATUS_TEXTS = frozenset(STATUS_TEXT[s] for s in VIEW_DEPENDENT_STATUSES)
 
 
 def _three(name):
@@ -67,6 +71,10 @@ PARAMS = [
           "reports no job, means it was restarted and lost the job [s]", min=0.3, max=600.0),
     Param("weld_resends", 3, "times a station's weld job is sent again to a restarted driver (resume: its "
           "journal skips what is welded)", min=0, max=20),
+    Param("reshoot_attempts", 2, "views taken again, from other directions, of a stud no view gave a usable "
+          "target for (normal uncertain, no depth, ...) before giving up on it; it is never welded blind",
+          min=0, max=8),
+    Param("reshoot_offset_m", 0.08, "the re-shoot camera stands this far beside the stud [m]", min=0.0, max=0.5),
 ]
 
 STATE_TEXT = {CellStatus.STATE_IDLE: "idle", CellStatus.STATE_REGISTERING: "registering",
@@ -77,6 +85,10 @@ STATE_TEXT = {CellStatus.STATE_IDLE: "idle", CellStatus.STATE_REGISTERING: "regi
 
 class JobAborted(Exception):
     """The job cannot go on (stop requested, a step failed): the message says why."""
+
+
+class MoveRefused(JobAborted):
+    """The arm driver refused a camera move (unreachable, e-stop): the message says why."""
 
 
 class DriverLost(JobAborted):
@@ -259,7 +271,7 @@ class CellSequencer(Node):
         reply = self._call(self.cli_move, MoveTo.Request(pose=pose, frame=MoveTo.Request.FRAME_CAMERA),
                            self.p["step_timeout_s"])
         if not reply.success:
-            raise JobAborted(f"camera move to {np.round(xyz, 3).tolist()} m refused: {reply.message}")
+            raise MoveRefused(f"camera move to {np.round(xyz, 3).tolist()} m refused: {reply.message}")
         # The camera's pose comes from /arm/state: shoot only once a state from after the move
         # is out (two, so the camera node has surely seen one), or the shot uses a stale pose.
         arrived = self.get_clock().now().nanoseconds
@@ -353,6 +365,7 @@ class CellSequencer(Node):
             self.status.station = station.index
             self._run_station(station, layout.ids)
         self._weld_leftovers()
+        self._reshoot(studs_w, layout.ids, plane_z)
         welded = sum(r["welded"] for r in self.stud_report.values())
         failed = len(layout.ids) - welded
         state = CellStatus.STATE_DONE
@@ -367,20 +380,7 @@ class CellSequencer(Node):
         self._checkpoint()
         self._move_camera(station.camera_xyz_w, station.yaw_rad)
         wanted = {ids[i] for i in station.stud_indices}
-        view = None
-        for _attempt in range(p["shot_retries"]):
-            self._checkpoint()
-            self._set(CellStatus.STATE_SHOOTING, f"station {station.index}/{n}: shot")
-            t0 = self._shoot()
-            self._set(CellStatus.STATE_MATCHING, f"station {station.index}/{n}: matching")
-            try:
-                view = self._wait_for(lambda: next((a for a in reversed(self.targets)
-                                                    if ros_io.stamp_to_ns(a.header.stamp) >= t0), None),
-                                      p["step_timeout_s"], "/weld_targets for the shot")
-                break
-            except JobAborted:
-                if self._stop.is_set():
-                    raise
+        view = self._shoot_view(f"station {station.index}/{n}")
         if view is None:
             raise JobAborted(f"station {station.index}: no weld targets for any of {p['shot_retries']} shots")
         self._remember_best(view)
@@ -389,11 +389,9 @@ class CellSequencer(Node):
             if t.stud_id not in wanted:
                 continue
             report = self.stud_report[t.stud_id]
-            report.update(status=t.status_text, position_m=[t.pose.position.x, t.pose.position.y, t.pose.position.z],
-                          normal=[t.normal.x, t.normal.y, t.normal.z], pixel=[t.pixel_u, t.pixel_v],
-                          view=station.index, iterations=int(t.iterations), xy_error_mm=t.xy_error * 1e3,
-                          inclination_deg=t.inclination)
-            if t.status_text == "ok":
+            report.pop("reason", None)
+            report.update(target_report_entry(t, view.view_index))
+            if t.status == t.STATUS_OK:
                 usable.append(t)
         if not usable:
             self.get_logger().warn(f"station {station.index}: no usable target among {len(wanted)} assigned studs")
@@ -401,31 +399,91 @@ class CellSequencer(Node):
         self._set(CellStatus.STATE_WELDING, f"station {station.index}/{n}: welding {len(usable)} stud(s)")
         self._weld(usable)
 
+    def _shoot_view(self, what: str) -> WeldTargetArray | None:
+        """Shoot (up to ``shot_retries`` times) and return the /weld_targets of the shot (None: none came)."""
+        p = self.p
+        for _attempt in range(p["shot_retries"]):
+            self._checkpoint()
+            self._set(CellStatus.STATE_SHOOTING, f"{what}: shot")
+            t0 = self._shoot()
+            self._set(CellStatus.STATE_MATCHING, f"{what}: matching")
+            try:
+                return self._wait_for(lambda: next((a for a in reversed(self.targets)
+                                                    if ros_io.stamp_to_ns(a.header.stamp) >= t0), None),
+                                      p["step_timeout_s"], "/weld_targets for the shot")
+            except JobAborted:
+                if self._stop.is_set():
+                    raise
+        return None
+
     def _remember_best(self, view: WeldTargetArray) -> None:
-        """Keep, per stud, the usable target seen nearest an image centre over all views (targets are in
-        `world`, so one matched from any station can be welded from anywhere)."""
+        """Keep, per stud, the usable target with the surest normal (smallest lean bound) over all
+        views (targets are in `world`, so one matched from any station can be welded from anywhere)."""
         for t in view.targets:
-            if t.status_text != "ok":
+            if t.status != t.STATUS_OK:
                 continue
-            # distance from the image centre, in pixels of a 1280x960-like image: smaller is better
-            score = float(np.hypot(t.pixel_u - 640.0, t.pixel_v - 480.0))
+            score = float(t.lean_bound) if math.isfinite(t.lean_bound) else math.inf
             if t.stud_id not in self.best or score < self.best[t.stud_id][0]:
-                self.best[t.stud_id] = (score, t)
+                self.best[t.stud_id] = (score, t, int(view.view_index))
 
     def _weld_leftovers(self) -> None:
         """Studs their own station did not give a usable target for, but another view did."""
-        left = [self.best[sid][1] for sid, r in self.stud_report.items() if not r["welded"] and sid in self.best]
+        left = [sid for sid, r in self.stud_report.items() if not r["welded"] and sid in self.best]
         if not left:
             return
-        self.get_logger().info(f"welding {len(left)} stud(s) matched on another station's view: "
-                               f"{', '.join(t.stud_id for t in left)}")
-        for t in left:
-            r = self.stud_report[t.stud_id]
-            r.update(status="ok", position_m=[t.pose.position.x, t.pose.position.y, t.pose.position.z],
-                     normal=[t.normal.x, t.normal.y, t.normal.z], pixel=[t.pixel_u, t.pixel_v],
-                     iterations=int(t.iterations), xy_error_mm=t.xy_error * 1e3, inclination_deg=t.inclination)
+        self.get_logger().info(f"welding {len(left)} stud(s) matched on another station's view: {', '.join(left)}")
+        targets = []
+        for sid in left:
+            _score, t, view = self.best[sid]
+            self.stud_report[sid].update(target_report_entry(t, view))
+            self.stud_report[sid].pop("reason", None)
+            targets.append(t)
         self._set(CellStatus.STATE_WELDING, f"welding {len(left)} stud(s) from other views")
-        self._weld(left)
+        self._weld(targets)
+
+    def _reshoot(self, studs_w: np.ndarray, ids: list[str], plane_z: float) -> None:
+        """Studs no view gave a usable target for, for a reason another view may cure (a normal too
+        uncertain for the lean budget, a hole, a depth edge): shot again from other directions,
+        ``reshoot_attempts`` times, and welded once a view makes them usable. Never welded blind."""
+        p = self.p
+        index = {sid: i for i, sid in enumerate(ids)}
+        for attempt in range(p["reshoot_attempts"]):
+            pending = [sid for sid, r in self.stud_report.items()
+                       if not r["welded"] and r["status"] in RESHOOT_STATUS_TEXTS and sid not in self.best]
+            if not pending:
+                return
+            for n, sid in enumerate(pending, 1):
+                if self.stud_report[sid]["welded"] or sid in self.best:
+                    continue  # a re-shoot of a neighbour made it usable
+                station = reshoot_station(studs_w[index[sid]], attempt, p["reshoot_offset_m"], p["camera_height_m"],
+                                          plane_z, math.radians(p["camera_yaw_deg"]), stud_index=index[sid])
+                self._set(CellStatus.STATE_MOVING, f"re-shoot {attempt + 1}/{p['reshoot_attempts']} of {sid} "
+                          f"({self.stud_report[sid]['status']}): camera to {np.round(station.camera_xyz_w, 3).tolist()} m")
+                self._checkpoint()
+                try:
+                    self._move_camera(station.camera_xyz_w, station.yaw_rad)
+                except MoveRefused as exc:
+                    self.get_logger().warn(f"re-shoot of {sid} skipped: {exc}")
+                    continue
+                view = self._shoot_view(f"re-shoot of {sid}")
+                if view is None:
+                    continue
+                self._remember_best(view)
+                for t in view.targets:
+                    r = self.stud_report.get(t.stud_id)
+                    if r is not None and not r["welded"] and t.stud_id not in self.best and t.stud_id in pending:
+                        r.pop("reason", None)
+                        r.update(target_report_entry(t, view.view_index))
+                usable = [self.best[s][1] for s in pending if s in self.best and not self.stud_report[s]["welded"]]
+                if usable:
+                    for t in usable:
+                        self.stud_report[t.stud_id].update(target_report_entry(t, self.best[t.stud_id][2]))
+                        self.stud_report[t.stud_id].pop("reason", None)
+                    self._set(CellStatus.STATE_WELDING, f"welding {len(usable)} stud(s) usable after a re-shoot")
+                    self._weld(usable)
+        for sid, r in self.stud_report.items():
+            if not r["welded"] and r["status"] in RESHOOT_STATUS_TEXTS and sid not in self.best and p["reshoot_attempts"]:
+                r["reason"] = f"{r['status']} on every view, {p['reshoot_attempts']} re-shoot(s) included: not welded blind"
 
     def _weld(self, usable: list) -> None:
         """One station's weld job. Should the driver die mid-job, the same targets go again (resume)

@@ -62,3 +62,22 @@ def layout_poses(msg: StudLayout) -> PoseArray:
 def registration_from_msg(msg: Registration) -> np.ndarray:
     """Registration message -> M_local2world (3, 3)."""
     return np.asarray(msg.m_local2world, dtype=np.float64).reshape(3, 3)
+
+
+def _finite_or_none(x: float, scale: float = 1.0) -> float | None:
+    x = float(x)
+    return x * scale if np.isfinite(x) else None
+
+
+def target_report_entry(t, view: int) -> dict:
+    """The weld report's fields of one ``WeldTarget`` message matched on ``view`` (the offline
+    report's keys, INTERFACES.md, plus the normal's uncertainty, the lean bound, the window's
+    fill and the gun's clearance); a value the message holds as NaN is None (JSON null)."""
+    p, n = t.pose.position, t.normal
+    return {"status": t.status_text, "position_m": [_finite_or_none(v) for v in (p.x, p.y, p.z)],
+            "normal": [_finite_or_none(v) for v in (n.x, n.y, n.z)],
+            "pixel": [_finite_or_none(t.pixel_u), _finite_or_none(t.pixel_v)], "view": int(view),
+            "iterations": int(t.iterations), "xy_error_mm": _finite_or_none(t.xy_error, 1e3),
+            "inclination_deg": _finite_or_none(t.inclination), "normal_sigma_deg": _finite_or_none(t.normal_sigma),
+            "lean_bound_deg": _finite_or_none(t.lean_bound), "fill_ratio": _finite_or_none(t.fill_ratio),
+            "gun_clearance_mm": _finite_or_none(t.gun_clearance, 1e3), **({"reason": t.reason} if t.reason else {})}

@@ -96,3 +96,18 @@ def footprint_m(fov_width_m: float, fov_distance_m: float, aspect_hw: float, cam
         raise StationPlanningError(f"camera at {camera_height_m} m is not above the part top {part_height_m} m")
     width = fov_width_m * distance / fov_distance_m
     return width, width * aspect_hw
+
+
+def reshoot_station(stud_xy_w, attempt: int, offset_m: float, camera_height_m: float, plane_z_m: float = 0.0,
+                    yaw_rad: float = 0.0, index: int = 0, stud_index: int = 0) -> Station:
+    """A station to see one stud again from another direction: the camera ``offset_m`` beside the
+    stud (a different viewing angle -- holes from a specular reflection or a shadow move with it),
+    turned 90 deg further round the stud on each ``attempt`` (45, 135, 225, 315 deg, ...), nadir,
+    ``camera_height_m`` above the plane. The stud stays well inside the image for offsets up to
+    a quarter of the footprint."""
+    if offset_m < 0 or camera_height_m <= 0:
+        raise StationPlanningError(f"offset_m={offset_m} must be >= 0 and camera_height_m={camera_height_m} > 0")
+    a = math.radians(45.0 + 90.0 * attempt)
+    x, y = (float(v) for v in np.asarray(stud_xy_w, dtype=np.float64).reshape(2))
+    xyz = (x + offset_m * math.cos(a), y + offset_m * math.sin(a), plane_z_m + camera_height_m)
+    return Station(index, xyz, float(yaw_rad), (int(stud_index),))

@@ -65,6 +65,7 @@ def weld_target_array_cdr(targets, view_index: int, stamp_sec: int, stamp_nanose
         buf += rows[i * size:(i + 1) * size]
         buf.append(status)
         _string(buf, text)
+        _string(buf, targets.reason(i) if status else "")
     _string(buf, targets.algorithm)
     _align(buf, 8)
     buf += struct.pack("<dQ", float(targets.match_time_s), int(targets.matches.total_iterations))
