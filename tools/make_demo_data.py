@@ -1,34 +1,121 @@
 #!/usr/bin/env python3
-"""Regenerate the bundled demo data from the demo scene, so samples are reproducible.
+"""Regenerate the bundled demo data -- two curved parts -- so samples are reproducible.
 
-Writes
-  src/stud_planner/data/dome_demo.dxf        the drawing civil engineers would hand us (mm, R2010)
-  src/stud_perception/config/dome_scene.json the matching synthetic scene (world placement,
-                                             surface, board), with the drawing's stud ids
+Writes, for each part (``dome``, ``shell``):
+  src/stud_planner/data/<part>_demo.dxf         the drawing civil engineers would hand us (mm, R2010)
+  src/stud_perception/config/<part>_scene.json  the matching synthetic scene (world placement,
+                                                surface, board), with the drawing's stud ids
 
-The scene (stud_perception.scene.demo_dome_scene: the paper's dome, 17 studs, marking board)
-is the source of truth; the DXF is written from it and read back with our own parser, and
-the scene file takes its stud ids from the parser so ground truth and layout agree by id.
+The parts are the paper's kind, curved: a dome (a 150 mm-radius head, 9 studs, 8 of them on 21.5
+deg slopes) and a tank-shell section (a horizontal cylinder of 150 mm radius, 16 studs across
++-23.6 deg of slope). The gun welds each stud along its normal.
+
+`world` is the RM-65 base frame, and the RM-65 is small (610 mm reach): with a 0.15 m gun and a
+50 mm approach along the normal, a stud leaning away from the arm pushes the wrist out of reach
+and one leaning toward it folds the elbow past its limit, so a part with 20+ deg slopes all round
+fits only where its studs stand high enough and close enough. The layout below is checked here
+with rm65_driver's own safety checker (every stud's approach, contact and descent, the free
+rotation about the stud searched) and IK (the registration and camera stations), with the cell's
+defaults (cell_sequencer, arm_driver); a layout that fails is an error, not a file.
 Run: source ros2_ws/setup.bash && python tools/make_demo_data.py
 """
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-for pkg in ("stud_perception", "stud_planner"):
+for pkg in ("stud_perception", "stud_planner", "rm65_driver"):
     sys.path.insert(0, str(REPO / "src" / pkg))
 
 import numpy as np  # noqa: E402
 
-from stud_perception.scene import SceneSpec, demo_dome_scene, scene_from_dict, scene_to_dict  # noqa: E402
+from rm65_driver.kinematics import RM65Kinematics  # noqa: E402
+from rm65_driver.safety import SafetyChecker, SafetyLimits  # noqa: E402
+from stud_perception.camera_model import nadir_rotation  # noqa: E402
+from stud_perception.rotations import rpy_to_matrix  # noqa: E402
+from stud_perception.scene import (Cylinder, Dome, MarkingBoard, Pose2D, SceneSpec, scene_from_dict,  # noqa: E402
+                                   scene_to_dict, surface_height, surface_normal)
 from stud_perception.strict_json import write_json  # noqa: E402
+from stud_planner.cell_sequencer import PARAMS as SEQ_PARAMS  # noqa: E402
 from stud_planner.dxf_layout import read_layout  # noqa: E402
 from stud_planner.dxf_writer import write_layout_dxf  # noqa: E402
+from stud_planner.station_planning import footprint_m, plan_stations  # noqa: E402
 
-DXF = REPO / "src" / "stud_planner" / "data" / "dome_demo.dxf"
-SCENE = REPO / "src" / "stud_perception" / "config" / "dome_scene.json"
+DATA = REPO / "src" / "stud_planner" / "data"
+CONFIG = REPO / "src" / "stud_perception" / "config"
+
+#: The marking board beside the part, drawing frame = board frame: O at world (0.16, -0.34), x along
+#: world +X. Both parts share it (one cell layout).
+BOARD_POSE = Pose2D(x_m=0.16, y_m=-0.34, yaw_rad=0.0)
+#: The cell's defaults these parts are laid out for (arm_driver and cell.yaml): tool and approach.
+TOOL_OFFSET_M, STANDOFF_M = 0.15, 0.05
+HAND_EYE_XYZ_M, HAND_EYE_RPY_DEG = (0.05, 0.0, -0.10), (0.0, 0.0, 0.0)
+
+
+def dome_scene() -> SceneSpec:
+    """A 150 mm-radius head (a hemisphere) centred 0.215 m from the arm's axis: the apex and a ring of
+    8 at 55 mm, on 21.5 deg slopes (43 mm apart: the drawing check's 2.5 stud diameters)."""
+    centre = np.array([0.215, 0.0])
+    comp = Dome(tuple(centre), base_radius_m=0.15, height_m=0.15)
+    rings = [(0.055, 8, math.pi / 8)]
+    world = [centre] + [centre + r * np.array([math.cos(a0 + 2 * math.pi * k / m), math.sin(a0 + 2 * math.pi * k / m)])
+                        for r, m, a0 in rings for k in range(m)]
+    return _scene(comp, np.array(world))
+
+
+def shell_scene() -> SceneSpec:
+    """A tank-shell section: a horizontal cylinder of 150 mm radius, its axis along world X (away
+    from the arm), 0.26 m long, crown 0.12 m above the plane; 4 rows of 4 studs across it, 40-45 mm
+    apart, the outer ones on 23.6 deg slopes."""
+    comp = Cylinder((0.22, 0.0), radius_m=0.15, axis_yaw_rad=0.0, length_m=0.26, height_m=0.12)
+    world = np.array([[x, y] for x in (0.15, 0.195, 0.24, 0.285) for y in (-0.06, -0.02, 0.02, 0.06)])
+    return _scene(comp, world)
+
+
+def _scene(component, studs_world_xy) -> SceneSpec:
+    drawing = BOARD_POSE.apply_inverse(np.asarray(studs_world_xy))
+    return SceneSpec(component=component, board=MarkingBoard(), drawing_to_world=BOARD_POSE,
+                     studs_drawing_m=tuple(map(tuple, np.round(drawing, 6))), stud_mark_diameter_m=0.008)
+
+
+PARTS = {"dome": dome_scene, "shell": shell_scene}
+
+
+def check_reach(scene: SceneSpec) -> list[str]:
+    """Why the cell could not do this part with its defaults (empty: it can): every stud's weld
+    plan, the registration station and the camera stations, as the driver would check them."""
+    kin = RM65Kinematics()
+    tool = np.eye(4)
+    tool[2, 3] = TOOL_OFFSET_M
+    checker = SafetyChecker(kin, SafetyLimits(), tool)
+    home = np.radians([0.0, -30.0, -100.0, 0.0, -50.0, 0.0])
+    problems = []
+    xy = scene.studs_world_xy_m
+    z = surface_height(scene, xy[:, 0], xy[:, 1])
+    n = surface_normal(scene, xy[:, 0], xy[:, 1])
+    for sid, p, nrm in zip(scene.stud_ids, np.column_stack([xy, z]), n):
+        check = checker.check_target(p, nrm, STANDOFF_M, home)
+        if not check.ok:
+            problems.append(f"stud {sid} at {np.round(p, 3).tolist()}: {check.reason}")
+    seq = {p.name: p.default for p in SEQ_PARAMS}
+    he = np.eye(4)
+    he[:3, :3], he[:3, 3] = rpy_to_matrix(*np.radians(HAND_EYE_RPY_DEG)), HAND_EYE_XYZ_M
+    plane_z = scene.board.thickness_m
+    fov = footprint_m(seq["fov_width_m"], seq["fov_distance_m"], seq["image_aspect"], seq["camera_height_m"],
+                      seq["part_height_m"])
+    stations = plan_stations(xy, fov, seq["camera_height_m"], overlap=seq["overlap"], plane_z_m=plane_z).stations
+    for what, xyz in [("registration station", seq["registration_station_xyz_m"])] + [
+            (f"camera station {s.index}", s.camera_xyz_w) for s in stations]:
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = nadir_rotation(0.0), xyz
+        if not kin.ik(T @ np.linalg.inv(he), home, tool=tool).success:
+            problems.append(f"{what} at {np.round(xyz, 3).tolist()} m is out of the arm's reach")
+    top = float(np.max(z))
+    if top > seq["part_height_m"] + 1e-9:
+        problems.append(f"the part's studs stand up to {top:.3f} m, above cell_sequencer part_height_m")
+    return problems
 
 
 def scene_with_drawing_ids(scene: SceneSpec, dxf_path: Path) -> SceneSpec:
@@ -46,41 +133,23 @@ def scene_with_drawing_ids(scene: SceneSpec, dxf_path: Path) -> SceneSpec:
     return scene_from_dict(d)
 
 
-#: The paper's part is a section of an LNG-tank dome: a large sphere, so over the 460 mm field of
-#: view every stud's normal is within the 5 deg welding limit with margin for depth noise (<= 2.9 deg).
-DEMO_DOME_HEIGHT_M = 0.010
-#: `world` is the RM-65 base frame, and the RM-65 is small (610 mm reach; with a 0.15 m weld gun
-#: pointing down it holds the camera ~0.3 m above the plane only within ~0.35 m of its axis). The
-#: part and the board are placed where the arm reaches the registration station, the camera
-#: stations and every weld point with its approach (checked with rm65_driver's IK when chosen):
-#: the bundled configuration turned by 90 deg about the dome centre, which is moved here.
-DEMO_DOME_CENTRE_XY_M = (0.28, 0.10)
-DEMO_TURN_DEG = 90.0
-
-
-def demo_scene() -> SceneSpec:
-    d = scene_to_dict(demo_dome_scene())
-    d["component"]["height_m"] = DEMO_DOME_HEIGHT_M
-    ox, oy = d["component"]["centre_xy_m"]
-    cx, cy = DEMO_DOME_CENTRE_XY_M
-    t = np.radians(DEMO_TURN_DEG)
-    px, py = d["drawing_to_world"]["x_m"] - ox, d["drawing_to_world"]["y_m"] - oy
-    d["drawing_to_world"].update(x_m=cx + np.cos(t) * px - np.sin(t) * py, y_m=cy + np.sin(t) * px + np.cos(t) * py,
-                                 yaw_deg=d["drawing_to_world"]["yaw_deg"] + DEMO_TURN_DEG)
-    d["component"]["centre_xy_m"] = [cx, cy]
-    return scene_from_dict(d)
-
-
 def main() -> int:
-    scene = demo_scene()
-    marks = dict(zip("OAB", scene.board.marks_drawing_m))
-    DXF.parent.mkdir(parents=True, exist_ok=True)
-    write_layout_dxf(DXF, np.asarray(scene.studs_drawing_m), marks, stud_diameter_m=0.016,
-                     mark_diameter_m=scene.board.mark_diameter_m, dxfversion="R2010", units="mm")
-    scene = scene_with_drawing_ids(scene, DXF)
-    SCENE.parent.mkdir(parents=True, exist_ok=True)
-    write_json(SCENE, scene_to_dict(scene))
-    print(f"wrote {DXF.relative_to(REPO)} ({DXF.stat().st_size} bytes) and {SCENE.relative_to(REPO)}")
+    for part, make in PARTS.items():
+        scene = make()
+        problems = check_reach(scene)
+        if problems:
+            print(f"{part}: the cell cannot do this layout:\n  " + "\n  ".join(problems), file=sys.stderr)
+            return 1
+        dxf, scene_file = DATA / f"{part}_demo.dxf", CONFIG / f"{part}_scene.json"
+        marks = dict(zip("OAB", scene.board.marks_drawing_m))
+        write_layout_dxf(dxf, np.asarray(scene.studs_drawing_m), marks, stud_diameter_m=0.016,
+                         mark_diameter_m=scene.board.mark_diameter_m, dxfversion="R2010", units="mm")
+        scene = scene_with_drawing_ids(scene, dxf)
+        write_json(scene_file, scene_to_dict(scene))
+        xy = scene.studs_world_xy_m
+        slopes = np.degrees(np.arccos(surface_normal(scene, xy[:, 0], xy[:, 1])[:, 2]))
+        print(f"{part}: wrote {dxf.relative_to(REPO)} and {scene_file.relative_to(REPO)}: {len(xy)} studs, "
+              f"slopes up to {slopes.max():.1f} deg; every stud and station within the arm's reach")
     return 0
 
 

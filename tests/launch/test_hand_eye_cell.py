@@ -17,7 +17,7 @@ import pytest
 
 from stud_perception.hand_eye import rotation_angle_deg, transform_xyz_rpy
 from stud_perception.hand_eye_file import load_hand_eye_file
-from test_cell_ros import free_port
+from test_cell_ros import N_DEMO_STUDS, free_port
 
 BELIEVED = ([0.05, 0.0, -0.10], [0.0, 0.0, 0.0])  # cell.yaml's hand_eye_* vars
 TRUE_XYZ, TRUE_RPY = [0.056, -0.004, -0.097], [1.0, -0.5, 0.8]
@@ -99,7 +99,7 @@ def test_a_job_with_the_calibration_welds_within_1_mm_and_with_the_believed_valu
     out, code, _ = calibration
     assert code == 0
     calibrated = _job(tmp_path / "job_cal", "--var", f"hand_eye_file={out / 'hand_eye.yaml'}")
-    assert calibrated["code"] == 0 and calibrated["welded"] == calibrated["total"] == 17, calibrated
+    assert calibrated["code"] == 0 and calibrated["welded"] == calibrated["total"] == N_DEMO_STUDS, calibrated
     assert calibrated["max_xy_error_mm"] <= 1.0, calibrated
     believed = _job(tmp_path / "job_typed")
     assert believed["max_xy_error_mm"] > 3.0 * max(calibrated["max_xy_error_mm"], 1.0), (believed, calibrated)

@@ -58,7 +58,7 @@ def test_non_finite_and_absurd_circles_are_left_out_and_named(tmp_path, plain_ci
         assert any(f"handle {handle} on layer STUDS" in line for line in circles.invalid_entities), handle
     layout = read_layout(path)
     good = read_layout(DEMO)
-    assert layout.studs == good.studs  # the 17 real studs, same ids
+    assert layout.studs == good.studs  # the real studs, same ids
     assert len(layout.invalid_entities) == 6 and all("STUDS" in line for line in layout.invalid_entities)
     warning = next(w for w in layout.warnings if "left out" in w)
     assert "6 circles with non-finite or out-of-range values" in warning and "nan" in warning
@@ -96,7 +96,7 @@ def test_drawing_inspect_reports_finite_extents_and_strict_json(tmp_path, capsys
     assert "nan" not in extent.lower() and "inf" not in extent.lower()
     assert "left out" in printed
     data = strict_loads(out.read_text())
-    assert len(data["studs"]) == 17 and len(data["invalid_entities"]) == len(handles)
+    assert len(data["studs"]) == len(read_layout(DEMO).studs) and len(data["invalid_entities"]) == len(handles)
     assert dxf_layout.StudLayout.from_dict(data).invalid_entities == tuple(data["invalid_entities"])
 
 
@@ -114,7 +114,7 @@ def test_plan_warns_about_left_out_circles_and_writes_strict_json(tmp_path):
     text = report.read_text()
     assert "NaN" not in text and "Infinity" not in text
     data = strict_loads(text)
-    assert len(data["targets"]) == 17  # one per drawing stud; the broken circles are none
+    assert len(data["targets"]) == len(read_layout(DEMO).studs)  # one per drawing stud; the broken circles are none
     assert any("left out" in w for w in data["warnings"])
     # a target without a value says null (missing), never NaN
     assert all(v is None or isinstance(v, (int, float)) for t in data["targets"] for v in t.get("position_m") or [])

@@ -8,6 +8,10 @@ import subprocess
 
 from rosproc import REPO
 
+from stud_planner.dxf_layout import read_layout
+
+DXF = REPO / "src" / "stud_planner" / "data" / "dome_demo.dxf"
+
 
 def test_demo_welds_every_stud_once_and_leaves_its_outputs(tmp_path):
     out = tmp_path / "demo"
@@ -16,12 +20,18 @@ def test_demo_welds_every_stud_once_and_leaves_its_outputs(tmp_path):
     assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-2000:]
     summary = json.loads((out / "summary.json").read_text())
     why = f"{json.dumps({k: v for k, v in summary.items() if k != 'per_stud'})}\n{done.stdout[-3000:]}"
-    assert summary["ok"] and summary["studs_welded"] == summary["studs_total"] == 17, why
+    assert summary["ok"] and summary["studs_welded"] == summary["studs_total"] == len(read_layout(DXF).studs), why
     assert summary["accuracy"]["max_xy_error_mm"] <= 1.0, why
+    # a curved part: the gun followed the normal on 20+ deg slopes, its axis (forward kinematics of the
+    # controller's joints at each weld) within 1.5 deg of the true normal, for every weld
+    assert summary["accuracy"]["steepest_welded_slope_deg"] >= 20.0, why
+    assert summary["accuracy"]["gun_axes_checked"] == summary["studs_welded"], why
+    assert summary["accuracy"]["max_gun_axis_error_deg"] <= 1.5, why
     assert summary["overlays"] >= 1, why
     assert len(list((out / "overlays").glob("*.png"))) == summary["overlays"]
     assert (out / "cell_bag" / "metadata.yaml").exists()
     # the journal is the truth of what was welded: every stud exactly once
     welded = [json.loads(line)["stud"] for line in (out / "weld_journal.jsonl").read_text().splitlines()
               if json.loads(line).get("event") == "welded"]
+    assert len(welded) == len(set(welded))
     assert sorted(welded) == sorted({t["stud_id"] for t in json.loads((out / "weld_report.json").read_text())["targets"]})

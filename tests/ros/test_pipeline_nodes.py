@@ -22,14 +22,14 @@ DEMO_SCENE = REPO / "src" / "stud_perception" / "config" / "dome_scene.json"
 # with a structured-light camera's noise (0.5 mm; mm quantisation costs the normal a little more),
 # tilted, and raw images of a lens with barrel distortion that registration and matcher rectify.
 @pytest.mark.parametrize("algorithm, yaw_deg, tilt_deg, height_m, encoding, noise_m, distortion, normal_tol_deg", [
-    ("batch", 90.0, 0.0, 0.60, "32FC1", 0.0, [0.0] * 5, 1.0),
-    ("fpm", 90.0, 0.0, 0.60, "32FC1", 0.0, [0.0] * 5, 1.0),
-    ("batch", 137.0, 10.0, 0.65, "16UC1", 0.0005, [-0.2, 0.08, 0.001, -0.0008, 0.0], 2.0),
+    ("batch", 90.0, 0.0, 0.70, "32FC1", 0.0, [0.0] * 5, 1.0),
+    ("fpm", 90.0, 0.0, 0.70, "32FC1", 0.0, [0.0] * 5, 1.0),
+    ("batch", 137.0, 10.0, 0.75, "16UC1", 0.0005, [-0.2, 0.08, 0.001, -0.0008, 0.0], 2.0),
 ])
 def test_targets_from_the_node_graph_match_the_scene_truth(ros_node, procs, tmp_path, algorithm, yaw_deg, tilt_deg,
                                                            height_m, encoding, noise_m, distortion, normal_tol_deg):
     cam = {"scene_file": str(DEMO_SCENE), "depth_encoding": encoding, "depth_noise_m": noise_m,
-           "camera_xyz_m": [0.31, -0.03, height_m], "distortion_d": distortion,
+           "camera_xyz_m": [0.22, -0.15, height_m], "distortion_d": distortion,  # board and dome in one view
            "camera_yaw_deg": yaw_deg, "camera_tilt_deg": tilt_deg, "camera_tilt_azimuth_deg": 40.0}
     procs.append(ros2_run("stud_planner", "drawing", tmp_path / "drawing.log", {"drawing_file": str(DEMO_DXF)}))
     procs.append(ros2_run("stud_perception", "camera", tmp_path / "camera.log", cam))
@@ -84,7 +84,7 @@ def test_targets_from_the_node_graph_match_the_scene_truth(ros_node, procs, tmp_
     inside = ((uv[:, 0] >= margin_px) & (uv[:, 0] <= camera.width - 1 - margin_px)
               & (uv[:, 1] >= margin_px) & (uv[:, 1] <= camera.height - 1 - margin_px))
     in_view = [t for t in arr.targets if truth.stud_visible[by_id[t.stud_id]] and inside[by_id[t.stud_id]]]
-    assert len(in_view) >= 5
+    assert len(in_view) >= 4  # of the 9 studs: both the board and the dome are in this view
     bad = [(t.stud_id, t.status_text, uv[by_id[t.stud_id]].round(1).tolist()) for t in in_view if t.status_text != "ok"]
     assert not bad, bad
     for t in arr.targets:  # every "ok" target is right (no silent wrong pose), in view or not
@@ -106,6 +106,6 @@ def test_targets_from_the_node_graph_match_the_scene_truth(ros_node, procs, tmp_
     np.testing.assert_array_equal(got, [(t.pose.position.x, t.pose.position.y, t.pose.position.z,
                                          t.pose.orientation.x, t.pose.orientation.y, t.pose.orientation.z,
                                          t.pose.orientation.w) for t in ok_targets])
-    assert len(pa.poses) >= 5 and np.all(np.isfinite(got))
+    assert len(pa.poses) >= 4 and np.all(np.isfinite(got))
     n_ok = sum(t.status_text == "ok" for t in arr.targets)
     assert len([m for m in markers[-1].markers if m.action == m.ADD]) >= n_ok

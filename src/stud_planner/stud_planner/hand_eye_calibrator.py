@@ -59,7 +59,7 @@ PARAMS = [
           choices=("calibrate", "verify"), read_only=True),
     Param("output_dir", ".", "folder for hand_eye.yaml (calibrate) or hand_eye_check.yaml (verify)", read_only=True),
     Param("exit_when_done", True, "end the process when done (exit 0: accepted / passed, 1: not)"),
-    Param("board_station_xyz_m", [0.345, -0.175, 0.28], "camera position over the marking board for the first, "
+    Param("board_station_xyz_m", [0.225, -0.29, 0.285], "camera position over the marking board for the first, "
           "straight-down look that finds the board [m] (the sequencer's registration station)",
           validate=_three("board_station_xyz_m")),
     Param("view_distance_m", 0.30, "camera distance from the board centre in the views [m]", min=0.1, max=1.5),
