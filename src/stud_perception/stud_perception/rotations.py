@@ -69,3 +69,19 @@ def matrix_to_rpy(R: np.ndarray) -> tuple[float, float, float]:
     if abs(R[2, 0]) < 1 - 1e-9:
         return math.atan2(R[2, 1], R[2, 2]), pitch, math.atan2(R[1, 0], R[0, 0])
     return 0.0, pitch, math.atan2(-R[0, 1], R[1, 1])  # gimbal lock: put everything in yaw
+
+
+def frame_from_normal(normal_w: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3), columns (x, y, z): z = normal, x = world X projected onto the
+    tangent plane (world Y when the normal is within ~0.06 deg of X), y = z cross x."""
+    n = np.asarray(normal_w, dtype=np.float64)
+    n = n / np.linalg.norm(n, axis=-1, keepdims=True)
+    ex = np.array([1.0, 0.0, 0.0])
+    ey = np.array([0.0, 1.0, 0.0])
+    x = ex - n[..., 0:1] * n
+    norm = np.linalg.norm(x, axis=-1, keepdims=True)
+    alt = ey - n[..., 1:2] * n
+    x = np.where(norm > 1e-3, x, alt)
+    x = x / np.linalg.norm(x, axis=-1, keepdims=True)
+    y = np.cross(n, x)
+    return np.stack([x, y, n], axis=-1)

@@ -31,6 +31,8 @@ import numpy as np
 
 from stud_perception.camera_model import CameraModel, nadir_rotation
 from stud_perception.depth_image import depth_m_to_mm, depth_mm_to_m
+from stud_perception.welded_studs import (DEFAULT_STUD_DIAMETER_M, DEFAULT_STUD_LENGTH_M, StudCylinder,
+                                         WeldDefectError, parse_weld_defects)
 
 
 class SceneError(ValueError):
@@ -43,6 +45,7 @@ SURFACE_TABLE = 0
 SURFACE_BOARD = 1
 SURFACE_COMPONENT = 2
 SURFACE_OBSTACLE = 3
+SURFACE_STUD = 4  # a welded stud (stud_perception.welded_studs)
 
 # Appearance (8-bit grey levels before shading, BGR tints). Dark marks on a light board
 # and a mid-grey table give the contrast the paper's Hough stage relies on.
@@ -51,11 +54,13 @@ _BOARD_GREY = 228.0
 _MARK_GREY = 22.0
 _STEEL_GREY = 185.0
 _STUD_MARK_GREY = 30.0
+_STUD_GREY = 205.0  # bright steel of a welded stud
 _TINT_BGR = {
     SURFACE_TABLE: (0.92, 1.0, 1.06),
     SURFACE_BOARD: (1.0, 1.0, 1.0),
     SURFACE_COMPONENT: (1.04, 1.0, 0.97),
     SURFACE_OBSTACLE: (1.0, 0.98, 0.92),
+    SURFACE_STUD: (0.98, 0.98, 1.02),
 }
 # Lambertian shading with a light slightly off vertical, so curvature is visible in colour.
 _LIGHT_DIR_W = np.array([0.25, 0.15, 1.0]) / np.linalg.norm([0.25, 0.15, 1.0])
@@ -491,7 +496,8 @@ class SceneSpec:
     standing on the plane (stiffeners, webs, flanges: world frame, their tops ``height_m`` above
     the plane) that a welding gun must not hit. ``specular_lobe_deg``: the component is shiny
     steel -- a structured-light camera gets no depth where the surface mirrors its projector into
-    the camera, within this angle (0: a matte part).
+    the camera, within this angle (0: a matte part). ``stud_length_m`` / ``stud_diameter_m``: the
+    welded studs' size, ``weld_defects``: {stud id: WeldDefect} (stud_perception.welded_studs).
     """
 
     component: Component | None
@@ -503,8 +509,14 @@ class SceneSpec:
     stud_mark_style: str = "circle"
     obstacles: tuple[Plate, ...] = ()
     specular_lobe_deg: float = 0.0
+    stud_length_m: float = DEFAULT_STUD_LENGTH_M
+    stud_diameter_m: float = DEFAULT_STUD_DIAMETER_M
+    weld_defects: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        if not (0.001 <= self.stud_length_m <= 1.0 and 0.001 <= self.stud_diameter_m <= 0.1):
+            raise SceneError(f"stud_length_mm={self.stud_length_m * 1e3:g} and stud_diameter_mm="
+                             f"{self.stud_diameter_m * 1e3:g} must be in [1, 1000] and [1, 100] mm")
         object.__setattr__(self, "obstacles", tuple(self.obstacles))
         for i, ob in enumerate(self.obstacles):
             if not isinstance(ob, Plate) or ob.tilt_rad != 0:
@@ -733,6 +745,7 @@ def render(
     color_noise: float = 0.0,
     mark_depth_dropout: bool = False,
     projector_offset_m: tuple[float, float, float] = (0.05, 0.0, 0.0),
+    welded: tuple[StudCylinder, ...] = (),
 ) -> RenderedView:
     """Ray-cast ``scene`` through ``camera`` into a colour + 16UC1 depth pair with ground truth.
 
@@ -743,7 +756,8 @@ def render(
     and stud marks lose their depth too. ``projector_offset_m``: the structured-light
     projector's position in the optical frame; with the scene's ``specular_lobe_deg``, the
     component loses its depth where it mirrors the projector into the camera (a hole that moves
-    with the viewpoint, unlike a dark mark). Everything random is drawn from ``seed``, one
+    with the viewpoint, unlike a dark mark). ``welded``: the studs standing on the part
+    (stud_perception.welded_studs.welded_stud), seen like any other solid. Everything random is drawn from ``seed``, one
     independent stream per effect, so changing one effect leaves the others' pattern alone.
     """
     if not (0.0 <= hole_fraction < 1.0):
@@ -770,6 +784,7 @@ def render(
     if scene.component is not None:
         solids.append((SURFACE_COMPONENT, scene.component))
     solids += [(SURFACE_OBSTACLE, ob) for ob in scene.obstacles]
+    solids += [(SURFACE_STUD, stud) for stud in welded]
     for surf, solid in solids:
         win = _image_window(camera, solid.bounding_box_w())
         if win is None:
@@ -786,7 +801,7 @@ def render(
     px_per_depth = 1.0 / camera.fx  # pixel footprint: metres per pixel per metre of depth
 
     # Shading: Lambert on the top faces, a flat darker shade on walls (float32: colour only).
-    grey_lut = np.array([0.0, _TABLE_GREY, _BOARD_GREY, _STEEL_GREY, _STEEL_GREY], dtype=np.float32)  # sid + 1
+    grey_lut = np.array([0.0, _TABLE_GREY, _BOARD_GREY, _STEEL_GREY, _STEEL_GREY, _STUD_GREY], dtype=np.float32)
     shade = np.full((h, w), _AMBIENT + (1 - _AMBIENT) * _LIGHT_DIR_W[2], dtype=np.float32)
     comp_top = (sid == SURFACE_COMPONENT) & ~wall
     specular = np.zeros((h, w), dtype=bool)
@@ -815,9 +830,10 @@ def render(
         mark_cover[on_board] = _coverage(dist - scene.board.mark_diameter_m / 2, depth_exact[on_board] * px_per_depth)
     grey = grey * (1 - mark_cover) + np.float32(_MARK_GREY) * mark_cover
     stud_cover = _stud_mark_coverage(scene, camera, hit_x, hit_y, depth_exact, px_per_depth)
+    stud_cover[sid == SURFACE_STUD] = 0.0  # the marks are painted on the part, not on a stud standing there
     grey = grey * (1 - stud_cover) + np.float32(_STUD_MARK_GREY) * stud_cover
 
-    tint_lut = np.ones((5, 3), dtype=np.float32)
+    tint_lut = np.ones((6, 3), dtype=np.float32)
     for surf, bgr in _TINT_BGR.items():
         tint_lut[surf + 1] = bgr
     color = grey[..., None] * tint_lut[sid + 1]
@@ -1109,7 +1125,8 @@ def scene_from_dict(d: dict[str, Any]) -> SceneSpec:
     height_m, tilt_deg). ``obstacles`` are flat boxes (stiffeners); ``specular_lobe_deg`` makes the
     component shiny (see :class:`SceneSpec`).
     """
-    _take(d, "", {"component", "board", "drawing_to_world", "studs", "obstacles", "specular_lobe_deg"})
+    _take(d, "", {"component", "board", "drawing_to_world", "studs", "obstacles", "specular_lobe_deg",
+                  "stud_length_mm", "stud_diameter_mm", "weld_defects"})
     board_keys = {"marks_drawing_m", "mark_diameter_m", "thickness_m", "margin_m"}
     board = MarkingBoard(**_take(d.get("board", {}), "board", board_keys))
     pose_d = _take(d.get("drawing_to_world", {}), "drawing_to_world", {"x_m", "y_m", "yaw_deg"})
@@ -1138,7 +1155,25 @@ def scene_from_dict(d: dict[str, Any]) -> SceneSpec:
         stud_mark_style=str(studs.get("mark_style", "circle")),
         obstacles=tuple(boxes),
         specular_lobe_deg=float(d.get("specular_lobe_deg", 0.0)),
+        stud_length_m=1e-3 * _mm(d, "stud_length_mm", DEFAULT_STUD_LENGTH_M * 1e3),
+        stud_diameter_m=1e-3 * _mm(d, "stud_diameter_mm", DEFAULT_STUD_DIAMETER_M * 1e3),
+        weld_defects=_weld_defects(d.get("weld_defects"), studs.get("ids", ()), len(studs.get("xy_m", []))),
     )
+
+
+def _mm(d: dict, name: str, default: float) -> float:
+    value = d.get(name, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise SceneError(f"scene {name}={value!r}: expected a number in mm")
+    return float(value)
+
+
+def _weld_defects(data, ids, n_studs: int) -> dict:
+    ids = tuple(str(i) for i in ids) or tuple(f"S{i + 1:04d}" for i in range(n_studs))
+    try:
+        return parse_weld_defects(data, ids)
+    except WeldDefectError as exc:
+        raise SceneError(str(exc)) from None
 
 
 def scene_to_dict(scene: SceneSpec) -> dict[str, Any]:
@@ -1155,6 +1190,8 @@ def scene_to_dict(scene: SceneSpec) -> dict[str, Any]:
         "obstacles": [{"centre_xy_m": list(ob.centre_xy_m), "size_m": list(ob.size_m),
                        "yaw_deg": math.degrees(ob.yaw_rad), "height_m": ob.height_m} for ob in scene.obstacles],
         "specular_lobe_deg": scene.specular_lobe_deg,
+        "stud_length_mm": scene.stud_length_m * 1e3, "stud_diameter_mm": scene.stud_diameter_m * 1e3,
+        "weld_defects": {sid: defect.to_dict() for sid, defect in scene.weld_defects.items()},
     }
 
 

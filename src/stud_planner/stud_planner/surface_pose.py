@@ -33,6 +33,7 @@ from enum import IntEnum
 import numpy as np
 
 from stud_perception.camera_model import CameraModel
+from stud_perception.rotations import frame_from_normal
 from stud_perception.rotations import matrix_to_quaternion as quaternion_from_matrix
 
 #: Paper: M16x150 shear stud, tool-top offset along the normal.
@@ -93,22 +94,6 @@ def inclination_deg(normal_w: np.ndarray) -> np.ndarray:
 def offset_along_normal(points_w: np.ndarray, normals_w: np.ndarray, offset_m: float = M16X150_TOP_OFFSET_M) -> np.ndarray:
     """Points (..., 3) moved ``offset_m`` along the unit normals (e.g. the tool top of an M16x150 stud)."""
     return np.asarray(points_w, dtype=np.float64) + offset_m * np.asarray(normals_w, dtype=np.float64)
-
-
-def frame_from_normal(normal_w: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3), columns (x, y, z): z = normal, x = world X projected onto the
-    tangent plane (world Y when the normal is within ~0.06 deg of X), y = z cross x."""
-    n = np.asarray(normal_w, dtype=np.float64)
-    n = n / np.linalg.norm(n, axis=-1, keepdims=True)
-    ex = np.array([1.0, 0.0, 0.0])
-    ey = np.array([0.0, 1.0, 0.0])
-    x = ex - n[..., 0:1] * n
-    norm = np.linalg.norm(x, axis=-1, keepdims=True)
-    alt = ey - n[..., 1:2] * n
-    x = np.where(norm > 1e-3, x, alt)
-    x = x / np.linalg.norm(x, axis=-1, keepdims=True)
-    y = np.cross(n, x)
-    return np.stack([x, y, n], axis=-1)
 
 
 def quaternion_from_normal(normal_w: np.ndarray) -> np.ndarray:
