@@ -52,6 +52,9 @@ BOARD_POSE = Pose2D(x_m=0.16, y_m=-0.34, yaw_rad=0.0)
 #: The cell's defaults these parts are laid out for (arm_driver and cell.yaml): tool and approach.
 TOOL_OFFSET_M, STANDOFF_M = 0.15, 0.05
 HAND_EYE_XYZ_M, HAND_EYE_RPY_DEG = (0.05, 0.0, -0.10), (0.0, 0.0, 0.0)
+#: M16x50 studs: the camera stations stand 0.25 m above the parts' tops (as high as the arm holds a
+#: nadir camera here), and the post-weld shot must see every stud's top inside the image.
+STUD_LENGTH_M = 0.05
 
 
 def dome_scene() -> SceneSpec:
@@ -77,7 +80,8 @@ def shell_scene() -> SceneSpec:
 def _scene(component, studs_world_xy) -> SceneSpec:
     drawing = BOARD_POSE.apply_inverse(np.asarray(studs_world_xy))
     return SceneSpec(component=component, board=MarkingBoard(), drawing_to_world=BOARD_POSE,
-                     studs_drawing_m=tuple(map(tuple, np.round(drawing, 6))), stud_mark_diameter_m=0.008)
+                     studs_drawing_m=tuple(map(tuple, np.round(drawing, 6))), stud_mark_diameter_m=0.008,
+                     stud_length_m=STUD_LENGTH_M, stud_diameter_m=0.016)
 
 
 PARTS = {"dome": dome_scene, "shell": shell_scene}

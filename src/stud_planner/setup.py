@@ -33,6 +33,7 @@ setup(
             "demo = stud_planner.demo:main",
             "cell = stud_planner.cell_launch:main",
             "hand_eye_calibrator = stud_planner.hand_eye_calibrator:main",
+            "inspector = stud_planner.inspection_node:main",
         ],
     },
 )

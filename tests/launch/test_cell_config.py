@@ -28,7 +28,7 @@ def plan(cfg, mode, **kw):
 def test_shipped_modes_run_the_documented_nodes(cfg):
     sim, _ = plan(cfg, "sim")
     assert list(sim) == ["drawing", "camera", "registration", "matcher", "arm_simulator", "arm_driver",
-                         "state_publisher", "cell_sequencer", "hmi"]
+                         "state_publisher", "inspector", "cell_sequencer", "hmi"]
     # the TF of the camera is the hand-eye the camera and the driver use
     assert sim["state_publisher"].params["hand_eye_xyz_m"] == sim["arm_driver"].params["hand_eye_xyz_m"]
     assert sim["camera"].params["pose_source"] == "arm"

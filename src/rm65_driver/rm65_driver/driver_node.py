@@ -45,6 +45,7 @@ from pathlib import Path
 import numpy as np
 import rclpy
 from geometry_msgs.msg import PoseStamped
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
@@ -53,7 +54,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
-from stud_welding_msgs.msg import ArmState, WeldTarget
+from stud_welding_msgs.msg import ArmState, WeldRecord, WeldTarget
 from stud_welding_msgs.srv import MoveTo, ResolveJournal, ResolveStud
 
 from stud_perception import hand_eye_ros, ros_io
@@ -159,6 +160,9 @@ def job_config_problem(p: dict) -> str | None:
     return None
 
 
+WELDS_QOS = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
 # -- message <-> core conversions --------------------------------------------------------------
 
 
@@ -215,6 +219,9 @@ class DriverNode(Node):
         group = ReentrantCallbackGroup()
         self.pub_state = self.create_publisher(ArmState, "/arm/state", ros_io.RESULT_QOS)
         self.pub_joints = self.create_publisher(JointState, "/joint_states", 10)
+        # Every confirmed weld, for the QA record and the inspection: reliable, and transient local
+        # with a deep history so a subscriber that (re)starts mid-job still gets this job's welds.
+        self.pub_welds = self.create_publisher(WeldRecord, "/arm/welds", WELDS_QOS)
         self.pub_camera = (self.create_publisher(PoseStamped, "/camera/pose", ros_io.CAMERA_PUB_QOS)
                            if p["publish_camera_pose"] else None)
         self.diag = ros_io.Diagnostics(self, hardware_id=f"RM65 {p['arm_ip']}:{p['tcp_port']}")
@@ -365,6 +372,14 @@ class DriverNode(Node):
         self.pub_state.publish(msg)
         self._update_diagnostics(msg)
 
+    def _publish_weld(self, stud_id: str, joints_rad: np.ndarray, job_id: str) -> None:
+        T_tool = self.kin.fk(joints_rad) @ self.tool_T
+        msg = WeldRecord(stud_id=stud_id, job_id=job_id, joints=[float(v) for v in joints_rad],
+                         tool_pose=ros_io.rt_to_pose(T_tool[:3, :3], T_tool[:3, 3]))
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.frame_id = "world"
+        self.pub_welds.publish(msg)
+
     def _hand_eye(self) -> np.ndarray:
         return self.hand_eye.T_tool_cam
 
@@ -433,6 +448,7 @@ class DriverNode(Node):
                 goal_handle.publish_feedback(fb)
 
             seq.on_phase = feedback
+            seq.on_welded = lambda stud_id, q, job=seq: self._publish_weld(stud_id, q, job.job_id)
             self.sequence = seq
             self.get_logger().info(f"weld job: {len(targets)} target(s), {len(pre_skipped)} not usable, "
                                    f"resume={goal.resume}")

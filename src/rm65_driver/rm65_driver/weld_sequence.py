@@ -140,6 +140,7 @@ class JobResult:
 
 
 PhaseCallback = Callable[[str, str, int, int], None]  # (stud_id, phase, done, total)
+WeldedCallback = Callable[[str, np.ndarray], None]  # (stud_id, joints at the weld, rad): after the journal says welded
 
 
 def new_job_id() -> str:
@@ -155,12 +156,13 @@ class WeldSequence:
     """Runs weld jobs on one arm; thread-safe control (:meth:`cancel`, :meth:`halt`, :meth:`pause`)."""
 
     def __init__(self, client: ArmClient, journal: Journal, safety: SafetyChecker, params: WeldParams,
-                 on_phase: PhaseCallback | None = None):
+                 on_phase: PhaseCallback | None = None, on_welded: WeldedCallback | None = None):
         self.client = client
         self.journal = journal
         self.safety = safety
         self.params = params
         self.on_phase = on_phase
+        self.on_welded = on_welded
         if not np.allclose(safety.tool_T, params.tool_T):
             raise ValueError("the safety checker's tool transform differs from params.tool_T")
         self._lock = threading.Lock()
@@ -519,6 +521,11 @@ class WeldSequence:
         self._sleep(p.dwell_s, interruptible=True)
         self._check_halt()
         self.journal.welded(t.stud_id, job=self.job_id)
+        if self.on_welded is not None:
+            try:
+                self.on_welded(t.stud_id, np.asarray(q_at_weld, dtype=np.float64))
+            except Exception:
+                _log.exception("welded callback failed")
 
     def _back_out(self, plan: StudPlan) -> None:
         """Straight back out along the normal to the approach pose (after a cancel, not a halt)."""

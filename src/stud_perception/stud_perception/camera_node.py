@@ -23,6 +23,7 @@ import threading
 import numpy as np
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import Trigger
 
@@ -33,6 +34,7 @@ from stud_perception.ros_io import Param
 from stud_perception.rotations import rpy_to_matrix
 from stud_perception.scene import (DEMO_FOV_DISTANCE_M, DEMO_FOV_WIDTH_M, DEMO_IMAGE_SIZE, SceneError, distort_view,
                                    demo_dome_scene, load_scene, render, view_camera)
+from stud_perception.welded_studs import StudCylinder, welded_stud
 
 OPTICAL_FRAME = "camera_color_optical_frame"
 
@@ -59,6 +61,8 @@ PARAMS = [
     Param("depth_noise_m", 0.0005, "std of Gaussian depth noise [m]", min=0.0, max=0.05),
     Param("hole_fraction", 0.0, "fraction of depth pixels lost in blobs", min=0.0, max=0.9),
     Param("mark_depth_dropout", False, "dark paint returns no depth (marks and stud marks lose depth)"),
+    Param("render_welded_studs", True, "show the studs the arm welds (/arm/welds) in later shots, with the scene's "
+          "weld_defects, its stud_length_mm and stud_diameter_mm (for the post-weld inspection)"),
     Param("seed", 0, "random seed of noise and holes (incremented per shot)", min=0, max=2**31 - 1),
     Param("rate_hz", 0.0, "shots per second; 0: only on /camera/trigger", min=0.0, max=30.0),
     Param("pose_source", "param", "'param': camera_xyz_m/yaw/tilt; 'arm': /arm/state tool pose x hand-eye",
@@ -153,12 +157,34 @@ class CameraNode(Node):
             from stud_welding_msgs.msg import ArmState
 
             self.create_subscription(ArmState, "/arm/state", self._on_arm_state, ros_io.RESULT_QOS)
+        # Studs the arm welds stand in later shots, where the arm welded them (with the scene's weld
+        # defects): what a post-weld inspection sees.
+        self._welded: dict[str, StudCylinder] = {}
+        if self.p["render_welded_studs"]:
+            from stud_welding_msgs.msg import WeldRecord
+
+            welds_qos = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE,
+                                   durability=DurabilityPolicy.TRANSIENT_LOCAL)
+            self.create_subscription(WeldRecord, "/arm/welds", self._on_weld, welds_qos)
         if self.p["rate_hz"] > 0:
             self.create_timer(1.0 / self.p["rate_hz"], self._on_timer)
         self.get_logger().info(
             f"sim camera {self.p['image_width']}x{self.p['image_height']}, scene "
             f"'{self.p['scene_file'] or 'bundled dome'}' ({len(self.scene.stud_ids)} studs), pose from "
             f"{self.p['pose_source']}, {'%.1f Hz' % self.p['rate_hz'] if self.p['rate_hz'] else 'on /camera/trigger'}")
+
+    def _on_weld(self, msg) -> None:
+        R, t = ros_io.pose_to_rt(msg.tool_pose)
+        if msg.stud_id not in self.scene.stud_ids:
+            self.get_logger().warn(f"welded stud {msg.stud_id!r} is not a stud of the scene: shown without its "
+                                   "scene defects", throttle_duration_sec=5.0)
+        stud = welded_stud(msg.stud_id, t, R[:, 2], self.scene.weld_defects.get(msg.stud_id),
+                           length_m=self.scene.stud_length_m, diameter_m=self.scene.stud_diameter_m)
+        with self._lock:
+            if stud is None:
+                self._welded.pop(msg.stud_id, None)
+            else:
+                self._welded[msg.stud_id] = stud
 
     # -- pose -----------------------------------------------------------------------------------
     def _on_arm_state(self, msg) -> None:
@@ -192,7 +218,7 @@ class CameraNode(Node):
                 return False, "no fresh camera pose: waiting for /arm/state"
             view = render(self.scene, camera, seed=self.p["seed"] + self._shots,
                           depth_noise_m=self.p["depth_noise_m"], hole_fraction=self.p["hole_fraction"],
-                          mark_depth_dropout=self.p["mark_depth_dropout"])
+                          mark_depth_dropout=self.p["mark_depth_dropout"], welded=tuple(self._welded.values()))
             if has_distortion(self.p["distortion_d"]):  # raw images of a lens with distortion
                 view = distort_view(view, self.p["distortion_d"], self.p["distortion_model"])
             self._shots += 1

@@ -367,4 +367,40 @@ def _unexpected(before, after, taken, camera: CameraModel, lim: InspectionLimits
     return tuple(found)
 
 
-__all__ = ["Inspection", "InspectionLimits", "StudMeasurement", "UnexpectedObject", "Verdict", "inspect_studs"]
+#: Overlay colours (BGR) per verdict.
+VERDICT_BGR = {Verdict.PASS: (40, 200, 40), Verdict.FAIL: (0, 0, 230), Verdict.MISSING: (200, 0, 200),
+               Verdict.NOT_INSPECTED: (0, 200, 255), Verdict.NOT_WELDED: (160, 160, 160)}
+
+
+def draw_inspection_overlay(color_bgr: np.ndarray, ids: list[str], planned_w: np.ndarray, inspection: Inspection,
+                            camera: CameraModel) -> np.ndarray:
+    """The shot after the welds with every stud outlined at its planned weld point and coloured by
+    its verdict, its lean and offset printed; unexpected objects crossed out in red."""
+    img = color_bgr.copy()
+    scale = max(1.0, img.shape[1] / 1280)
+    for sid, p, m in zip(ids, np.asarray(planned_w, dtype=np.float64).reshape(-1, 3), inspection.studs):
+        u, v, z = camera.world_to_pixel(p)
+        if not (np.isfinite(u) and np.isfinite(v)):
+            continue
+        colour = VERDICT_BGR[m.verdict]
+        centre = (int(round(float(u))), int(round(float(v))))
+        r = int(max(6, inspection.limits.stud_diameter_mm * 0.5e-3 * camera.fx / max(float(z), 1e-6)))
+        cv2.circle(img, centre, r, colour, 2, cv2.LINE_AA)
+        text = f"{sid} {m.verdict.value}"
+        if m.lean_deg is not None:
+            text += f" {m.lean_deg:.1f}deg {np.hypot(*m.offset_mm):.1f}mm"
+        cv2.putText(img, text, (centre[0] + r + 3, centre[1]), cv2.FONT_HERSHEY_SIMPLEX, 0.45 * scale, colour, 1,
+                    cv2.LINE_AA)
+    for obj in inspection.unexpected:
+        u, v, _ = camera.world_to_pixel(np.asarray(obj.position_m))
+        if np.isfinite(u) and np.isfinite(v):
+            c, k = (int(u), int(v)), int(12 * scale)
+            cv2.line(img, (c[0] - k, c[1] - k), (c[0] + k, c[1] + k), (0, 0, 255), 2, cv2.LINE_AA)
+            cv2.line(img, (c[0] - k, c[1] + k), (c[0] + k, c[1] - k), (0, 0, 255), 2, cv2.LINE_AA)
+            cv2.putText(img, "unexpected", (c[0] + k, c[1]), cv2.FONT_HERSHEY_SIMPLEX, 0.45 * scale, (0, 0, 255), 1,
+                        cv2.LINE_AA)
+    return img
+
+
+__all__ = ["Inspection", "InspectionLimits", "StudMeasurement", "UnexpectedObject", "VERDICT_BGR", "Verdict",
+           "draw_inspection_overlay", "inspect_studs"]
