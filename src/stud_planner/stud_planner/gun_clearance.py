@@ -61,16 +61,55 @@ _RING = np.array([[1, 0], [-1, 0], [0, 1], [0, -1], [0.7071, 0.7071], [-0.7071, 
                   [-0.7071, -0.7071]])
 
 
+def _sampled_clearance(p, nrm, depth, camera: CameraModel, gun: GunModel, z_top_w: float, k: int):
+    """Clearance, height along the axis of the nearest point and samples (n,) of n studs at
+    weld points ``p`` (n, 3) with normals ``nrm`` (n, 3), on a k x k grid over each cylinder's image box."""
+    length = np.full(len(p), gun.length_m)
+    up = nrm[:, 2] > 1e-3
+    length[up] = np.clip((z_top_w - p[up, 2]) / nrm[up, 2] + gun.radius_m, gun.margin_m, gun.length_m)
+    t1, t2 = tangent_basis(nrm)
+    offsets = gun.radius_m * (_RING[None, :, :1] * t1[:, None, :] + _RING[None, :, 1:] * t2[:, None, :])
+    corners = np.concatenate([p[:, None] + offsets, (p + length[:, None] * nrm)[:, None] + offsets], axis=1)
+    u, v, zc = camera.world_to_pixel(corners)
+    seen = np.all(np.isfinite(u) & np.isfinite(v), axis=1)
+    u_lo, u_hi = np.clip(np.nanmin(u, axis=1), 0, camera.width - 1), np.clip(np.nanmax(u, axis=1), 0, camera.width - 1)
+    v_lo, v_hi = np.clip(np.nanmin(v, axis=1), 0, camera.height - 1), np.clip(np.nanmax(v, axis=1), 0, camera.height - 1)
+    g = np.linspace(0.0, 1.0, k)
+    gu, gv = np.meshgrid(g, g)
+    U = np.rint(u_lo[:, None] + gu.ravel()[None, :] * (u_hi - u_lo)[:, None]).astype(np.int64)
+    V = np.rint(v_lo[:, None] + gv.ravel()[None, :] * (v_hi - v_lo)[:, None]).astype(np.int64)
+    d = depth[V, U].astype(np.float64)
+    have = seen[:, None] & np.isfinite(d) & (d > 0)
+    X = camera.window_to_world(np.zeros(len(p)), np.zeros(len(p)), U.astype(np.float64), V.astype(np.float64),
+                               np.where(have, d, 0.0), minus_w=p)  # (3, n, M) relative to the weld points
+    s = np.einsum("inm,ni->nm", X, nrm)
+    rho = np.sqrt(np.maximum(np.einsum("inm,inm->nm", X, X) - s * s, 0.0))
+    inside_length = have & (s > gun.margin_m) & (s < gun.length_m)
+    any_inside = inside_length.any(axis=1)
+    k_near = np.argmin(np.where(inside_length, rho, np.inf), axis=1)
+    rows = np.arange(len(p))
+    # Nothing of the part rises beside the stud: the clearance is at least what was seen.
+    farthest = np.max(np.where(have, rho, -np.inf), axis=1)
+    clear = np.where(any_inside, rho[rows, k_near], farthest) - gun.radius_m
+    counted = have.any(axis=1)
+    return (np.where(counted, clear, np.nan), np.where(counted & any_inside, s[rows, k_near], np.nan),
+            have.sum(axis=1))
+
+
 def gun_clearance(points_w: np.ndarray, normals_w: np.ndarray, depth_m: np.ndarray, camera: CameraModel,
                   gun: GunModel = GunModel(), valid: np.ndarray | None = None, z_top_w: float = np.inf,
-                  samples_per_side: int = 48) -> Clearance:
+                  samples_per_side: int = 32, coarse_per_side: int = 12, sure_clear_m: float = 0.015,
+                  chunk: int = 512) -> Clearance:
     """The gun's clearance at N studs: weld points ``points_w`` (N, 3) with unit outward normals
     ``normals_w`` (N, 3), against the depth image ``depth_m`` (H, W, metres, NaN = none).
 
-    The image box the cylinder projects to is sampled on a ``samples_per_side`` square grid per
-    stud (vectorised over studs). Only the part of the cylinder below ``z_top_w``, the highest
-    world z the view shows (e.g. from :func:`stud_planner.matching.observed_z_range`), can meet
-    the part, and only that part is projected (the rest may reach behind the camera).
+    The image box the cylinder projects to is sampled on a square grid per stud (vectorised over
+    studs, in chunks): first ``coarse_per_side``, then ``samples_per_side`` for the studs the
+    coarse look does not find clear by more than ``sure_clear_m`` (a coarse grid can only
+    overestimate the clearance, and only by its spacing: a few mm). Only the part of the cylinder
+    below ``z_top_w``, the highest world z the view shows (e.g. from
+    :func:`stud_planner.matching.observed_z_range`), can meet the part, and only that part is
+    projected (the rest may reach behind the camera).
     """
     P = np.asarray(points_w, dtype=np.float64).reshape(-1, 3)
     N = np.asarray(normals_w, dtype=np.float64).reshape(-1, 3)
@@ -81,43 +120,14 @@ def gun_clearance(points_w: np.ndarray, normals_w: np.ndarray, depth_m: np.ndarr
     clearance = np.full(n, np.nan)
     along = np.full(n, np.nan)
     samples = np.zeros(n, dtype=np.int64)
-    idx = np.flatnonzero(ok)
-    if idx.size == 0:
-        return Clearance(clearance, along, samples)
-    p, nrm = P[idx], N[idx]
-    length = np.full(idx.size, gun.length_m)
-    up = nrm[:, 2] > 1e-3
-    length[up] = np.clip((z_top_w - p[up, 2]) / nrm[up, 2] + gun.radius_m, gun.margin_m, gun.length_m)
-    t1, t2 = tangent_basis(nrm)
-    offsets = gun.radius_m * (_RING[None, :, :1] * t1[:, None, :] + _RING[None, :, 1:] * t2[:, None, :])
-    corners = np.concatenate([p[:, None] + offsets, (p + length[:, None] * nrm)[:, None] + offsets], axis=1)
-    u, v, zc = camera.world_to_pixel(corners)
-    seen = np.all(np.isfinite(u) & np.isfinite(v), axis=1)
-    u_lo, u_hi = np.clip(np.nanmin(u, axis=1), 0, camera.width - 1), np.clip(np.nanmax(u, axis=1), 0, camera.width - 1)
-    v_lo, v_hi = np.clip(np.nanmin(v, axis=1), 0, camera.height - 1), np.clip(np.nanmax(v, axis=1), 0, camera.height - 1)
-    k = int(samples_per_side)
-    g = np.linspace(0.0, 1.0, k)
-    gu, gv = np.meshgrid(g, g)
-    U = np.rint(u_lo[:, None] + gu.ravel()[None, :] * (u_hi - u_lo)[:, None]).astype(np.int64)
-    V = np.rint(v_lo[:, None] + gv.ravel()[None, :] * (v_hi - v_lo)[:, None]).astype(np.int64)
     depth = np.asarray(depth_m)
-    d = depth[V, U].astype(np.float64)
-    have = seen[:, None] & np.isfinite(d) & (d > 0)
-    X = camera.window_to_world(np.zeros(idx.size), np.zeros(idx.size), U.astype(np.float64), V.astype(np.float64),
-                               np.where(have, d, 0.0), minus_w=p)  # (3, n, M) relative to the weld points
-    s = np.einsum("inm,ni->nm", X, nrm)
-    rho = np.sqrt(np.maximum(np.einsum("inm,inm->nm", X, X) - s * s, 0.0))
-    inside_length = have & (s > gun.margin_m) & (s < gun.length_m)
-    any_inside = inside_length.any(axis=1)
-    k_near = np.argmin(np.where(inside_length, rho, np.inf), axis=1)
-    rows = np.arange(idx.size)
-    # Nothing of the part rises beside the stud: the clearance is at least what was seen.
-    farthest = np.max(np.where(have, rho, -np.inf), axis=1)
-    clear = np.where(any_inside, rho[rows, k_near], farthest) - gun.radius_m
-    counted = have.any(axis=1)
-    clearance[idx[counted]] = clear[counted]
-    along[idx[counted & any_inside]] = s[rows, k_near][counted & any_inside]
-    samples[idx] = have.sum(axis=1)
+    idx = np.flatnonzero(ok)
+    for k, pick in ((coarse_per_side, None), (samples_per_side, "refine")):
+        if pick == "refine":
+            idx = idx[~(clearance[idx] > sure_clear_m)]
+        for start in range(0, idx.size, chunk):
+            j = idx[start:start + chunk]
+            clearance[j], along[j], samples[j] = _sampled_clearance(P[j], N[j], depth, camera, gun, z_top_w, k)
     return Clearance(clearance_m=clearance, along_m=along, samples=samples)
 
 
