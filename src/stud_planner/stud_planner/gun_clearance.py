@@ -29,12 +29,13 @@ class GunModel:
 
     ``radius_m``: the gun's radius about the stud (body, foot, spark shield), ``length_m``: from
     the surface to the gun's top at the approach pose (gun length plus the approach standoff),
-    ``margin_m``: how far above the weld point, along the axis, the part may rise under the gun.
+    ``margin_m``: how far above the weld point, along the axis, the part may rise under the gun (a
+    concave part rises under its foot: 3.8 mm at 30 mm on a 120 mm radius; the depth noise on top).
     """
 
     radius_m: float = 0.03
     length_m: float = 0.30
-    margin_m: float = 0.005
+    margin_m: float = 0.008
 
     def __post_init__(self) -> None:
         if not (self.radius_m > 0 and self.length_m > self.margin_m >= 0):
@@ -85,9 +86,13 @@ def _sampled_clearance(p, nrm, depth, camera: CameraModel, gun: GunModel, z_top_
     s = np.einsum("inm,ni->nm", X, nrm)
     rho = np.sqrt(np.maximum(np.einsum("inm,inm->nm", X, X) - s * s, 0.0))
     inside_length = have & (s > gun.margin_m) & (s < gun.length_m)
-    any_inside = inside_length.any(axis=1)
-    k_near = np.argmin(np.where(inside_length, rho, np.inf), axis=1)
+    # The nearest point counts only with two more beside it: a flying pixel or a noise spike alone
+    # does not block a stud (a wall, a stiffener, a neighbour's body gives many).
+    rho_in = np.where(inside_length, rho, np.inf)
+    third = np.argpartition(rho_in, min(2, rho_in.shape[1] - 1), axis=1)[:, min(2, rho_in.shape[1] - 1)]
     rows = np.arange(len(p))
+    any_inside = np.isfinite(rho_in[rows, third])
+    k_near = third
     # Nothing of the part rises beside the stud: the clearance is at least what was seen.
     farthest = np.max(np.where(have, rho, -np.inf), axis=1)
     clear = np.where(any_inside, rho[rows, k_near], farthest) - gun.radius_m
