@@ -38,7 +38,7 @@ from stud_perception.rotations import rpy_to_matrix  # noqa: E402
 from stud_perception.scene import (Cylinder, Dome, MarkingBoard, Pose2D, SceneSpec, scene_from_dict,  # noqa: E402
                                    scene_to_dict, surface_height, surface_normal)
 from stud_perception.strict_json import write_json  # noqa: E402
-from stud_planner.cell_sequencer import PARAMS as SEQ_PARAMS  # noqa: E402
+from stud_planner.cell_job import JobConfig  # noqa: E402
 from stud_planner.dxf_layout import read_layout  # noqa: E402
 from stud_planner.dxf_writer import write_layout_dxf  # noqa: E402
 from stud_planner.station_planning import footprint_m, plan_stations  # noqa: E402
@@ -103,7 +103,7 @@ def check_reach(scene: SceneSpec) -> list[str]:
         check = checker.check_target(p, nrm, STANDOFF_M, home)
         if not check.ok:
             problems.append(f"stud {sid} at {np.round(p, 3).tolist()}: {check.reason}")
-    seq = {p.name: p.default for p in SEQ_PARAMS}
+    seq = vars(JobConfig())  # the cell job's defaults: the stations the cell will use
     he = np.eye(4)
     he[:3, :3], he[:3, 3] = rpy_to_matrix(*np.radians(HAND_EYE_RPY_DEG)), HAND_EYE_XYZ_M
     plane_z = scene.board.thickness_m

@@ -28,7 +28,7 @@ from stud_perception.camera_model import nadir_rotation  # noqa: E402
 from stud_perception.camera_node import shot_messages  # noqa: E402
 from stud_perception.scene import load_scene, render, view_camera  # noqa: E402
 from stud_perception.strict_json import write_json  # noqa: E402
-from stud_planner.cell_sequencer import PARAMS as SEQ_PARAMS  # noqa: E402
+from stud_planner.cell_job import JobConfig  # noqa: E402
 from stud_planner.dxf_layout import read_layout  # noqa: E402
 from stud_planner.msg_convert import layout_to_msg  # noqa: E402
 from stud_planner.station_planning import footprint_m, plan_stations  # noqa: E402
@@ -49,7 +49,7 @@ def main() -> int:
     ap.add_argument("--out", type=Path, default=REPO / "bags" / "dome_demo")
     args = ap.parse_args()
     scene, layout = load_scene(SCENE), read_layout(DRAWING)
-    seq = {p.name: p.default for p in SEQ_PARAMS}
+    seq = vars(JobConfig())  # the cell job's defaults: the stations the cell will use
     studs_w = scene.studs_world_xy_m
     fov = footprint_m(seq["fov_width_m"], seq["fov_distance_m"], seq["image_aspect"], seq["camera_height_m"],
                       seq["part_height_m"])

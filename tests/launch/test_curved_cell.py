@@ -89,3 +89,33 @@ def test_a_stud_in_a_specular_hole_is_shot_again_from_another_direction_and_weld
     assert targets[apex]["status"] == "ok"
     acc = score(report, scene_file, gun_axes_at_weld(cell.out_dir / "weld_journal.jsonl"))
     assert acc["gun_axes_checked"] == len(targets) and acc["max_gun_axis_error_deg"] <= 1.5, acc
+
+
+def test_injected_weld_defects_are_caught_by_the_cells_post_weld_inspection_and_the_qa_record_lists_them(cell_run,
+                                                                                                        tmp_path):
+    # the bundled dome (outer studs on 21.5 deg slopes), four studs welded badly: the camera shows them so
+    d = scene_to_dict(load_scene(DOME_SCENE))
+    d["weld_defects"] = {"S0001": {"lean_deg": 8.0, "lean_azimuth_deg": 30.0}, "S0002": {"offset_mm": [4.0, 0.0]},
+                         "S0003": {"missing": True}, "S0004": {"height_mm": 38.0}}
+    scene_file = tmp_path / "defects_dome.json"
+    scene_file.write_text(json.dumps(d))
+    cell, targets, report = run_job(cell_run, DOME_DXF, scene_file)
+    assert all(t["welded"] for t in targets.values()), cell.output()[-3000:]
+    qa = json.loads((cell.out_dir / "qa_report.json").read_text())
+    rows = {r["stud_id"]: r for r in qa["studs"]}
+    assert rows["S0001"]["verdict"] == "fail" and any(r.startswith("lean") for r in rows["S0001"]["reasons"]), rows
+    assert abs(rows["S0001"]["measured"]["lean_deg"] - 8.0) <= 1.0
+    assert rows["S0002"]["verdict"] == "fail" and any(r.startswith("offset") for r in rows["S0002"]["reasons"]), rows
+    assert abs(float(np.hypot(*rows["S0002"]["measured"]["offset_mm"])) - 4.0) <= 0.5
+    assert rows["S0003"]["verdict"] == "missing", rows["S0003"]
+    assert rows["S0004"]["verdict"] == "fail" and any(r.startswith("height") for r in rows["S0004"]["reasons"]), rows
+    clean = set(rows) - {"S0001", "S0002", "S0003", "S0004"}
+    assert all(rows[sid]["verdict"] == "pass" for sid in clean), {sid: rows[sid] for sid in clean}
+    assert qa["summary"] == {"pass": len(clean), "fail": 3, "missing": 1, "not_inspected": 0, "not_welded": 0}
+    # a failed stud is listed, never welded again: one weld per stud in the journal
+    journal = [json.loads(line) for line in (cell.out_dir / "weld_journal.jsonl").read_text().splitlines()]
+    welds = [r["stud"] for r in journal if r.get("event") == "welded"]
+    assert sorted(welds) == sorted(targets), welds
+    for ext in ("csv", "html"):
+        assert (cell.out_dir / f"qa_report.{ext}").stat().st_size > 0
+    assert "S0001" in (cell.out_dir / "qa_report.html").read_text()

@@ -8,11 +8,13 @@ stud through the RM-65 controller simulator over TCP, with the topics recorded t
 Then it scores the result against the scene's exact truth and prints a summary: the weld points
 and normals against the truth, the steepest slope welded, and for every stud the gun's axis at the
 weld -- forward kinematics of the joints the controller reported there (the weld journal) --
-against the true normal. Left in the
-output folder: ``weld_report.json`` (per stud: status, position, normal, welded), ``summary.json``,
-``overlays/*.png`` (the matcher's overlays), ``cell_bag/`` (rosbag2 MCAP, opens in Foxglove),
-``weld_journal.jsonl`` and every node's log. Exit code 0 only if every stud was welded within
-the accuracy limits.
+against the true normal; and the post-weld inspection's QA summary (every welded stud measured by
+the camera and judged: lean, offset, standing height). Left in the output folder:
+``weld_report.json`` (per stud: status, position, normal, welded), the QA record
+``qa_report.json``/``.csv``/``.html`` (with ``qa/*.png``, each station's inspection overlay),
+``summary.json``, ``overlays/*.png`` (the matcher's overlays), ``cell_bag/`` (rosbag2 MCAP, opens in
+Foxglove), ``weld_journal.jsonl`` and every node's log. Exit code 0 only if every stud was welded
+within the accuracy limits and passed its inspection.
 """
 from __future__ import annotations
 
@@ -129,17 +131,19 @@ def main(argv: list[str] | None = None) -> int:
     out = args.out.resolve()
     if out.exists():
         # a demo starts a new job: a new journal (and its mirror, else the driver would see the journal missing)
-        for stale in ("weld_journal.jsonl", "weld_journal.jsonl.mirror", "weld_report.json", "summary.json"):
+        for stale in ("weld_journal.jsonl", "weld_journal.jsonl.mirror", "weld_report.json", "summary.json",
+                      "qa_report.json", "qa_report.csv", "qa_report.html"):
             (out / stale).unlink(missing_ok=True)
         import shutil
 
         shutil.rmtree(out / "cell_bag", ignore_errors=True)
         shutil.rmtree(out / "overlays", ignore_errors=True)
+        shutil.rmtree(out / "qa", ignore_errors=True)
     out.mkdir(parents=True, exist_ok=True)
     cmd = ["ros2", "run", "stud_planner", "cell", "--mode", "sim", "--out", str(out),
            "--set", "cell_sequencer.auto_start=true", "--set", "cell_sequencer.exit_when_done=true",
            "--var", f"arm_time_scale={args.time_scale}", "--var", f"arm_port={args.arm_port}",
-           "--var", f"hmi_port={args.hmi_port}", "--with", "bag_record",
+           "--var", f"hmi_port={args.hmi_port}", "--var", f"part={args.part}", "--with", "bag_record",
            "--var", f"drawing={share_file('stud_planner', PARTS[args.part][0])}",
            "--var", f"scene={share_file('stud_perception', PARTS[args.part][1])}"]
     for var in args.vars:
@@ -166,13 +170,17 @@ def main(argv: list[str] | None = None) -> int:
     overlays = export_overlays(out / "cell_bag", out / "overlays")
     welded = sum(bool(t.get("welded")) for t in report["targets"])
     total = len(report["targets"])
-    ok = (code == 0 and welded == total and acc["max_xy_error_mm"] <= args.max_xy_error_mm
+    qa_file = out / "qa_report.json"
+    qa = json.loads(qa_file.read_text()) if qa_file.exists() else None
+    qa_counts = qa["summary"] if qa else {}
+    ok = (code == 0 and welded == total and qa_counts.get("pass") == welded
+          and acc["max_xy_error_mm"] <= args.max_xy_error_mm
           and acc["max_normal_error_deg"] <= args.max_normal_error_deg and acc["gun_axes_checked"] == welded
           and acc["max_gun_axis_error_deg"] <= args.max_gun_axis_error_deg)
     summary = {"ok": ok, "part": args.part, "cell_exit_code": code, "studs_total": total, "studs_welded": welded,
                "stations": report.get("stations"), "unreachable": report.get("unreachable", []),
                "time_s": round(elapsed, 1), "accuracy": {k: v for k, v in acc.items() if k != "studs"},
-               "overlays": overlays}
+               "overlays": overlays, "qa_summary": qa_counts}
     write_json(out / "summary.json", {**summary, "per_stud": acc["studs"]})
     print()
     print("=" * 72)
@@ -189,8 +197,19 @@ def main(argv: list[str] | None = None) -> int:
         if "gun_axis_error_deg" in r:
             print(f"     {r['stud_id']:>8}  slope {r['slope_deg']:5.1f} deg   gun axis {r['gun_axis_error_deg']:.2f} deg   "
                   f"point {1e3 * r['xy_error_m']:.2f} mm XY, {1e3 * r['z_error_m']:.2f} mm Z")
+    if qa:
+        lim = qa["limits"]
+        print("   QA (post-weld)      " + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in qa_counts.items() if v)
+              + f"  [lean <= {lim['max_lean_deg']:g} deg, base within {lim['position_tol_mm']:g} mm, "
+              f"height {lim['nominal_length_mm']:g} +- {lim['height_tol_mm']:g} mm]")
+        for r in qa["studs"]:
+            if r["verdict"] != "pass":
+                print(f"     {r['stud_id']:>8}  {r['verdict']}: {'; '.join(r['reasons'])}")
+    else:
+        print(f"   QA (post-weld)      no QA record ({qa_file} missing)")
     print(f"   time                {elapsed:.0f} s (arm simulator at {args.time_scale:g}x real motion time)")
-    print(f"   output              {out}/  (weld_report.json, summary.json, overlays/ [{overlays}], cell_bag/, logs)")
+    print(f"   output              {out}/  (weld_report.json, qa_report.json/.csv/.html, summary.json, "
+          f"overlays/ [{overlays}], qa/, cell_bag/, logs)")
     print("=" * 72)
     return 0 if ok else 1
 

@@ -62,6 +62,7 @@ def result_msg(targets, inspection, station: int, stamp, overlay_file: str) -> I
     lim = inspection.limits
     msg.max_lean_deg, msg.position_tol_mm = lim.max_lean_deg, lim.position_tol_mm
     msg.nominal_length_mm, msg.height_tol_mm = lim.nominal_length_mm, lim.height_tol_mm
+    msg.stud_diameter_mm = lim.stud_diameter_mm
     for t, m in zip(targets, inspection.studs):
         s = StudInspection(stud_id=t.stud_id, verdict=_VERDICT_CODE[m.verdict], verdict_text=m.verdict.value,
                            reasons=list(m.reasons), planned_position=t.pose.position, planned_normal=t.normal,

@@ -81,3 +81,30 @@ def target_report_entry(t, view: int) -> dict:
             "inclination_deg": _finite_or_none(t.inclination), "normal_sigma_deg": _finite_or_none(t.normal_sigma),
             "lean_bound_deg": _finite_or_none(t.lean_bound), "fill_ratio": _finite_or_none(t.fill_ratio),
             "gun_clearance_mm": _finite_or_none(t.gun_clearance, 1e3), **({"reason": t.reason} if t.reason else {})}
+
+
+def _xyz(v) -> list[float]:
+    return [float(v.x), float(v.y), float(v.z)]
+
+
+def inspection_rows(result) -> list[dict]:
+    """An ``InspectionResult`` message's studs as QA-record fields (qa_report rows' ``verdict``,
+    ``reasons``, ``measured``), in the order of its studs."""
+    rows = []
+    for s in result.studs:
+        measured = None
+        if s.measured:
+            measured = {"position_m": _xyz(s.base), "axis": _xyz(s.axis), "lean_deg": float(s.lean_deg),
+                        "offset_mm": [float(s.offset_x_mm), float(s.offset_y_mm)], "height_mm": float(s.height_mm)}
+        rows.append({"verdict": s.verdict_text, "reasons": list(s.reasons), "measured": measured})
+    return rows
+
+
+def inspection_extras(result) -> tuple[list[dict], dict]:
+    """An ``InspectionResult`` message's unexpected objects and the limits its studs were judged against."""
+    unexpected = [{"position_m": _xyz(p), "height_mm": float(h)}
+                  for p, h in zip(result.unexpected_objects, result.unexpected_heights_mm)]
+    limits = {"max_lean_deg": result.max_lean_deg, "position_tol_mm": result.position_tol_mm,
+              "nominal_length_mm": result.nominal_length_mm, "height_tol_mm": result.height_tol_mm,
+              "stud_diameter_mm": result.stud_diameter_mm}
+    return unexpected, limits
