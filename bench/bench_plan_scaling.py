@@ -38,13 +38,10 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-for _pkg in ("stud_perception", "stud_planner"):  # run from a checkout, no build needed
+for _pkg in ("stud_bag", "stud_perception", "stud_planner"):  # run from a checkout, no build needed
     _path = str(REPO / "src" / _pkg)
     if _path not in sys.path:
         sys.path.insert(0, _path)
-_ROS2_LITE = str(REPO / "tools" / "ros2_lite")
-if _ROS2_LITE not in sys.path:
-    sys.path.insert(0, _ROS2_LITE)
 
 DEMO_DRAWING = REPO / "src" / "stud_planner" / "data" / "dome_demo.dxf"
 DEMO_BAG = REPO / "bags" / "dome_demo"
@@ -120,7 +117,7 @@ def _run_cli(drawing: Path, report: Path) -> tuple[float, float]:
     before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     t0 = time.perf_counter()
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO / "src" / "stud_planner"),
-                                                       str(REPO / "src" / "stud_perception"), _ROS2_LITE,
+                                                       str(REPO / "src" / "stud_perception"), str(REPO / "src" / "stud_bag"),
                                                        os.environ.get("PYTHONPATH", "")]))
     done = subprocess.run([sys.executable, "-c", code, "--drawing", str(drawing), "--bag", str(DEMO_BAG),
                            "--out", str(report), "--quiet"], capture_output=True, text=True, env=env, check=False)

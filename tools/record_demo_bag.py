@@ -22,7 +22,7 @@ for pkg in ("stud_perception", "stud_planner"):
     sys.path.insert(0, str(REPO / "src" / pkg))
 
 import numpy as np  # noqa: E402
-from ros2_lite.bag import BagWriter, Qos  # noqa: E402
+from stud_bag import BagWriter, Qos  # noqa: E402
 from stud_perception import ros_io  # noqa: E402
 from stud_perception.camera_model import nadir_rotation  # noqa: E402
 from stud_perception.camera_node import shot_messages  # noqa: E402

@@ -5,14 +5,13 @@ from __future__ import annotations
 import json
 import re
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 pytest.importorskip("rclpy")
-from ros2_lite.bag import BagWriter  # noqa: E402
+from stud_bag import BagWriter  # noqa: E402
 
 from stud_perception import ros_io  # noqa: E402
 from stud_perception.camera_node import shot_messages  # noqa: E402
@@ -159,7 +158,7 @@ def small_shots():
 
 def _write(path: Path, records, preset: str = "zstd_fast", declare: bool = True) -> Path:
     """A bag of ``records`` = [(role, msg or CDR bytes, log_time_ns)] on the default topics."""
-    from ros2_lite.bag import type_name_of
+    from stud_bag import type_name_of
 
     with BagWriter(path, storage_preset_profile=preset) as bag:
         if declare:
@@ -265,7 +264,7 @@ def test_colour_image_that_is_not_8_bit_is_an_error(tmp_path, small_shots, encod
 
 
 def test_cut_cdr_payload_names_topic_and_message_index(tmp_path, small_shots):
-    from ros2_lite.bag import serialize
+    from stud_bag import serialize
 
     records = _records(small_shots)
     k, msg, t = records[6]

@@ -20,8 +20,8 @@ from mcap.reader import make_reader
 from bag_nodes import content_digest
 from rosproc import Proc, python_proc, wait_for
 
-from ros2_lite.bag import BagError, BagReader, BagWriter, Qos, open_bag
-from ros2_lite.bag_msgdef import message_definition
+from stud_bag import BagError, BagReader, BagWriter, Qos, open_bag
+from stud_bag.msgdef import message_definition
 
 NODES = str(Path(__file__).resolve().parent / "bag_nodes.py")
 TEXT, DEPTH, LAYOUT = "/bag_test/text", "/bag_test/depth", "/drawing/layout"

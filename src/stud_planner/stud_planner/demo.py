@@ -96,7 +96,7 @@ def score(report: dict, scene_file: Path, gun_axes: dict[str, np.ndarray] | None
 def export_overlays(bag_dir: Path, out_dir: Path) -> int:
     """The matcher's overlay images from the recorded bag as PNG files."""
     import cv2
-    from ros2_lite.bag import open_bag
+    from stud_bag import open_bag
 
     from stud_perception import ros_io
 

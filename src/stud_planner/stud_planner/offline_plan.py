@@ -139,10 +139,7 @@ def read_views(bag_path: Path, topics: dict[str, str], sync_slop_ms: float = DEF
     if dup:
         raise PlanError("; ".join(f"topic {t} is given for {' and '.join(names)}" for t, names in dup.items())
                         + ": each of --color-topic/--depth-topic/--info-topic/--pose-topic needs its own topic")
-    try:
-        from ros2_lite.bag import MESSAGES_MISSING, BagError, open_bag
-    except ImportError as exc:  # pragma: no cover - setup.sh installs it
-        raise PlanError(f"the bag reader (tools/ros2_lite) is not installed: {exc}; run bash tools/setup.sh") from None
+    from stud_bag import MESSAGES_MISSING, BagError, open_bag
     try:
         reader = open_bag(bag_path)
     except BagError as exc:
@@ -207,7 +204,7 @@ def views_with_images(bag_path: Path, topics: dict[str, str], views: list[View])
     """Yield ``views`` with their colour and depth images filled in, in the order the bag logged
     them, one pass over the bag: only a view's own images are deserialised, and a view is released
     once yielded, so memory stays at a few views whatever the bag's length."""
-    from ros2_lite.bag import BagError, open_bag
+    from stud_bag import BagError, open_bag
 
     want: dict[tuple[str, int], list[View]] = {}  # two views may share an image (nearest within the slop)
     for v in views:

@@ -1,14 +1,5 @@
-"""``ros2 bag info|record|play`` on rosbag2's on-disk layout (metadata.yaml + MCAP), and the bag library.
-
-Library (no ROS graph needed)::
-
-    from ros2_lite.bag import open_bag, BagWriter, Qos
-    for topic, type_name, log_time_ns, cdr in open_bag("bags/run1"):   # .message() deserialises
-        ...
-    with BagWriter("bags/run2") as bag:
-        bag.add_topic("/drawing/layout", "stud_welding_msgs/msg/StudLayout",
-                      offered_qos_profiles=[Qos(durability="transient_local", depth=1)])
-        bag.write("/drawing/layout", layout_msg, stamp_ns)
+"""``ros2 bag info|record|play`` on rosbag2's on-disk layout (metadata.yaml + MCAP); the bag library
+is the ``stud_bag`` package (src/stud_bag).
 
 Command line: rosbag2's verbs and flag names (``ros2 bag info BAG``, ``ros2 bag record -o DIR --topics
 ...|-a``, ``ros2 bag play BAG --rate R --loop --topics ... --start-offset S --clock [HZ]``), with
@@ -23,24 +14,10 @@ import os
 import sys
 import time
 
-from ros2_lite.bag_io import (  # noqa: F401  (the library API, re-exported)
-    BagError,
-    BagMessage,
-    BagReader,
-    BagWriter,
-    MESSAGES_MISSING,
-    TopicSummary,
-    deserialize,
-    message_class,
-    open_bag,
-    read_messages,
-    serialize,
-    type_name_of,
-)
-from ros2_lite.bag_metadata import BagMetadata, Qos  # noqa: F401
+from stud_bag import BagError, BagReader, BagWriter
+from stud_bag.core import PRESET_PROFILES
 
-__all__ = ["BagError", "BagMessage", "BagMetadata", "BagReader", "BagWriter", "Qos", "TopicSummary",
-           "deserialize", "message_class", "open_bag", "read_messages", "serialize", "type_name_of", "run"]
+__all__ = ["format_info", "main", "run"]
 
 
 class _UsageError(Exception):
@@ -137,7 +114,6 @@ def _positive_float(text: str) -> float:
 
 
 def cmd_record(argv: list[str]) -> int:
-    from ros2_lite.bag_io import PRESET_PROFILES
     from ros2_lite.bag_record import Recorder, RecordOptions
 
     parser = _Parser(prog="ros2 bag record", description="Record ROS data to a bag.")

@@ -22,8 +22,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-from ros2_lite.bag_io import BagError, BagReader, message_class
-from ros2_lite.bag_metadata import Qos
+from stud_bag import BagError, BagReader, Qos, message_class
 
 LOG_NAME = "rosbag2_player"
 LATCHED_DEPTH = 10  # rosbag2: the recorded profile with default history (keep last 10)

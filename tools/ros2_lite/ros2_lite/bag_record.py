@@ -18,8 +18,8 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-from ros2_lite.bag_io import BagError, BagWriter, message_class
-from ros2_lite.bag_metadata import INFINITE_NS, Qos
+from stud_bag import BagError, BagWriter, Qos, message_class
+from stud_bag.metadata import INFINITE_NS
 
 SUBSCRIPTION_DEPTH = 100  # reader history: absorbs a burst while the writer thread is busy
 LOG_NAME = "rosbag2_recorder"

@@ -21,7 +21,6 @@ import shlex
 import signal
 import subprocess
 import sys
-from pathlib import Path
 
 from ros2_lite import ament, node, service, topic
 from ros2_lite.msg_yaml import InterfaceError

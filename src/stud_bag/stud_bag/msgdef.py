@@ -12,7 +12,7 @@ import re
 from functools import lru_cache
 from pathlib import Path
 
-from ros2_lite import ament
+from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 
 DELIMITER = "=" * 80 + "\n"
 # the same patterns as rosbag2_cpp/message_definitions/local_message_definition_source.cpp
@@ -35,9 +35,10 @@ def _definition_file(type_name: str, ext: str) -> tuple[str, Path]:
     if not match:
         raise DefinitionNotFound(f"type name '{type_name}' not understood (expected pkg/msg/Name)")
     package, name = match.groups()
-    prefix = ament.package_prefix(package)
-    if prefix is None:
-        raise DefinitionNotFound(f"package '{package}' of '{type_name}' is not in the ament index")
+    try:
+        prefix = Path(get_package_prefix(package))
+    except (PackageNotFoundError, OSError):  # OSError: no AMENT_PREFIX_PATH at all
+        raise DefinitionNotFound(f"package '{package}' of '{type_name}' is not in the ament index") from None
     path = prefix / "share" / package / "msg" / f"{name}{ext}"
     if not path.is_file():
         raise DefinitionNotFound(f"no {path}")
