@@ -149,7 +149,10 @@ def test_page_in_headless_chromium_shows_published_targets_and_its_stop_button_r
     assert page.evaluate("document.title") == "Stud welding cell"
     wait_for(lambda: page.evaluate("document.getElementById('connection').className") == "conn up", 15,
              spin=ros_node.spin, what="the page's WebSocket to connect" + fail())
-    assert page.evaluate("document.getElementById('btn-stop').disabled") is False
+    # (nothing known of the cell yet: Stop and E-STOP are offered, Start is not)
+    wait_for(lambda: page.evaluate("document.getElementById('btn-stop').disabled") is False, 10,
+             spin=ros_node.spin, what="Stop enabled" + fail())
+    assert page.evaluate("document.getElementById('btn-start').disabled") is True
 
     # (b) a target update published on /weld_targets appears in the page's table, and a newer one replaces it
     def shown(sid, view, check):
