@@ -95,9 +95,9 @@ class FakeCell:
         arr.header.frame_id = "world"
         self.pub_targets.publish(arr)
 
-    def layout(self, stud_ids: list[str], part_name: str = "", source_file: str = "part.dxf") -> None:
+    def layout(self, stud_ids: list[str], source_file: str = "part.dxf") -> None:
         """Latched, as the drawing node publishes it."""
-        self.pub_layout.publish(StudLayout(source_file=source_file, part_name=part_name, studs=[
+        self.pub_layout.publish(StudLayout(source_file=source_file, studs=[
             Stud(id=sid, x=0.01 * i, y=0.0) for i, sid in enumerate(stud_ids)]))
 
     def overlay(self, width: int = 1280, height: int = 960) -> None:

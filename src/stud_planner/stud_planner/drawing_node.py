@@ -9,8 +9,6 @@ publishing the last good layout.
 """
 from __future__ import annotations
 
-from pathlib import Path
-
 from geometry_msgs.msg import PoseArray
 from rclpy.node import Node
 from stud_welding_msgs.msg import StudLayout
@@ -23,8 +21,6 @@ from stud_planner.msg_convert import layout_poses, layout_to_msg
 
 PARAMS = [
     Param("drawing_file", "", "DXF drawing with stud circles and the marks O, A, B"),
-    Param("part_name", "", "the part this drawing is of, shown on the HMI and in StudLayout.part_name "
-          "(empty: the drawing file's name without its extension)"),
     Param("stud_layers", ["STUDS"], "layer names or glob patterns of the stud circles (case-insensitive)"),
     Param("mark_layer", "MARKS", "layer (or glob pattern) of the O, A, B mark circles"),
     Param("units_if_unitless", "mm", "unit of a drawing without $INSUNITS",
@@ -67,7 +63,6 @@ class DrawingNode(Node):
             self.diag.publish()
             return False, str(exc), 0
         msg = layout_to_msg(layout, self.get_clock().now().to_msg())
-        msg.part_name = p["part_name"] or Path(path).stem
         self.pub_layout.publish(msg)
         self.pub_poses.publish(layout_poses(msg))
         for warning in layout.warnings:

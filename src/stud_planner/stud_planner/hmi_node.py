@@ -66,6 +66,8 @@ PARAMS = [
     Param("access_token", "", "token (or PIN) a browser must give to open the WebSocket: open the page as "
           "http://host:port/?token=...; empty: none -- then, bound beyond loopback, the page is view only (its "
           "buttons move the arm)", read_only=True),
+    Param("part_name", "", "the part shown on the page beside the drawing (empty: the drawing file's name without "
+          "its extension)"),
     Param("static_dir", "", "folder holding index.html (a custom page); empty: the page shipped with stud_planner",
           read_only=True),
     Param("overlay_max_width", 960, "downscale the overlay to at most this width for the browser [px]",
@@ -239,7 +241,7 @@ class HmiNode(Node):
         key = (msg.source_file, tuple((s.id, round(s.x, 6), round(s.y, 6)) for s in msg.studs))
         if key != self._layout_key:
             self._layout_key = key
-            self.view.set_layout((s.id for s in msg.studs), msg.source_file, msg.part_name, msg.warnings)
+            self.view.set_layout((s.id for s in msg.studs), msg.source_file, self.p["part_name"], msg.warnings)
             self._table_dirty = True
 
     def _on_targets(self, msg: WeldTargetArray) -> None:
