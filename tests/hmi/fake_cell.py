@@ -1,5 +1,6 @@
 """The rest of the cell, faked in the test process with real rclpy publishers and service servers:
-what the HMI node subscribes to, and the Trigger services its buttons call (counting calls)."""
+what the HMI node subscribes to, and the services its buttons call (counting calls, keeping the
+decision requests)."""
 from __future__ import annotations
 
 import json
@@ -11,12 +12,16 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.action import ActionServer
 from sensor_msgs.msg import Image
+from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
-from stud_welding_msgs.msg import ArmState, CellStatus, Stud, StudLayout, WeldTarget, WeldTargetArray
+from stud_welding_msgs.msg import (ArmState, CellStatus, InspectionResult, ReworkDecision, Stud, StudInspection,
+                                   StudLayout, WeldTarget, WeldTargetArray)
+from stud_welding_msgs.srv import RecordRework, ResolveStud
 
 from rosproc import wait_for
 from stud_perception import ros_io
+from stud_planner.hmi_model import CellState
 
 NAN = math.nan
 
@@ -34,10 +39,18 @@ class FakeCell:
     """Publishers of /weld_targets, overlay, /arm/state, /cell/status, /diagnostics; Trigger servers
     for ``services`` (call counts in ``calls``); optionally a WeldJob action server."""
 
-    def __init__(self, node, services=("/cell/stop", "/arm/stop")):
+    def __init__(self, node, services=("/cell/stop", "/arm/stop"), decisions: bool = False):
         self.node = node
         self.calls = {s: 0 for s in services}
         self._srvs = [node.create_service(Trigger, s, self._handler(s)) for s in services]
+        self.resolved: list[tuple[str, int]] = []     # /arm/resolve_stud requests (stud id, decision)
+        self.reworked: list[tuple[str, str, str]] = []  # /inspection/record_rework requests (stud, decision, note)
+        if decisions:
+            self._srvs.append(node.create_service(ResolveStud, "/arm/resolve_stud", self._on_resolve))
+            self._srvs.append(node.create_service(RecordRework, "/inspection/record_rework", self._on_rework))
+        self.pub_inspection = node.create_publisher(InspectionResult, "/inspection/result", ros_io.LATCHED_QOS)
+        self.pub_rework = node.create_publisher(ReworkDecision, "/inspection/rework", ros_io.LATCHED_QOS)
+        self.pub_hand_eye = node.create_publisher(String, "/calibration/hand_eye", ros_io.LATCHED_QOS)
         self.pub_targets = node.create_publisher(WeldTargetArray, "/weld_targets", ros_io.RESULT_QOS)
         self.pub_overlay = node.create_publisher(Image, "/weld_targets/overlay", ros_io.RESULT_QOS)
         self.pub_arm = node.create_publisher(ArmState, "/arm/state", ros_io.RESULT_QOS)
@@ -52,6 +65,16 @@ class FakeCell:
             resp.success, resp.message = True, f"{name} done (fake)"
             return resp
         return handle
+
+    def _on_resolve(self, req, resp):
+        self.resolved.append((req.stud_id, int(req.decision)))
+        resp.success, resp.message = True, f"{req.stud_id} recorded (fake)"
+        return resp
+
+    def _on_rework(self, req, resp):
+        self.reworked.append((req.stud_id, req.decision, req.note))
+        resp.success, resp.message = True, f"{req.stud_id}: {req.decision} recorded (fake)"
+        return resp
 
     def wait_for_hmi(self, port: int, proc, timeout_s: float = 30.0) -> None:
         """Until the HMI answers /healthz and subscribes to our topics (DDS discovery)."""
@@ -72,9 +95,9 @@ class FakeCell:
         arr.header.frame_id = "world"
         self.pub_targets.publish(arr)
 
-    def layout(self, stud_ids: list[str]) -> None:
+    def layout(self, stud_ids: list[str], source_file: str = "part.dxf") -> None:
         """Latched, as the drawing node publishes it."""
-        self.pub_layout.publish(StudLayout(source_file="part.dxf", studs=[
+        self.pub_layout.publish(StudLayout(source_file=source_file, studs=[
             Stud(id=sid, x=0.01 * i, y=0.0) for i, sid in enumerate(stud_ids)]))
 
     def overlay(self, width: int = 1280, height: int = 960) -> None:
@@ -82,16 +105,33 @@ class FakeCell:
         img[:, : width // 2] = (0, 0, 255)  # left half red (BGR)
         self.pub_overlay.publish(ros_io.numpy_to_image(img, "bgr8", frame_id="camera_color_optical_frame"))
 
-    def arm(self, mode=ArmState.MODE_WELDING, current_stud="S0001", done=1, total=3) -> None:
+    def arm(self, mode=ArmState.MODE_WELDING, current_stud="S0001", done=1, total=3, uncertain=(),
+            errors=("joint 3 over temperature",), message="welding S0001") -> None:
         msg = ArmState(mode=mode, current_stud=current_stud, done=done, total=total, connected=True,
-                       error_codes=[0x5001], errors=["joint 3 over temperature"], message="welding S0001")
+                       error_codes=[0x5001] * len(errors), errors=list(errors), message=message,
+                       uncertain_studs=list(uncertain))
         msg.tool_pose.position.x, msg.tool_pose.position.z = 0.25, NAN
         self.pub_arm.publish(msg)
 
-    def cell(self) -> None:
-        self.pub_cell.publish(CellStatus(state=CellStatus.STATE_WELDING, state_text="welding", station=2,
-                                         stations_total=4, studs_total=3, studs_welded=1, studs_failed=0,
-                                         unreachable=["S0099"], message="station 2: welding"))
+    def cell(self, state=CellStatus.STATE_WELDING, studs_welded=1, studs_total=3, unreachable=("S0099",),
+             message="station 2: welding") -> None:
+        text = CellState(state).text
+        self.pub_cell.publish(CellStatus(state=state, state_text=text, station=2, stations_total=4,
+                                         studs_total=studs_total, studs_welded=studs_welded, studs_failed=0,
+                                         unreachable=list(unreachable), message=message))
+
+    def inspection(self, verdicts: dict[str, tuple[str, list[str]]], station: int = 1) -> None:
+        """A latched /inspection/result: stud id -> (verdict text, reasons)."""
+        codes = {"pass": 0, "fail": 1, "missing": 2, "not_inspected": 3, "not_welded": 4}
+        self.pub_inspection.publish(InspectionResult(station=station, studs=[
+            StudInspection(stud_id=sid, verdict=codes[v], verdict_text=v, reasons=list(r))
+            for sid, (v, r) in verdicts.items()]))
+
+    def rework_recorded(self, stud_id: str, decision: str, verdict: str = "fail") -> None:
+        self.pub_rework.publish(ReworkDecision(stud_id=stud_id, decision=decision, verdict=verdict))
+
+    def hand_eye(self, node: str, summary: dict) -> None:
+        self.pub_hand_eye.publish(String(data=json.dumps({**summary, "node": node})))
 
     def diagnostic(self, name: str, level: int, message: str) -> None:
         self.pub_diag.publish(DiagnosticArray(status=[DiagnosticStatus(level=bytes([level]), name=name,

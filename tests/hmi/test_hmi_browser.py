@@ -149,7 +149,10 @@ def test_page_in_headless_chromium_shows_published_targets_and_its_stop_button_r
     assert page.evaluate("document.title") == "Stud welding cell"
     wait_for(lambda: page.evaluate("document.getElementById('connection').className") == "conn up", 15,
              spin=ros_node.spin, what="the page's WebSocket to connect" + fail())
-    assert page.evaluate("document.getElementById('btn-stop').disabled") is False
+    # (nothing known of the cell yet: Stop and E-STOP are offered, Start is not)
+    wait_for(lambda: page.evaluate("document.getElementById('btn-stop').disabled") is False, 10,
+             spin=ros_node.spin, what="Stop enabled" + fail())
+    assert page.evaluate("document.getElementById('btn-start').disabled") is True
 
     # (b) a target update published on /weld_targets appears in the page's table, and a newer one replaces it
     def shown(sid, view, check):
@@ -183,5 +186,161 @@ def test_page_in_headless_chromium_shows_published_targets_and_its_stop_button_r
     wait_for(lambda: "/arm/stop: ok" in (page.evaluate(reply) or ""), 10, spin=ros_node.spin,
              what="the stop reply on the page" + fail())
     assert page.evaluate("document.querySelector('#replies li').className") == "ok"
+    page.close()
+    assert ctrl_c(hmi) == 0 and "Traceback" not in hmi.output(), hmi.output()
+
+
+def test_page_shows_the_banner_alarms_valid_buttons_progress_and_decisions_as_the_cell_changes(
+        ros_node, procs, tmp_path, browser_factory):
+    from rclpy.action import ActionClient
+    from stud_welding_msgs.action import WeldJob
+    from stud_welding_msgs.msg import ArmState, CellStatus
+
+    port = free_port()
+    hmi = ros2_run("stud_planner", "hmi", tmp_path / "hmi.log", {"port": port, "part_name": "Bracket 7-114"})
+    procs.append(hmi)
+    cell = FakeCell(ros_node, services=("/cell/start", "/cell/pause", "/cell/stop", "/arm/stop", "/arm/estop"),
+                    decisions=True)
+    ids = [f"S{i:04d}" for i in range(1, 11)]
+    cell.layout(ids, source_file="/parts/bracket.dxf")
+    cell.hand_eye("rm65_driver", {"source": "file", "path": "/cal/hand_eye.yaml", "date": "2025-04-30",
+                                  "xyz_m": [0.0, 0.05, 0.02], "rpy_deg": [0.0, 0.0, 90.0], "position_rms_mm": 0.31})
+    cell.wait_for_hmi(port, hmi)
+    url = f"http://127.0.0.1:{port}/"
+    page = browser_factory(url)
+    js = page.evaluate
+
+    def fail() -> str:
+        shown = js("document.body ? document.body.innerText : ''")
+        return f"\n--- page\n{shown[-2500:]}\n--- hmi\n{hmi.output()[-2000:]}"
+    state = {"cell": lambda: None, "arm": lambda: None}
+
+    def until(expr: str, what: str, timeout_s: float = 15.0):
+        """Until the page's ``expr`` is truthy; the cell's current state is re-published meanwhile."""
+        last = [0.0]
+
+        def ready():
+            if time.monotonic() - last[0] > 0.5:
+                state["cell"]()
+                state["arm"]()
+                last[0] = time.monotonic()
+            return js(f"!!({expr})") is True
+        wait_for(ready, timeout_s, spin=ros_node.spin, what=what + fail())
+
+    def buttons() -> dict:
+        return js("Object.fromEntries(Array.from(document.querySelectorAll('#controls button[data-cmd]'))"
+                  ".map(b => [b.dataset.cmd, !b.disabled]))")
+
+    def cell_is(st, welded=0, message=""):
+        state["cell"] = lambda: cell.cell(st, studs_welded=welded, studs_total=10, unreachable=(), message=message)
+
+    def arm_is(mode, stud="", message="", uncertain=()):
+        state["arm"] = lambda: cell.arm(mode, current_stud=stud, done=0, total=0, errors=(), message=message,
+                                        uncertain=uncertain)
+
+    banner_shown = "!document.getElementById('safety-banner').hidden"
+    alarm = "document.querySelector('#alarms li[data-key=\"{key}\"]')"
+
+    # (1) idle: only Start and E-STOP are valid; the part, drawing and hand-eye in use are shown
+    wait_for(lambda: js("location.href + ' ' + document.readyState") == f"{url} complete", 15, spin=ros_node.spin,
+             what="page load" + fail())
+    cell_is(CellStatus.STATE_IDLE, message="waiting for start")
+    arm_is(ArmState.MODE_IDLE)
+    until("!document.getElementById('btn-start').disabled", "Start enabled when idle")
+    assert buttons() == {"start": True, "pause": False, "resume": False, "stop": False, "estop": True}
+    assert js("document.getElementById('btn-pause').title") == "no job is moving (idle)"
+    assert js("document.getElementById('part').textContent") == "part Bracket 7-114 · bracket.dxf"
+    assert js("document.getElementById('calibration').textContent").startswith(
+        "file hand_eye.yaml (2025-04-30, residual 0.31 mm): xyz [0.0, 50.0, 20.0] mm")
+    assert js(banner_shown) is False and js("document.querySelector('#alarms li').textContent") == "none"
+
+    # (2) welding: progress counts studs (the sequencer's per-station count says 2), a cycle time and
+    #     an estimate to the end; no "uncertain studs" alarm while a stud is being welded
+    phases = [(sid, ph) for sid in ids[:6] for ph in ("approach", "weld", "retract")]
+    cell.serve_weld_job(phases, WeldJob.Result(welded=ids[:6], success=True, message="6 welded"))
+    client = ActionClient(ros_node, WeldJob, "/arm/weld_job")
+    wait_for(client.server_is_ready, 10, spin=ros_node.spin, what="weld job server")
+    cell_is(CellStatus.STATE_WELDING, welded=2, message="station 1/3: welding 6 stud(s)")
+    arm_is(ArmState.MODE_WELDING, stud="S0003")
+    until("document.getElementById('btn-pause').disabled === false", "Pause enabled while welding")
+    client.send_goal_async(WeldJob.Goal())
+    until("document.getElementById('progress-text').textContent.startsWith('6 / 10 studs welded')",
+          "six studs welded on the bar")
+    assert buttons() == {"start": False, "pause": True, "resume": False, "stop": True, "estop": True}
+    assert js("document.getElementById('btn-start').title") == "a job is under way (welding)"
+    assert js("document.getElementById('studs-remaining').textContent") == "4"
+    until("document.getElementById('cycle').textContent.includes('s/stud')", "a cycle time")
+    assert js("document.getElementById('eta').textContent") != "–"
+    assert js("document.querySelector('#alarms li').textContent") == "none"
+
+    # (3) e-stop latched: a full-width banner, the badge says so, Start greyed with the reason, alarm A100
+    cell_is(CellStatus.STATE_FAILED, welded=6, message="stopped by the operator while waiting for the weld job")
+    arm_is(ArmState.MODE_ESTOP, message="e-stop engaged (/arm/estop service)")
+    until(banner_shown, "the e-stop banner")
+    assert js("document.getElementById('safety-title').textContent") == "E-STOP LATCHED"
+    assert js("document.getElementById('safety-banner').getBoundingClientRect().width") >= \
+        js("document.documentElement.clientWidth") - 1
+    until("document.getElementById('cell-state').textContent === 'E-STOP LATCHED'", "the badge")
+    assert buttons() == {"start": False, "pause": False, "resume": False, "stop": False, "estop": True}
+    assert js("document.getElementById('btn-start').title") == "e-stop latched"
+    key = "A100@rm65_driver"
+    until(alarm.format(key=key), "alarm A100")
+    assert "unacked" in js(alarm.format(key=key) + ".className")
+    assert js("document.querySelectorAll('#alarms li').length") == 1  # the operator's stop is no alarm
+    assert "1 new" in js("document.getElementById('alarm-summary').textContent")
+    js(alarm.format(key=key) + ".querySelector('button.ack').click()")
+    until(alarm.format(key=key) + ".className.includes(' acked')", "A100 acknowledged")
+    assert js("document.getElementById('alarm-summary').textContent") == "1 alarm(s)"
+
+    # (4) released: the banner goes, the alarm clears into the history
+    arm_is(ArmState.MODE_IDLE, message="e-stop released")
+    until("document.getElementById('safety-banner').hidden", "the banner gone")
+    until(f"document.querySelector('#alarm-history li[data-key=\"{key}\"]')", "A100 in the history")
+    assert js("document.querySelector('#alarms li').textContent") == "none"
+
+    # (5) an arm FAULT (a damaged weld journal) has the banner too
+    arm_is(ArmState.MODE_FAULT, message="weld journal FAULT: line 7 damaged (weld jobs refused)")
+    until(banner_shown + " && document.getElementById('safety-banner').className === 'banner fault'", "FAULT banner")
+    assert "line 7 damaged" in js("document.getElementById('safety-text').textContent")
+    assert js("document.getElementById('safety-title').textContent") == "ARM FAULT"
+
+    # (6) an uncertain stud: the decision is a control on the page (two clicks), it reaches /arm/resolve_stud
+    cell_is(CellStatus.STATE_DONE, welded=6, message="done")
+    arm_is(ArmState.MODE_IDLE, uncertain=("S0007",))
+    until("document.querySelector('#uncertain li[data-stud=\"S0007\"]') && !document.getElementById('decisions').hidden",
+          "the uncertain-stud decision")
+    until("document.querySelector('#alarms li[data-key=\"A104@rm65_driver\"]')", "alarm A104")
+    js("(() => { const b = Array.from(document.querySelectorAll('#uncertain li[data-stud=\"S0007\"] button'))"
+       ".find(x => x.textContent === 'Mark as welded'); b.click(); return b.textContent; })()")
+    assert cell.resolved == []  # the first click only asks to confirm
+    assert js("document.querySelector('#uncertain button.armed').textContent") == "Confirm: S0007 is welded?"
+    js("document.querySelector('#uncertain button.armed').click()")
+    wait_for(lambda: cell.resolved, 10, spin=ros_node.spin, what="/arm/resolve_stud called" + fail())
+    assert cell.resolved == [("S0007", 0)]  # ResolveStud.DECISION_WELDED
+    arm_is(ArmState.MODE_IDLE)  # the driver no longer lists it
+    until("document.getElementById('decisions').hidden", "the decision panel gone")
+
+    # (7) inspection verdicts in the table; the rework decision on a failed stud reaches the inspector
+    cell.inspection({"S0001": ("pass", []), "S0002": ("fail", ["lean 8.0 deg > 5.0"]), "S0003": ("pass", [])})
+    row = "document.querySelector('#studs tr[data-stud=\"{sid}\"] td.c-inspection').textContent"
+    until(row.format(sid="S0002") + " === 'fail'", "S0002's verdict in the table")
+    assert js(row.format(sid="S0001")) == "pass" and js(row.format(sid="S0009")) == ""
+    until("document.querySelector('#rework li[data-stud=\"S0002\"]')", "the rework decision for S0002")
+    assert "lean 8.0 deg" in js("document.querySelector('#rework li[data-stud=\"S0002\"]').textContent")
+    js("(() => { const li = document.querySelector('#rework li[data-stud=\"S0002\"]');"
+       " li.querySelector('input.note').value = 'lean checked with a gauge';"
+       " const b = Array.from(li.querySelectorAll('button')).find(x => x.textContent === 'Rework'); b.click(); b.click(); })()")
+    wait_for(lambda: cell.reworked, 10, spin=ros_node.spin, what="/inspection/record_rework called" + fail())
+    assert cell.reworked == [("S0002", "rework", "lean checked with a gauge")]
+    cell.rework_recorded("S0002", "rework")
+    until(row.format(sid="S0002") + " === 'fail → rework'", "the decision in the table")
+    until("document.getElementById('decisions').hidden", "no decision pending")
+
+    # (8) a warning a node repeats every second is one alarm, with no count
+    for _ in range(20):
+        cell.diagnostic("drawing", 1, "2 studs closer than 5 mm")
+    until("document.querySelector('#alarms li[data-key=\"A201@drawing\"]')", "the drawing's warning")
+    assert js("document.querySelectorAll('#alarms li[data-key=\"A201@drawing\"]').length") == 1
+    assert "×" not in js("document.querySelector('#alarms li[data-key=\"A201@drawing\"]').textContent")
     page.close()
     assert ctrl_c(hmi) == 0 and "Traceback" not in hmi.output(), hmi.output()

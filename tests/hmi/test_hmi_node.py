@@ -63,7 +63,7 @@ def test_hmi_streams_the_cell_to_a_websocket_client_and_stop_calls_both_services
     ws = WsClient("127.0.0.1", port)
     inbox = Inbox(ws)
     assert inbox.wait(lambda m: m["type"] == "hello", ros_node, "hello")["commands"] == [
-        "start", "pause", "resume", "stop", "estop"]
+        "start", "pause", "resume", "stop", "estop", "ack", "resolve_stud", "record_rework"]
 
     # -- targets: the table's rows, NaN as null -------------------------------------------------------
     view = [target("S0001", OK, (0.1, 0.2, 0.05), incl_deg=2.5, xy_error_m=0.0004),
@@ -99,10 +99,21 @@ def test_hmi_streams_the_cell_to_a_websocket_client_and_stop_calls_both_services
     assert (c["state"], c["station"], c["stations_total"], c["studs_welded"], c["studs_total"]) == (
         "welding", 2, 4, 1, 3)
     assert c["unreachable"] == ["S0099"]
-    errs = inbox.wait(lambda m: m["type"] == "errors" and any(i["name"] == "fake_driver" for i in m["items"]),
-                      ros_node, "errors", publish=lambda: cell.diagnostic("fake_driver", 2, "controller not connected"))
-    item = next(i for i in errs["items"] if i["name"] == "fake_driver")
-    assert (item["level"], item["message"], item["active"]) == ("error", "controller not connected", True)
+    alarms = inbox.wait(lambda m: m["type"] == "alarms" and any(a["source"] == "fake_node" for a in m["active"]),
+                        ros_node, "alarms", publish=lambda: cell.diagnostic("fake_node", 2, "camera not found"))
+    item = next(a for a in alarms["active"] if a["source"] == "fake_node")
+    assert (item["code"], item["severity"], item["text"], item["acked"]) == ("A202", "error", "camera not found", False)
+    assert "A112" in [a["code"] for a in alarms["active"]]  # S0099 unreachable, from /cell/status
+    status = inbox.wait(lambda m: m["type"] == "status" and m["cell"] is not None and m["arm"] is not None,
+                        ros_node, "status")
+    assert status["controls"]["start"] == {"enabled": False, "why": "a job is under way (welding)"}
+    assert status["controls"]["pause"]["enabled"] and status["controls"]["stop"]["enabled"]
+    assert status["safety"] is None and status["part"]["part"] == "part"
+    ws.send_json({"cmd": "ack", "alarm": item["key"], "id": 40})
+    reply = inbox.wait(lambda m: m["type"] == "reply" and m.get("id") == 40, ros_node, "reply to ack")
+    assert reply["ok"] and reply["message"] == "1 alarm(s) acknowledged"
+    inbox.wait(lambda m: m["type"] == "alarms" and any(a["key"] == item["key"] and a["acked"] for a in m["active"]),
+               ros_node, "the alarm acknowledged")
 
     # -- Stop: both services are called, the reply names both ---------------------------------------------
     ws.send_json({"cmd": "stop", "id": 42})
@@ -112,10 +123,13 @@ def test_hmi_streams_the_cell_to_a_websocket_client_and_stop_calls_both_services
     assert [(x["service"], x["success"], x["message"]) for x in reply["results"]] == [
         ("/cell/stop", True, "/cell/stop done (fake)"), ("/arm/stop", True, "/arm/stop done (fake)")]
 
-    # -- a button whose service is not there: a clear error, nothing hangs --------------------------------
+    # -- a command not valid now is refused before ROS; a service that is not there: a clear error ---------
     ws.send_json({"cmd": "start", "id": 43})
     reply = inbox.wait(lambda m: m["type"] == "reply" and m.get("id") == 43, ros_node, "reply to start")
-    assert reply["ok"] is False and "/cell/start is not available" in reply["results"][0]["message"]
+    assert reply["ok"] is False and reply["error"] == "not valid now: a job is under way (welding)"
+    ws.send_json({"cmd": "pause", "id": 46})
+    reply = inbox.wait(lambda m: m["type"] == "reply" and m.get("id") == 46, ros_node, "reply to pause")
+    assert reply["ok"] is False and "/cell/pause is not available" in reply["results"][0]["message"]
     ws.send_json({"cmd": "weld everything", "id": 44})
     reply = inbox.wait(lambda m: m["type"] == "reply" and m.get("id") == 44, ros_node, "reply to unknown")
     assert reply["ok"] is False and "unknown command" in reply["error"]

@@ -11,8 +11,8 @@ import numpy as np
 from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_srvs.srv import Trigger
-from stud_welding_msgs.msg import InspectionResult, StudInspection, WeldRecord, WeldTarget
-from stud_welding_msgs.srv import Inspect
+from stud_welding_msgs.msg import InspectionResult, ReworkDecision, StudInspection, WeldRecord, WeldTarget
+from stud_welding_msgs.srv import Inspect, RecordRework
 
 from rosproc import REPO, ros2_run, wait_for
 from stud_perception import ros_io
@@ -107,3 +107,22 @@ def test_the_inspector_judges_the_studs_the_sim_camera_shows_welded(ros_node, pr
                                                                           for s in clean]
     assert res.station == 3 and res.nominal_length_mm == 50.0 and Path(res.overlay_file).exists()
     wait_for(lambda: results and results[-1].station == 3, 20, spin=ros_node.spin, what="/inspection/result")
+
+    # the operator's rework decision on a failed stud: recorded with its time, published, checked first
+    decisions = []
+    ros_node.create_subscription(ReworkDecision, "/inspection/rework", decisions.append, WELDS_QOS)
+    record = ros_node.create_client(RecordRework, "/inspection/record_rework")
+    reply = _call(ros_node, record, RecordRework.Request(stud_id=clean[0].stud_id, decision="rework"))
+    assert not reply.success and "'pass'" in reply.message
+    reply = _call(ros_node, record, RecordRework.Request(stud_id=ids[0], decision="weld again"))
+    assert not reply.success and "not one of rework, accept" in reply.message
+    reply = _call(ros_node, record, RecordRework.Request(stud_id=ids[0], decision="rework", note="lean by gauge: 8 deg"))
+    assert reply.success, reply.message
+    lines = (tmp_path / "qa" / "rework_decisions.jsonl").read_text().splitlines()
+    assert len(lines) == 1
+    rec = json.loads(lines[0])
+    assert (rec["stud_id"], rec["decision"], rec["verdict"], rec["note"]) == (ids[0], "rework", "fail",
+                                                                              "lean by gauge: 8 deg")
+    assert rec["time"].endswith("+00:00") and rec["stamp"] > 0
+    wait_for(lambda: decisions, 20, spin=ros_node.spin, what="/inspection/rework")
+    assert (decisions[-1].stud_id, decisions[-1].decision, decisions[-1].verdict) == (ids[0], "rework", "fail")

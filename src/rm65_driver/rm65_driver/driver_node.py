@@ -350,6 +350,7 @@ class DriverNode(Node):
             msg.current_stud, msg.done, msg.total = seq.current_stud, seq.done, seq.total
         fault = self.journal_fault
         msg.message = self._fault_text(fault) if fault is not None else self._message
+        msg.uncertain_studs = self.uncertain_studs()
         if reading is not None:
             self._last_state = reading
             T_tool = self.kin.fk(reading.joints_rad) @ self.tool_T  # weld_tool in world, whatever the controller's tool frame
@@ -383,12 +384,22 @@ class DriverNode(Node):
     def _hand_eye(self) -> np.ndarray:
         return self.hand_eye.T_tool_cam
 
+    def uncertain_studs(self) -> list[str]:
+        """The journal's uncertain studs that wait for an operator decision (/arm/resolve_stud):
+        not the stud being welded now -- started and not yet confirmed is every weld's normal course."""
+        journal = self.journal
+        if journal is None:
+            return []
+        seq = self.sequence
+        busy = seq.current_stud if seq is not None and seq.running else ""
+        return sorted(s for s in journal.uncertain_ids if s != busy)
+
     def _update_diagnostics(self, msg: ArmState) -> None:
         d = self.diag
         journal, fault = self.journal, self.journal_fault
         values = dict(connected=msg.connected, mode=msg.mode, job=f"{msg.done}/{msg.total}",
                       current_stud=msg.current_stud, errors="; ".join(msg.errors) or "none",
-                      uncertain_studs=len(journal.uncertain_ids) if journal is not None else "unknown",
+                      uncertain_studs=len(msg.uncertain_studs) if journal is not None else "unknown",
                       journal_file=str(self.journal_path),
                       journal_damaged_lines=(", ".join(f"{Path(f).name}:{n}" for f, n in fault.report.lines[:20])
                                              if isinstance(fault, JournalCorrupt) else "none"))
@@ -400,8 +411,9 @@ class DriverNode(Node):
             d.set(d.ERROR, f"controller not connected: {self.client.last_error}", **values)
         elif msg.errors:
             d.set(d.ERROR, "controller error: " + "; ".join(msg.errors), **values)
-        elif journal is not None and journal.uncertain_ids:
-            d.set(d.WARN, "uncertain studs need an operator decision (/arm/resolve_stud)", **values)
+        elif msg.uncertain_studs:
+            d.set(d.WARN, f"{len(msg.uncertain_studs)} uncertain stud(s) need an operator decision "
+                          f"(/arm/resolve_stud): {', '.join(msg.uncertain_studs[:10])}", **values)
         else:
             d.set(d.OK, "connected", **values)
 

@@ -51,7 +51,7 @@ class RegistrationNode(Node):
         self.pub_result = self.create_publisher(Registration, "/registration/result", ros_io.LATCHED_QOS)
         self.pub_overlay = self.create_publisher(Image, "/registration/overlay", ros_io.RESULT_QOS)
         self.diag = ros_io.Diagnostics(self)
-        self.diag.set(self.diag.WARN, "waiting for /drawing/layout and a view")
+        self.diag.set(self.diag.OK, "waiting for /drawing/layout and a view")  # idle: not a warning
         self.create_timer(1.0, self.diag.publish)
         self.create_subscription(StudLayout, "/drawing/layout", self._on_layout, ros_io.LATCHED_QOS)
         self.sync = ros_io.StampSync(["color", "depth", "info", "pose"], self._on_view,

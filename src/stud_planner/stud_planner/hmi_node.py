@@ -7,14 +7,19 @@ integrator needs to build another HMI on the same interfaces is in docs/HMI.md.
 
   subscribes  /weld_targets (WeldTargetArray), /weld_targets/overlay (Image; downscaled, JPEG,
               at most ``overlay_rate_hz``), /arm/state (ArmState), /cell/status (CellStatus) — all
-              RESULT_QOS; /registration/result (Registration) and /drawing/layout (StudLayout) —
-              LATCHED_QOS; /diagnostics (WARN/ERROR/STALE -> "last errors");
-              /arm/weld_job/_action/feedback and .../status (the WeldJob action's own topics, read
-              only: which stud is being welded, and which jobs finished)
+              RESULT_QOS; /registration/result (Registration), /drawing/layout (StudLayout),
+              /inspection/result (InspectionResult), /calibration/hand_eye (String, JSON) —
+              LATCHED_QOS; /inspection/rework (ReworkDecision, every decision); /diagnostics
+              (WARN/ERROR/STALE -> alarms); /arm/weld_job/_action/feedback and .../status (the
+              WeldJob action's own topics, read only: which stud is being welded, which jobs finished)
   calls       /cell/start, /cell/pause, /cell/resume, /cell/stop (the cell sequencer), /arm/stop,
-              /arm/estop (rm65_driver) — std_srvs/Trigger; /arm/weld_job/_action/get_result for the
-              welded/skipped/failed lists of finished jobs
+              /arm/estop (rm65_driver) — std_srvs/Trigger; /arm/resolve_stud (ResolveStud: the
+              uncertain-stud decision); /inspection/record_rework (RecordRework: the rework decision);
+              /arm/weld_job/_action/get_result for the welded/skipped/failed lists of finished jobs
   publishes   /diagnostics (address, connected browsers)
+
+What the page says (alarms, the safety banner, which buttons are valid, progress and timing) is
+decided in :mod:`stud_planner.hmi_model` (CellView); this node feeds it and sends its messages.
 
 The server binds to 127.0.0.1 unless ``bind_address`` says otherwise: the page can start and
 stop the cell, so opening it to a network is the integrator's decision, and takes an
@@ -25,10 +30,12 @@ another host (DNS rebinding) or come from another site's page are refused (docs/
 from __future__ import annotations
 
 import base64
+import json
 import logging
 import queue
 import time
 from dataclasses import dataclass, field
+from typing import Callable
 
 import cv2
 from action_msgs.msg import GoalStatus, GoalStatusArray
@@ -36,13 +43,17 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.qos import qos_profile_action_status_default
 from sensor_msgs.msg import Image
+from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
-from stud_welding_msgs.msg import ArmState, CellStatus, Registration, StudLayout, WeldTargetArray
+from stud_welding_msgs.msg import (ArmState, CellStatus, InspectionResult, Registration, ReworkDecision, StudLayout,
+                                   WeldTargetArray)
+from stud_welding_msgs.srv import RecordRework, ResolveStud
 
-from stud_perception import ros_io
+from stud_perception import hand_eye_ros, ros_io
 from stud_perception.ros_io import Param
-from stud_planner.hmi_model import ErrorLog, StudTable, TargetInfo
+from stud_planner.hmi_model import STUD_DECISIONS, ArmInfo, ArmMode, CellInfo, CellView, TargetInfo, Timeouts
+from stud_planner.inspection_node import REWORK_QOS
 from stud_planner.hmi_server import HmiServer, WebSocketConnection, default_static_dir
 
 PARAMS = [
@@ -55,6 +66,8 @@ PARAMS = [
     Param("access_token", "", "token (or PIN) a browser must give to open the WebSocket: open the page as "
           "http://host:port/?token=...; empty: none -- then, bound beyond loopback, the page is view only (its "
           "buttons move the arm)", read_only=True),
+    Param("part_name", "", "the part shown on the page beside the drawing (empty: the drawing file's name without "
+          "its extension)"),
     Param("static_dir", "", "folder holding index.html (a custom page); empty: the page shipped with stud_planner",
           read_only=True),
     Param("overlay_max_width", 960, "downscale the overlay to at most this width for the browser [px]",
@@ -64,22 +77,54 @@ PARAMS = [
     Param("overlay_jpeg_quality", 80, "JPEG quality of the overlay sent to the browsers (1-100)", min=10, max=100),
     Param("service_timeout_s", 5.0, "a button's service call that has not answered after this is reported "
           "as failed [s]", min=0.1, max=120.0),
-    Param("max_errors", 50, "entries kept in the 'last errors' list", min=1, max=1000),
+    Param("max_alarm_history", 50, "cleared alarms kept in the alarm history", min=1, max=1000),
+    Param("arm_timeout_s", 2.0, "no /arm/state for this long raises alarm A103 and greys the motion buttons [s]",
+          min=0.2, max=60.0),
+    Param("cell_timeout_s", 5.0, "no /cell/status for this long raises alarm A111 [s] (the sequencer re-sends it "
+          "every second)", min=1.0, max=600.0),
+    Param("diagnostics_timeout_s", 10.0, "a node's WARN/ERROR alarm clears when the node has not repeated it for "
+          "this long [s] (nodes publish /diagnostics every second)", min=1.0, max=600.0),
     Param("table_rate_hz", 5.0, "send the stud table at most this often when it changes [Hz]", min=0.2, max=50.0),
 ]
 
-#: Page command -> the Trigger services it calls, in this order (all are called; see docs/HMI.md).
-COMMANDS: dict[str, tuple[str, ...]] = {
-    "start": ("/cell/start",),
-    "pause": ("/cell/pause",),
-    "resume": ("/cell/resume",),
-    "stop": ("/cell/stop", "/arm/stop"),
-    "estop": ("/arm/estop", "/cell/stop"),
+@dataclass(frozen=True)
+class ServiceCall:
+    """One service a page command calls: its name, type, and the request built from the page's message."""
+
+    name: str
+    srv_type: type
+    request: Callable[[dict], object]
+
+
+def _trigger(name: str) -> ServiceCall:
+    return ServiceCall(name, Trigger, lambda _msg: Trigger.Request())
+
+
+def _resolve_request(msg: dict) -> ResolveStud.Request:
+    welded = STUD_DECISIONS[msg["decision"]]
+    return ResolveStud.Request(stud_id=msg["stud_id"], decision=ResolveStud.Request.DECISION_WELDED if welded
+                               else ResolveStud.Request.DECISION_NOT_WELDED)
+
+
+def _rework_request(msg: dict) -> RecordRework.Request:
+    return RecordRework.Request(stud_id=str(msg.get("stud_id", "")), decision=str(msg.get("decision", "")),
+                                note=str(msg.get("note", "")))
+
+
+#: Page command -> the services it calls, in this order (all are called; see docs/HMI.md). "ack"
+#: (acknowledge alarms) is the HMI's own and calls none.
+COMMANDS: dict[str, tuple[ServiceCall, ...]] = {
+    "start": (_trigger("/cell/start"),),
+    "pause": (_trigger("/cell/pause"),),
+    "resume": (_trigger("/cell/resume"),),
+    "stop": (_trigger("/cell/stop"), _trigger("/arm/stop")),
+    "estop": (_trigger("/arm/estop"), _trigger("/cell/stop")),
+    "ack": (),
+    "resolve_stud": (ServiceCall("/arm/resolve_stud", ResolveStud, _resolve_request),),
+    "record_rework": (ServiceCall("/inspection/record_rework", RecordRework, _rework_request),),
 }
-_PROVIDER = {"/cell": "the cell sequencer (stud_planner cell_sequencer)", "/arm": "the arm driver (rm65_driver driver)"}
-ARM_MODES = {ArmState.MODE_IDLE: "idle", ArmState.MODE_MOVING: "moving", ArmState.MODE_WELDING: "welding",
-             ArmState.MODE_PAUSED: "paused", ArmState.MODE_FAULT: "fault", ArmState.MODE_ESTOP: "estop",
-             ArmState.MODE_DISCONNECTED: "disconnected"}
+_PROVIDER = {"/cell": "the cell sequencer (stud_planner cell_sequencer)", "/arm": "the arm driver (rm65_driver driver)",
+             "/inspection": "the inspector (stud_planner inspector)"}
 _JOB_STATUS = {GoalStatus.STATUS_SUCCEEDED: "succeeded", GoalStatus.STATUS_CANCELED: "canceled",
                GoalStatus.STATUS_ABORTED: "aborted"}
 WELD_JOB = "/arm/weld_job"
@@ -92,7 +137,7 @@ class _Call:
     conn: WebSocketConnection
     cmd: str
     id: object
-    services: tuple[str, ...]
+    services: tuple[ServiceCall, ...]
     deadline: float
     results: dict = field(default_factory=dict)    # service -> (success, message)
     futures: dict = field(default_factory=dict)    # service -> Future
@@ -119,8 +164,9 @@ class HmiNode(Node):
     def __init__(self) -> None:
         super().__init__("hmi")
         self.p = ros_io.declare_params(self, PARAMS, on_change=self._on_params)
-        self.table = StudTable()
-        self.errors = ErrorLog(self.p["max_errors"])
+        self.view = CellView(Timeouts(self.p["arm_timeout_s"], self.p["cell_timeout_s"],
+                                      self.p["diagnostics_timeout_s"]), self.p["max_alarm_history"])
+        self.table = self.view.table
         self._table_dirty = False
         self._overlay: Image | None = None
         self._layout_key: tuple | None = None
@@ -129,8 +175,8 @@ class HmiNode(Node):
         self._jobs_seen: dict[bytes, float] = {}                  # goal uuid -> its stamp (results asked for)
         self._jobs_to_fetch: dict[bytes, object] = {}             # goal uuid -> GoalInfo
 
-        services = sorted({s for names in COMMANDS.values() for s in names})
-        self.trigger_clients = {s: self.create_client(Trigger, s) for s in services}
+        self.clients_by_name = {c.name: self.create_client(c.srv_type, c.name)
+                                for calls in COMMANDS.values() for c in calls}
         self.result_client = self.create_client(WeldJob.Impl.GetResultService, f"{WELD_JOB}/_action/get_result")
         self._wake = self.create_guard_condition(self._drain_commands)
 
@@ -140,6 +186,9 @@ class HmiNode(Node):
         self.create_subscription(CellStatus, "/cell/status", self._on_cell, ros_io.RESULT_QOS)
         self.create_subscription(Registration, "/registration/result", self._on_registration, ros_io.LATCHED_QOS)
         self.create_subscription(StudLayout, "/drawing/layout", self._on_layout, ros_io.LATCHED_QOS)
+        self.create_subscription(InspectionResult, "/inspection/result", self._on_inspection, ros_io.LATCHED_QOS)
+        self.create_subscription(ReworkDecision, "/inspection/rework", self._on_rework, REWORK_QOS)
+        self.create_subscription(String, hand_eye_ros.TOPIC, self._on_hand_eye, ros_io.LATCHED_QOS)
         self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 50)
         self.create_subscription(WeldJob.Impl.FeedbackMessage, f"{WELD_JOB}/_action/feedback", self._on_feedback, 10)
         self.create_subscription(GoalStatusArray, f"{WELD_JOB}/_action/status", self._on_job_status,
@@ -163,6 +212,7 @@ class HmiNode(Node):
         self.diag = ros_io.Diagnostics(self)
         self.create_timer(1.0, self._publish_diagnostics)
         self.create_timer(0.1, self._check_calls)
+        self.create_timer(1.0, self._tick)
         self._table_timer = self.create_timer(1.0 / self.p["table_rate_hz"], self._flush)
         self._overlay_timer = self.create_timer(1.0 / self.p["overlay_rate_hz"], self._send_overlay)
         self.get_logger().info(f"HMI on {self.server.address} (WebSocket /ws); "
@@ -180,8 +230,10 @@ class HmiNode(Node):
         if "table_rate_hz" in update:
             self.destroy_timer(self._table_timer)
             self._table_timer = self.create_timer(1.0 / update["table_rate_hz"], self._flush)
-        if "max_errors" in update:
-            self.errors.max_items = update["max_errors"]
+        if "max_alarm_history" in update:
+            self.view.alarms.history_size = update["max_alarm_history"]
+        timeouts = {k: update.get(f"{k}_timeout_s", self.p[f"{k}_timeout_s"]) for k in ("arm", "cell", "diagnostics")}
+        self.view.timeouts = Timeouts(timeouts["arm"], timeouts["cell"], timeouts["diagnostics"])
 
     # -- ROS -> page -------------------------------------------------------------------------------
     def _on_layout(self, msg: StudLayout) -> None:
@@ -189,7 +241,7 @@ class HmiNode(Node):
         key = (msg.source_file, tuple((s.id, round(s.x, 6), round(s.y, 6)) for s in msg.studs))
         if key != self._layout_key:
             self._layout_key = key
-            self.table.set_layout(s.id for s in msg.studs)
+            self.view.set_layout((s.id for s in msg.studs), msg.source_file, self.p["part_name"], msg.warnings)
             self._table_dirty = True
 
     def _on_targets(self, msg: WeldTargetArray) -> None:
@@ -202,7 +254,7 @@ class HmiNode(Node):
 
     def _on_feedback(self, msg) -> None:
         fb = msg.feedback
-        self.table.weld_feedback(fb.stud_id, fb.phase)
+        self.view.weld_feedback(fb.stud_id, fb.phase, time.time())
         self._table_dirty = True
 
     def _on_job_status(self, msg: GoalStatusArray) -> None:
@@ -228,7 +280,7 @@ class HmiNode(Node):
         if resp is None or resp.status not in _JOB_STATUS:
             return  # expired on the server (result_timeout) or unknown
         r = resp.result
-        self.table.job_result(r.welded, r.skipped, r.failed)
+        self.view.job_result(r.welded, r.skipped, r.failed)
         self._table_dirty = True
         self.server.publish({"type": "job", "status": _JOB_STATUS[resp.status], "success": r.success,
                              "message": r.message, "welded": list(r.welded), "skipped": list(r.skipped),
@@ -236,17 +288,23 @@ class HmiNode(Node):
         self._flush()
 
     def _on_arm(self, msg: ArmState) -> None:
-        if self.table.arm_progress(msg.current_stud):
+        if self.view.on_arm(ArmInfo(int(msg.mode), bool(msg.connected), msg.current_stud, msg.message,
+                                    tuple(msg.errors), tuple(msg.uncertain_studs)), time.time()):
             self._table_dirty = True
         p = msg.tool_pose.position
+        mode = self.view.arm_mode
         self.server.publish({
-            "type": "arm", "mode": ARM_MODES.get(msg.mode, str(msg.mode)), "mode_code": int(msg.mode),
+            "type": "arm", "mode": mode.text if isinstance(mode, ArmMode) else str(mode), "mode_code": int(msg.mode),
             "connected": bool(msg.connected), "current_stud": msg.current_stud, "done": int(msg.done),
             "total": int(msg.total), "error_codes": [int(c) for c in msg.error_codes], "errors": list(msg.errors),
             "message": msg.message, "tool_position_mm": [p.x * 1000.0, p.y * 1000.0, p.z * 1000.0],
-            "joints_deg": [v * 57.29577951308232 for v in msg.joints]})
+            "joints_deg": [v * 57.29577951308232 for v in msg.joints],
+            "uncertain_studs": list(msg.uncertain_studs)})
 
     def _on_cell(self, msg: CellStatus) -> None:
+        self.view.on_cell(CellInfo(int(msg.state), int(msg.station), int(msg.stations_total), int(msg.studs_total),
+                                   int(msg.studs_welded), int(msg.studs_failed), tuple(msg.unreachable), msg.message),
+                          time.time())
         self.server.publish({
             "type": "cell", "state": msg.state_text, "state_code": int(msg.state), "station": int(msg.station),
             "stations_total": int(msg.stations_total), "studs_total": int(msg.studs_total),
@@ -254,13 +312,32 @@ class HmiNode(Node):
             "unreachable": list(msg.unreachable), "message": msg.message})
 
     def _on_registration(self, msg: Registration) -> None:
+        self.view.on_registration(bool(msg.valid), msg.residual * 1000.0, msg.message, time.time())
         self.server.publish({"type": "registration", "valid": bool(msg.valid), "residual_mm": msg.residual * 1000.0,
                              "message": msg.message})
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        now = time.time()
         for s in msg.status:
             level = s.level[0] if isinstance(s.level, (bytes, bytearray)) else int(s.level)
-            self.errors.update(s.name, level, s.message)
+            self.view.on_diagnostic(s.name, level, s.message, now)
+
+    def _on_inspection(self, msg: InspectionResult) -> None:
+        self.view.on_inspection(((s.stud_id, s.verdict_text, tuple(s.reasons)) for s in msg.studs), time.time())
+        self._table_dirty = True
+
+    def _on_rework(self, msg: ReworkDecision) -> None:
+        self.view.on_rework(msg.stud_id, msg.decision, time.time())
+        self._table_dirty = True
+
+    def _on_hand_eye(self, msg: String) -> None:
+        try:
+            summary = json.loads(msg.data)
+        except ValueError as exc:
+            self.get_logger().warn(f"{hand_eye_ros.TOPIC}: not JSON ({exc})", throttle_duration_sec=10.0)
+            return
+        if isinstance(summary, dict):
+            self.view.on_hand_eye(str(summary.get("node", "?")), summary, time.time())
 
     def _on_overlay(self, msg: Image) -> None:
         self._overlay = msg  # encoded by the rate-capped timer: only the newest frame matters
@@ -274,7 +351,7 @@ class HmiNode(Node):
             bgr = ros_io.color_to_bgr(msg)
         except ros_io.MessageError as exc:
             self.get_logger().warn(f"/weld_targets/overlay: {exc}", throttle_duration_sec=10.0)
-            self.errors.update(self.get_name(), 1, f"overlay not shown: {exc}")
+            self.diag.set(self.diag.WARN, f"overlay not shown: {exc}")
             return
         h, w = bgr.shape[:2]
         max_w = self.p["overlay_max_width"]
@@ -293,9 +370,18 @@ class HmiNode(Node):
         if self._table_dirty:
             self._table_dirty = False
             self.server.publish(self.table.message())
-        if self.errors.changed:
-            self.errors.changed = False
-            self.server.publish(self.errors.message())
+        if self.view.changed:
+            self.view.changed = False
+            self.server.publish(self.view.status_message(time.time()))
+        if self.view.alarms.changed:
+            self.view.alarms.changed = False
+            self.server.publish(self.view.alarms.message())
+
+    def _tick(self) -> None:
+        """Once a second: inputs that went silent, and the job's clock on the page."""
+        self.view.tick(time.time())
+        self.view.changed = True
+        self._flush()
 
     # -- page -> ROS (buttons) -----------------------------------------------------------------------
     def _on_command(self, conn: WebSocketConnection, msg: dict) -> None:
@@ -322,15 +408,31 @@ class HmiNode(Node):
             self.server.reply(conn, {"type": "reply", "cmd": cmd, "id": cid, "ok": False, "results": [],
                                      "error": f"unknown command {cmd!r}; expected one of {list(COMMANDS)}"})
             return
-        self.get_logger().info(f"operator: {cmd} (from {conn.peer}) -> {', '.join(COMMANDS[cmd])}")
+        now = time.time()
+        refused = self.view.check_command(cmd, msg, now)
+        if refused:
+            self.get_logger().warn(f"operator: {cmd} (from {conn.peer}) refused: {refused}")
+            self.server.reply(conn, {"type": "reply", "cmd": cmd, "id": cid, "ok": False, "results": [],
+                                     "error": f"not valid now: {refused}"})
+            return
+        if cmd == "ack":
+            n = self.view.acknowledge(str(msg.get("alarm", "all")), now)
+            self.get_logger().info(f"operator: acknowledged {n} alarm(s) ({msg.get('alarm', 'all')}, from {conn.peer})")
+            self.server.reply(conn, {"type": "reply", "cmd": cmd, "id": cid, "ok": True, "results": [],
+                                     "message": f"{n} alarm(s) acknowledged"})
+            self._flush()
+            return
+        what = f" {msg.get('stud_id')} {msg.get('decision')}" if "stud_id" in msg else ""
+        self.get_logger().info(f"operator: {cmd}{what} (from {conn.peer}) -> "
+                               f"{', '.join(c.name for c in COMMANDS[cmd])}")
         call = _Call(conn, cmd, cid, COMMANDS[cmd], time.monotonic() + self.p["service_timeout_s"])
-        for srv in call.services:
-            client = self.trigger_clients[srv]
+        for service in call.services:
+            srv, client = service.name, self.clients_by_name[service.name]
             if not client.service_is_ready():
                 provider = _PROVIDER.get("/" + srv.split("/")[1], "its provider")
                 call.results[srv] = (False, f"{srv} is not available: is {provider} running?")
                 continue
-            future = client.call_async(Trigger.Request())
+            future = client.call_async(service.request(msg))
             call.futures[srv] = future
             future.add_done_callback(lambda f, c=call, s=srv: self._on_service_done(c, s, f))
         self._calls.append(call)
@@ -353,7 +455,7 @@ class HmiNode(Node):
                 continue
             for srv, future in call.futures.items():
                 if srv not in call.results:
-                    self.trigger_clients[srv].remove_pending_request(future)
+                    self.clients_by_name[srv].remove_pending_request(future)
                     call.results[srv] = (False, f"{srv} did not answer within {self.p['service_timeout_s']:.1f} s")
             self._maybe_reply(call)
         self._fetch_job_results()
@@ -362,7 +464,7 @@ class HmiNode(Node):
         if call not in self._calls or len(call.results) < len(call.services):
             return
         self._calls.remove(call)
-        results = [{"service": s, "success": call.results[s][0], "message": call.results[s][1]}
+        results = [{"service": s.name, "success": call.results[s.name][0], "message": call.results[s.name][1]}
                    for s in call.services]
         ok = all(r["success"] for r in results)
         text = "; ".join(f"{r['service']}: {'ok' if r['success'] else 'FAILED'} {r['message']}".rstrip()

@@ -6,9 +6,15 @@ the view the targets were matched on (before the welds) and asks for a later sho
 station; the node measures and judges every welded stud (stud_planner.inspection), publishes the
 result on ``/inspection/result`` (reliable, transient local: the last station's stays for a late
 HMI) and, with ``overlay_dir``, writes the shot with every stud coloured by its verdict.
+
+``/inspection/record_rework`` (stud_welding_msgs/srv/RecordRework) records an operator's decision
+on a stud that did not pass (``rework`` or ``accept``, stud_planner.rework): one JSON line with its
+time in ``rework_file``, and a ReworkDecision on ``/inspection/rework`` (reliable, transient local,
+deep history: a late HMI gets every decision). A decision never makes the cell weld a stud again.
 """
 from __future__ import annotations
 
+import os
 import threading
 import time
 from collections import OrderedDict
@@ -19,12 +25,14 @@ import numpy as np
 from geometry_msgs.msg import Point, PoseStamped, Vector3
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
-from stud_welding_msgs.msg import InspectionResult, StudInspection
-from stud_welding_msgs.srv import Inspect
+from stud_welding_msgs.msg import InspectionResult, ReworkDecision, StudInspection
+from stud_welding_msgs.srv import Inspect, RecordRework
 
 from stud_perception import ros_io
 from stud_perception.ros_io import Param
+from stud_planner import rework
 from stud_planner.inspection import InspectionLimits, Verdict, draw_inspection_overlay, inspect_studs
 
 _LIMITS = InspectionLimits()
@@ -38,6 +46,9 @@ PARAMS = [
           "length (burn-off) [mm]", min=0.05, max=100.0),
     Param("stud_diameter_mm", _LIMITS.stud_diameter_mm, "stud diameter [mm]", min=1.0, max=100.0),
     Param("overlay_dir", "", "write each inspection's overlay PNG here (empty: none)"),
+    Param("rework_file", "", "append operator rework decisions here (JSON lines); empty: "
+          f"<overlay_dir>/{rework.FILE_NAME}, or $ROS_HOME/stud_welding/{rework.FILE_NAME} without overlay_dir",
+          read_only=True),
     Param("view_cache", 8, "views kept for inspections to refer to", min=2, max=64),
     Param("wait_s", 20.0, "longest wait for the shot after the welds [s]", min=0.5, max=600.0),
     Param("sync_slop_s", 0.0, "stamps closer than this belong to one view [s]", min=0.0, max=1.0),
@@ -47,6 +58,19 @@ _VERDICT_CODE = {Verdict.PASS: StudInspection.VERDICT_PASS, Verdict.FAIL: StudIn
                  Verdict.MISSING: StudInspection.VERDICT_MISSING,
                  Verdict.NOT_INSPECTED: StudInspection.VERDICT_NOT_INSPECTED,
                  Verdict.NOT_WELDED: StudInspection.VERDICT_NOT_WELDED}
+
+
+#: Every rework decision of the session stays for a late subscriber (the HMI).
+REWORK_QOS = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def rework_path(p: dict) -> Path:
+    if p["rework_file"]:
+        return Path(p["rework_file"]).expanduser()
+    if p["overlay_dir"]:
+        return Path(p["overlay_dir"]) / rework.FILE_NAME
+    home = os.environ.get("ROS_HOME") or os.path.join(os.path.expanduser("~"), ".ros")
+    return Path(home) / "stud_welding" / rework.FILE_NAME
 
 
 def limits_from(p: dict) -> InspectionLimits:
@@ -99,6 +123,10 @@ class InspectorNode(Node):
             self.create_subscription(typ, topic, lambda m, n=name: self._on_input(n, m), ros_io.SENSOR_QOS,
                                      callback_group=cb)
         self.create_service(Inspect, "/inspection/inspect", self._on_inspect, callback_group=cb)
+        self._verdicts: dict[str, str] = {}  # stud id -> its newest verdict (this session's inspections)
+        self.rework_file = rework_path(self.p)
+        self.pub_rework = self.create_publisher(ReworkDecision, "/inspection/rework", REWORK_QOS)
+        self.create_service(RecordRework, "/inspection/record_rework", self._on_record_rework, callback_group=cb)
         self.diag = ros_io.Diagnostics(self)
         self.diag.set(self.diag.OK, "waiting for an inspection")
         self.create_timer(1.0, self.diag.publish)
@@ -155,6 +183,8 @@ class InspectorNode(Node):
             cv2.imwrite(overlay_file, draw_inspection_overlay(color, ids, planned, inspection, camera))
         resp.result = result_msg(req.targets, inspection, req.station, ros_io.ns_to_stamp(stamp_ns), overlay_file)
         self.pub_result.publish(resp.result)
+        with self._cond:
+            self._verdicts.update((s.stud_id, s.verdict_text) for s in resp.result.studs)
         counts = {}
         for m in inspection.studs:
             counts[m.verdict.value] = counts.get(m.verdict.value, 0) + 1
@@ -163,6 +193,25 @@ class InspectorNode(Node):
                                + (f", {len(inspection.unexpected)} unexpected object(s)" if inspection.unexpected else ""))
         self.diag.set(self.diag.OK, f"station {req.station}: {summary}")
         resp.success, resp.message = True, summary
+        return resp
+
+    def _on_record_rework(self, req, resp):
+        with self._cond:
+            verdict = self._verdicts.get(req.stud_id.strip())
+        try:
+            record = rework.make_record(req.stud_id, req.decision, req.note, verdict, time.time())
+            rework.append_record(self.rework_file, record)
+        except (rework.ReworkError, OSError) as exc:
+            resp.success, resp.message = False, f"not recorded: {exc}"
+            self.get_logger().warn(f"rework decision on {req.stud_id!r} {resp.message}")
+            return resp
+        msg = ReworkDecision(stud_id=record.stud_id, decision=record.decision, verdict=record.verdict,
+                             note=record.note)
+        msg.header.stamp = ros_io.ns_to_stamp(int(record.stamp * 1e9))
+        self.pub_rework.publish(msg)
+        resp.success = True
+        resp.message = f"{record.stud_id} ({record.verdict}): {record.decision} recorded in {self.rework_file}"
+        self.get_logger().info(f"operator: {resp.message}" + (f" -- {record.note}" if record.note else ""))
         return resp
 
 

@@ -114,7 +114,7 @@ class MatcherNode(Node):
             CompressedImage, "/weld_targets/overlay/compressed", ros_io.RESULT_QOS,
             event_callbacks=PublisherEventCallbacks(matched=lambda _info: self._update_color_subscription()))
         self.diag = ros_io.Diagnostics(self)
-        self.diag.set(self.diag.WARN, "waiting for inputs")
+        self.diag.set(self.diag.OK, "waiting for inputs")  # idle is normal: not a warning on the operator's HMI
         self.create_timer(1.0, self._publish_diagnostics)
         self.create_subscription(StudLayout, "/drawing/layout", self._on_layout, ros_io.LATCHED_QOS)
         self.create_subscription(Registration, "/registration/result", self._on_registration, ros_io.LATCHED_QOS)

@@ -3,7 +3,8 @@
 "use strict";
 
 const $ = (id) => document.getElementById(id);
-const hmi = { ws: null, connected: false, retryMs: 500, nextId: 1, pending: new Map(), received: 0 };
+const hmi = { ws: null, connected: false, retryMs: 500, nextId: 1, pending: new Map(), received: 0,
+              readOnly: false, controls: null, status: null, statusAt: 0 };
 window.hmi = hmi; // for a look from the browser console
 
 function fmt(v, digits = 1) {
@@ -11,13 +12,41 @@ function fmt(v, digits = 1) {
 }
 function text(el, value) { if (el.textContent !== value) el.textContent = value; }
 function li(content, cls) { const e = document.createElement("li"); e.textContent = content; if (cls) e.className = cls; return e; }
+function el(tag, cls, content) { const e = document.createElement(tag); if (cls) e.className = cls; if (content !== undefined) e.textContent = content; return e; }
+function duration(s) {
+  if (s === null || s === undefined || Number.isNaN(s)) return "–";
+  s = Math.max(0, Math.round(s));
+  const h = Math.floor(s / 3600), m = Math.floor((s % 3600) / 60), sec = s % 60;
+  return (h ? h + ":" + String(m).padStart(2, "0") : String(m)) + ":" + String(sec).padStart(2, "0");
+}
 
 // -- connection ---------------------------------------------------------------------------------
 function setConnected(up, why) {
   hmi.connected = up;
   $("connection").className = "conn " + (up ? "up" : "down");
   text($("connection-text"), up ? "connected" : why);
-  document.querySelectorAll("#controls button").forEach((b) => { b.disabled = !up; });
+  applyControls();
+}
+
+// Buttons: enabled only when the node says the action is valid now (status.controls, from
+// hmi_model.CellView.controls), the WebSocket is up and the page may command.
+function applyControls() {
+  const why = [];
+  document.querySelectorAll("#controls button[data-cmd]").forEach((b) => {
+    const c = hmi.controls ? hmi.controls[b.dataset.cmd] : null;
+    let ok = hmi.connected && !hmi.readOnly && !!c && c.enabled;
+    let title = c ? c.why : "no status from the HMI node yet";
+    if (!hmi.connected) title = "no connection to the HMI node";
+    else if (hmi.readOnly) title = "view only (no access token)";
+    b.disabled = !ok;
+    b.title = title;
+    if (!ok && c && hmi.connected && !hmi.readOnly && b.dataset.cmd !== "estop") why.push(b.textContent + ": " + c.why);
+  });
+  $("ack-all").disabled = !hmi.connected || hmi.readOnly || !hmi.unacked;
+  text($("controls-why"), why.join(" · "));
+  document.querySelectorAll("#decisions button").forEach((b) => {
+    b.disabled = !hmi.connected || hmi.readOnly || b.dataset.blocked === "1";
+  });
 }
 
 // The access token (docs/HMI.md), when the page was opened as http://host:port/?token=...
@@ -54,18 +83,19 @@ function scheduleReconnect() {
 }
 
 // -- buttons ------------------------------------------------------------------------------------
-function send(cmd) {
-  const el = li(cmd + ": sent…", "pending");
+function send(cmd, args) {
+  const label = cmd + (args && args.stud_id ? " " + args.stud_id + " " + (args.decision || "") : "");
+  const item = li(label + ": sent…", "pending");
   const replies = $("replies");
-  replies.prepend(el);
+  replies.prepend(item);
   while (replies.children.length > 20) replies.lastChild.remove();
   if (!hmi.ws || hmi.ws.readyState !== WebSocket.OPEN) {
-    el.className = "fail"; el.textContent = cmd + ": not sent, no connection to the HMI node";
+    item.className = "fail"; item.textContent = label + ": not sent, no connection to the HMI node";
     return;
   }
   const id = hmi.nextId++;
-  hmi.pending.set(id, { cmd, el });
-  hmi.ws.send(JSON.stringify({ cmd, id }));
+  hmi.pending.set(id, { cmd: label, el: item });
+  hmi.ws.send(JSON.stringify(Object.assign({ cmd, id }, args || {})));
 }
 document.querySelectorAll("#controls button[data-cmd]").forEach((b) => b.addEventListener("click", () => send(b.dataset.cmd)));
 
@@ -77,8 +107,8 @@ function onReply(msg) {
   el.className = msg.ok ? "ok" : "fail";
   const detail = msg.results && msg.results.length
     ? msg.results.map((r) => r.service + ": " + (r.success ? "ok" : "FAILED") + (r.message ? " – " + r.message : "")).join("; ")
-    : (msg.error || "");
-  el.textContent = (msg.cmd || "?") + (msg.ok ? " ✔ " : " ✖ ") + detail;
+    : (msg.error || msg.message || "");
+  el.textContent = (p ? p.cmd : (msg.cmd || "?")) + (msg.ok ? " ✔ " : " ✖ ") + detail;
   el.title = new Date().toLocaleTimeString();
 }
 
@@ -87,11 +117,6 @@ function onCell(m) {
   const badge = $("cell-state");
   badge.className = "badge " + m.state;
   text(badge, m.state || "?");
-  const pct = m.studs_total ? (100 * m.studs_welded) / m.studs_total : 0;
-  $("progress-fill").style.width = pct.toFixed(1) + "%";
-  text($("progress-text"), m.studs_welded + " / " + m.studs_total + " studs welded");
-  text($("station"), m.stations_total ? m.station + " / " + m.stations_total : "–");
-  text($("studs-failed"), String(m.studs_failed));
   text($("cell-message"), m.message || "");
   text($("unreachable"), m.unreachable && m.unreachable.length ? "unreachable: " + m.unreachable.join(", ") : "");
 }
@@ -117,24 +142,148 @@ function onRegistration(m) {
   text(r, m.valid ? "valid, residual " + fmt(m.residual_mm, 2) + " mm" : "NOT valid: " + m.message);
 }
 
+// -- status: banner, buttons, progress, part, calibration, decisions (hmi_model.CellView) ----------
+function onStatus(m) {
+  hmi.status = m;
+  hmi.statusAt = Date.now();
+  hmi.controls = m.controls;
+  applyControls();
+  const banner = $("safety-banner");
+  if (m.safety) {
+    banner.hidden = false;
+    banner.className = "banner " + m.safety.kind;
+    text($("safety-title"), m.safety.title);
+    text($("safety-text"), m.safety.text);
+  } else {
+    banner.hidden = true;
+  }
+  const badge = $("cell-state");
+  if (m.safety) { badge.className = "badge " + m.safety.kind; text(badge, m.safety.title); }
+  else if (m.cell) { badge.className = "badge " + m.cell.state; text(badge, m.cell.state); }
+  const p = m.progress;
+  $("progress-fill").style.width = p.percent.toFixed(1) + "%";
+  text($("progress-text"), p.welded + " / " + p.total + " studs welded" + (p.failed ? ", " + p.failed + " failed" : "")
+    + (p.skipped ? ", " + p.skipped + " skipped" : ""));
+  text($("station"), p.stations_total ? p.station + " / " + p.stations_total : "–");
+  text($("studs-remaining"), String(p.remaining));
+  text($("studs-failed"), String(p.failed));
+  text($("elapsed"), duration(p.elapsed_s));
+  text($("cycle"), p.cycle_s === null ? "–" : fmt(p.cycle_s, 1) + " s/stud" + (p.last_cycle_s !== null ? " (last " + fmt(p.last_cycle_s, 1) + " s)" : ""));
+  tickEta();
+  const part = m.part;
+  text($("part"), part.drawing ? "part " + part.part + " · " + part.drawing : "no drawing");
+  text($("drawing"), part.drawing ? part.drawing + " (" + part.studs + " studs" + (part.warnings.length ? ", " + part.warnings.length + " warning(s)" : "") + ")" : "–");
+  $("drawing").title = part.drawing_file + (part.warnings.length ? "\n" + part.warnings.join("\n") : "");
+  const cal = $("calibration");
+  if (m.calibration) {
+    cal.className = m.calibration.agree ? "" : "bad";
+    text(cal, (m.calibration.agree ? "" : "NODES DIFFER – ") + m.calibration.text);
+    cal.title = "published by " + m.calibration.nodes.join(", ");
+  } else { cal.className = ""; text(cal, "not published (/calibration/hand_eye)"); }
+  renderDecisions(m.decisions);
+}
+
+function tickEta() {
+  const m = hmi.status;
+  if (!m) return;
+  const p = m.progress, age = (Date.now() - hmi.statusAt) / 1000;
+  if (p.eta_s === null) text($("eta"), "–");
+  else if (!p.running) text($("eta"), p.eta_s === 0 ? "done" : duration(p.eta_s));
+  else {
+    const left = Math.max(0, p.eta_s - age);
+    text($("eta"), duration(left) + " (≈ " + new Date(Date.now() + left * 1000).toLocaleTimeString([], { hour: "2-digit", minute: "2-digit" }) + ")");
+  }
+}
+setInterval(tickEta, 1000);
+
+// A decision is two clicks: the first arms the button (its text asks to confirm), the second sends.
+function decisionButton(label, confirmText, onConfirm, blocked, why) {
+  const b = el("button", "small", label);
+  b.dataset.blocked = blocked ? "1" : "0";
+  b.title = blocked ? why : "";
+  b.addEventListener("click", () => {
+    if (b.dataset.armed === "1") { b.dataset.armed = "0"; b.textContent = label; onConfirm(); return; }
+    b.dataset.armed = "1"; b.textContent = confirmText; b.classList.add("armed");
+    setTimeout(() => { if (b.dataset.armed === "1") { b.dataset.armed = "0"; b.textContent = label; b.classList.remove("armed"); } }, 5000);
+  });
+  return b;
+}
+
+function sameList(a, b) { return a.length === b.length && a.every((v, i) => v === b[i]); }
+
+function renderDecisions(d) {
+  // rebuilt only when the lists change (an armed confirmation survives the once-a-second status)
+  const ukey = d.uncertain.concat([String(d.uncertain_enabled)]), rkey = d.rework.map((r) => r.stud_id + ":" + r.verdict);
+  const uncertain = $("uncertain"), rework = $("rework");
+  if (!hmi.uKey || !sameList(hmi.uKey, ukey)) {
+    hmi.uKey = ukey;
+    uncertain.replaceChildren(...d.uncertain.map((sid) => {
+      const item = el("li", "decision");
+      item.dataset.stud = sid;
+      item.append(el("b", "", sid),
+        decisionButton("Weld again", "Confirm: weld " + sid + " again?", () => send("resolve_stud", { stud_id: sid, decision: "weld_again" }),
+                       !d.uncertain_enabled, d.uncertain_why),
+        decisionButton("Mark as welded", "Confirm: " + sid + " is welded?", () => send("resolve_stud", { stud_id: sid, decision: "welded" }),
+                       !d.uncertain_enabled, d.uncertain_why));
+      return item;
+    }));
+  }
+  text($("uncertain-why"), d.uncertain_enabled ? "check each stud at the part, then decide" : d.uncertain_why);
+  if (!hmi.rKey || !sameList(hmi.rKey, rkey)) {
+    hmi.rKey = rkey;
+    rework.replaceChildren(...d.rework.map((r) => {
+      const item = el("li", "decision");
+      item.dataset.stud = r.stud_id;
+      const note = el("input", "note");
+      note.placeholder = "note (who checked what)";
+      item.append(el("b", "", r.stud_id), el("span", "verdict v-" + r.verdict, r.verdict.replace(/_/g, " ")),
+        el("span", "reasons", r.reasons.join(", ")),
+        decisionButton("Rework", "Confirm: rework " + r.stud_id + "?", () => send("record_rework", { stud_id: r.stud_id, decision: "rework", note: note.value }), false, ""),
+        decisionButton("Accept", "Confirm: accept " + r.stud_id + "?", () => send("record_rework", { stud_id: r.stud_id, decision: "accept", note: note.value }), false, ""),
+        note);
+      return item;
+    }));
+  }
+  $("uncertain-box").hidden = !d.uncertain.length;
+  $("rework-box").hidden = !d.rework.length;
+  $("decisions").hidden = !d.uncertain.length && !d.rework.length;
+  applyControls();
+}
+
 function onJob(m) {
   text($("job"), m.status + ": " + m.welded.length + " welded, " + m.skipped.length + " skipped, " + m.failed.length + " failed – " + m.message);
   $("job-messages").replaceChildren(...(m.messages || []).map((t) => li(t)));
 }
 
-function onErrors(m) {
-  const items = m.items || [];
-  if (!items.length) { $("errors").replaceChildren(li("none", "none")); return; }
-  $("errors").replaceChildren(...items.map((e) => {
-    const el = li("", e.level + (e.active ? "" : " inactive"));
-    const src = document.createElement("span");
-    src.className = "src";
-    src.textContent = new Date(e.last * 1000).toLocaleTimeString() + " " + e.name + ": ";
-    el.append(src, e.message + (e.count > 1 ? " (×" + e.count + ")" : ""));
-    el.title = e.level + (e.active ? ", still reported" : ", cleared");
-    return el;
-  }));
+// -- alarms: code, severity, acknowledge; a cleared alarm moves to the history ---------------------
+function alarmItem(a, withAck) {
+  const item = el("li", "alarm sev-" + a.severity + (a.acked ? " acked" : " unacked") + (a.cleared ? " cleared" : ""));
+  item.dataset.key = a.key;
+  item.append(el("span", "code", a.code), el("span", "sev", a.severity),
+    el("span", "src", new Date((a.cleared || a.raised) * 1000).toLocaleTimeString() + " " + a.source + ": "),
+    el("span", "text", a.title + " – " + a.text));
+  if (withAck && !a.acked) {
+    const b = el("button", "small ack", "Ack");
+    b.disabled = !hmi.connected || hmi.readOnly;
+    b.addEventListener("click", () => send("ack", { alarm: a.key }));
+    item.append(b);
+  }
+  item.title = a.cleared ? "cleared " + new Date(a.cleared * 1000).toLocaleTimeString() : (a.acked ? "acknowledged, still active" : "active, not acknowledged");
+  return item;
 }
+
+function onAlarms(m) {
+  hmi.unacked = m.unacked;
+  const list = $("alarms");
+  if (!m.active.length) list.replaceChildren(li("none", "none"));
+  else list.replaceChildren(...m.active.map((a) => alarmItem(a, true)));
+  $("alarm-history").replaceChildren(...m.history.map((a) => alarmItem(a, false)));
+  const chip = $("alarm-summary");
+  chip.className = "alarm-chip " + (m.highest || "none") + (m.unacked ? " unacked" : "");
+  text(chip, m.active.length ? m.active.length + " alarm(s)" + (m.unacked ? ", " + m.unacked + " new" : "") : "no alarms");
+  applyControls();
+}
+$("ack-all").addEventListener("click", () => send("ack", { alarm: "all" }));
 
 function onOverlay(m) {
   const img = $("overlay");
@@ -146,7 +295,7 @@ function onOverlay(m) {
 
 // -- stud table: rows updated in place (thousands of studs) --------------------------------------
 const rowsById = new Map();
-const COLS = ["stud_id", "status", "inclination_deg", "x", "y", "z", "xy_error_mm", "view", "weld"];
+const COLS = ["stud_id", "status", "inclination_deg", "x", "y", "z", "xy_error_mm", "view", "weld", "inspection"];
 
 function makeRow(id) {
   const tr = document.createElement("tr");
@@ -167,10 +316,12 @@ function onTargets(m) {
     prev = tr;
     const p = r.position_mm || [null, null, null];
     const weld = r.weld === "active" ? "● " + (r.phase || "active") : r.weld === "welded" ? "✔ welded" : r.weld;
+    const insp = (r.inspection || "").replace(/_/g, " ") + (r.rework ? " → " + r.rework : "");
     const cells = [r.stud_id, r.status.replace(/_/g, " "), fmt(r.inclination_deg, 1), fmt(p[0], 1), fmt(p[1], 1),
-                   fmt(p[2], 1), fmt(r.xy_error_mm, 2), r.view === null ? "–" : String(r.view), weld];
+                   fmt(p[2], 1), fmt(r.xy_error_mm, 2), r.view === null ? "–" : String(r.view), weld, insp];
     cells.forEach((v, i) => text(tr.children[i], v));
-    const cls = "st-" + r.status + (r.weld ? " weld-" + r.weld : "");
+    tr.lastChild.title = (r.inspection_reasons || []).join(", ");
+    const cls = "st-" + r.status + (r.weld ? " weld-" + r.weld : "") + (r.inspection ? " insp-" + r.inspection : "");
     if (tr.className !== cls) tr.className = cls;
   }
   for (const [id, tr] of rowsById) if (!seen.has(id)) { tr.remove(); rowsById.delete(id); }
@@ -180,14 +331,12 @@ function onTargets(m) {
 
 function onHello(msg) {
   hmi.readOnly = !!msg.read_only;
-  if (hmi.readOnly) {
-    text($("connection-text"), "connected, view only (no access token)");
-    document.querySelectorAll("#controls button[data-cmd]").forEach((b) => { b.disabled = true; });
-  }
+  if (hmi.readOnly) text($("connection-text"), "connected, view only (no access token)");
+  applyControls();
 }
 
-const HANDLERS = { hello: onHello, targets: onTargets, overlay: onOverlay, arm: onArm, cell: onCell,
-                   errors: onErrors, registration: onRegistration, job: onJob, reply: onReply };
+const HANDLERS = { hello: onHello, targets: onTargets, overlay: onOverlay, arm: onArm, cell: onCell, status: onStatus,
+                   alarms: onAlarms, registration: onRegistration, job: onJob, reply: onReply };
 
 setConnected(false, "connecting…");
 connect();
