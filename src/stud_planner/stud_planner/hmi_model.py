@@ -215,6 +215,7 @@ class CellState(enum.IntEnum):
     PAUSED = 6
     DONE = 7
     FAILED = 8
+    INSPECTING = 9      # a station shot again after its welds, its studs judged
 
     @property
     def text(self) -> str:
@@ -223,7 +224,7 @@ class CellState(enum.IntEnum):
 
 #: A job is under way in these states (PAUSED is under way too, but does not move).
 RUNNING_STATES = frozenset({CellState.REGISTERING, CellState.MOVING, CellState.SHOOTING, CellState.MATCHING,
-                            CellState.WELDING})
+                            CellState.WELDING, CellState.INSPECTING})
 #: No job runs: a new one may start.
 ENDED_STATES = frozenset({CellState.IDLE, CellState.DONE, CellState.FAILED})
 #: The sequencer ends a job the operator stopped in FAILED with this message: not an alarm.
