@@ -25,6 +25,7 @@ setup(
             "camera = stud_perception.camera_node:main",
             "registration = stud_perception.registration_node:main",
             "shot = stud_perception.shot_node:main",
+            "pose_rebase = stud_perception.pose_rebase_node:main",
         ],
     },
 )

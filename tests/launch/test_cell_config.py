@@ -37,14 +37,19 @@ def test_shipped_modes_run_the_documented_nodes(cfg):
     assert sim["arm_driver"].params["journal_file"] == "/out/weld_journal.jsonl"
     assert sim["cell_sequencer"].exit_on and sim["drawing"].required
     replay, _ = plan(cfg, "replay", cli_vars={"bag": "/bags/run1"})
-    assert list(replay) == ["bag_play", "drawing", "registration", "matcher", "state_publisher", "hmi"]
+    assert list(replay) == ["bag_play", "pose_rebase", "drawing", "registration", "matcher", "state_publisher", "hmi"]
     assert replay["bag_play"].argv[:7] == ["ros2", "bag", "play", "/bags/run1", "--delay", "1.0",
                                            "--wait-for-subscribers"]
     # only the sensor topics: the cell's own drawing and registration nodes publish the rest
-    played = replay["bag_play"].argv[replay["bag_play"].argv.index("--topics") + 1:]
+    argv = replay["bag_play"].argv
+    played = argv[argv.index("--topics") + 1:argv.index("--remap")]
     assert sorted(played) == ["/camera/color/camera_info", "/camera/color/image_raw", "/camera/depth/image_raw",
                               "/camera/pose"]
-    assert replay["bag_play"].start_after == ("registration", "matcher")
+    # the recorded poses go to pose_rebase, which poses the camera with the hand-eye in use
+    assert argv[argv.index("--remap") + 1:] == ["/camera/pose:=/camera/pose_recorded"]
+    assert replay["bag_play"].start_after == ("registration", "matcher", "pose_rebase")
+    rebase = replay["pose_rebase"].params
+    assert rebase["recorded_hand_eye_xyz_m"] == rebase["hand_eye_xyz_m"] == sim["camera"].params["hand_eye_xyz_m"]
     hw, _ = plan(cfg, "hardware")
     assert "camera" not in hw and "arm_simulator" not in hw
     assert hw["arm_driver"].params["arm_ip"] == "192.168.1.18"

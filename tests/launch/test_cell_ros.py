@@ -156,7 +156,7 @@ def test_replay_cell_registers_and_matches_the_bag_then_stops_cleanly(probe, cel
     assert cell.running()  # the cell outlives its bag
     assert "not ready after" not in cell.output()  # the bag waited for the layout lines, not for a time-out
     cell.record_pids()
-    assert set(cell.started) == {"bag_play", "drawing", "registration", "matcher", "state_publisher"}
+    assert set(cell.started) == {"bag_play", "pose_rebase", "drawing", "registration", "matcher", "state_publisher"}
     cell.ctrl_c_stops_everything()
 
 

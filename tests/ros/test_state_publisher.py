@@ -77,3 +77,34 @@ def test_state_publisher_publishes_model_static_frames_tf_and_the_drawing_frame(
     drawing = _matrix(latest[frames.DRAWING])
     np.testing.assert_allclose(drawing[:3, 3], [0.4, -0.1, 0.02], atol=1e-9)
     assert abs(math.atan2(drawing[1, 0], drawing[0, 0]) - yaw) < 1e-9
+
+
+def test_with_a_hand_eye_file_the_camera_frame_is_the_calibrated_one_not_the_typed_one(ros_node, procs, tmp_path):
+    import json
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "perception"))
+    from test_hand_eye import DRAWING, X_OFF, reachable_tool_poses, synthetic_shots
+
+    from stud_perception.hand_eye import calibrate_hand_eye
+    from stud_perception.hand_eye_file import calibration_record, load_hand_eye_file, write_yaml
+
+    path = write_yaml(tmp_path / "hand_eye.yaml",
+                      calibration_record(calibrate_hand_eye(synthetic_shots(X_OFF, reachable_tool_poses(), 11),
+                                                            DRAWING)), "test file")
+    calibrated = load_hand_eye_file(path)
+    typed = [0.05, 0.0, -0.10]
+    assert np.linalg.norm(np.subtract(calibrated.xyz_m, typed)) > 1e-3  # the two differ: the test can tell
+    procs.append(ros2_run("rm65_driver", "state_publisher", tmp_path / "sp.log",
+                          {"hand_eye_xyz_m": typed, "hand_eye_rpy_deg": [0.0, 0.0, 0.0], "hand_eye_file": str(path)}))
+    static: list[TFMessage] = []
+    calibration: list[String] = []
+    ros_node.create_subscription(TFMessage, "/tf_static", static.append, tf_io.TF_STATIC_QOS)
+    ros_node.create_subscription(String, "/calibration/hand_eye", calibration.append, ros_io.LATCHED_QOS)
+    wait_for(lambda: static and calibration, 30, ros_node.spin, "/tf_static and /calibration/hand_eye")
+    cam = {t.child_frame_id: t for t in static[-1].transforms}[frames.CAMERA_OPTICAL]
+    tr = cam.transform.translation
+    np.testing.assert_allclose([tr.x, tr.y, tr.z], calibrated.xyz_m, atol=1e-9)
+    summary = json.loads(calibration[-1].data)
+    assert summary["source"] == "file" and summary["node"] == "state_publisher"

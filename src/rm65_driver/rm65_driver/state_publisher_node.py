@@ -3,7 +3,7 @@
 Publishes the arm's URDF latched on ``/robot_description`` (std_msgs/String) and its frames as
 robot_state_publisher does: the fixed joints once on ``/tf_static`` (``world -> base_link``,
 ``link6 -> rm65_flange``, ``rm65_flange -> weld_tool``, ``weld_tool -> camera_color_optical_frame``
-from the hand-eye), the moving joints on ``/tf`` for every ``/joint_states`` message, stamped with it.
+from the hand-eye: ``hand_eye_file`` when given, as every node that poses the camera), the moving joints on ``/tf`` for every ``/joint_states`` message, stamped with it.
 
 It is also the cell's one static broadcaster for ``world -> drawing``: from the latest valid
 ``/registration/result`` (origin at mark O, on the height measured for it). One node owning
@@ -24,16 +24,12 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from stud_welding_msgs.msg import Registration
 
-from stud_perception import frames, ros_io, tf_io
+from stud_perception import frames, hand_eye_ros, ros_io, tf_io
 from stud_perception.ros_io import Param
 
 from .kinematics import D6_BY_VARIANT
 from .robot_description import RM65Description, rm65_urdf
 from .urdf_model import RobotModel, UrdfError, parse_urdf
-
-
-def _vec3(name: str):
-    return lambda v: None if len(v) == 3 else f"{name} needs 3 numbers, got {list(v)}"
 
 
 PARAMS = [
@@ -42,10 +38,7 @@ PARAMS = [
     Param("arm_variant", "RM65-B", "arm variant (its flange distance d6)", choices=tuple(D6_BY_VARIANT), read_only=True),
     Param("tool_offset_m", 0.15, "flange -> weld-gun tip along flange z (weld_tool) [m]; as the driver's",
           min=0.0, max=0.5, read_only=True),
-    Param("hand_eye_xyz_m", [0.0, 0.0, 0.0], "camera optical frame origin in weld_tool [m] (the hand-eye)",
-          validate=_vec3("hand_eye_xyz_m"), read_only=True),
-    Param("hand_eye_rpy_deg", [0.0, 0.0, 0.0], "camera optical frame orientation in weld_tool, roll-pitch-yaw [deg]",
-          validate=_vec3("hand_eye_rpy_deg"), read_only=True),
+    *hand_eye_ros.PARAMS,  # weld_tool -> camera_color_optical_frame: the typed hand-eye or hand_eye_file
     Param("publish_camera_frame", True, "include weld_tool -> camera_color_optical_frame (false when the camera "
           "driver publishes its own frames: a frame has one parent)", read_only=True),
     Param("registration_topic", "/registration/result", "publish world -> drawing from this topic's latest valid "
@@ -57,6 +50,8 @@ class StatePublisherNode(Node):
     def __init__(self) -> None:
         super().__init__("state_publisher")
         self.p = ros_io.declare_params(self, PARAMS)
+        # the same hand-eye as the nodes that pose the camera: a calibration file when one is given
+        self.hand_eye = hand_eye_ros.hand_eye_in_use(self, self.p)
         self.urdf_text = self._load_description()
         try:
             self.model: RobotModel = parse_urdf(self.urdf_text)
@@ -70,6 +65,7 @@ class StatePublisherNode(Node):
         # The description and the static frames are latched: a viewer started later gets them.
         self.pub_description = self.create_publisher(String, "/robot_description", ros_io.LATCHED_QOS)
         self.pub_description.publish(String(data=self.urdf_text))
+        self.calibration = hand_eye_ros.CalibrationTopic(self, self.hand_eye)
         self.static = tf_io.StaticFrames(self)
         self.moving = tf_io.MovingFrames(self)
         stamp = self.get_clock().now().to_msg()
@@ -98,7 +94,7 @@ class StatePublisherNode(Node):
                 raise SystemExit(2) from None
         return rm65_urdf(RM65Description(
             variant=self.p["arm_variant"], tool_offset_m=self.p["tool_offset_m"],
-            hand_eye_xyz_m=tuple(self.p["hand_eye_xyz_m"]), hand_eye_rpy_deg=tuple(self.p["hand_eye_rpy_deg"]),
+            hand_eye_xyz_m=tuple(self.hand_eye.xyz_m), hand_eye_rpy_deg=tuple(self.hand_eye.rpy_deg),
             include_camera=self.p["publish_camera_frame"]))
 
     def _on_joints(self, msg: JointState) -> None:

@@ -35,8 +35,8 @@ from stud_perception.rotations import matrix_to_quaternion, matrix_to_rpy, rpy_t
 
 __all__ = ["HandEyeError", "HandEyeLimits", "BoardShot", "MarkCheck", "HandEyeResult", "HandEyeCheck",
            "board_points_m", "board_pose_from_marks", "check_marks", "rotation_spread_deg", "pose_set_problems",
-           "solve_ax_xb", "calibrate_hand_eye", "check_hand_eye", "transform", "transform_xyz_rpy",
-           "rotation_angle_deg", "METHODS"]
+           "solve_ax_xb", "calibrate_hand_eye", "check_hand_eye", "rebase_camera_pose", "transform",
+           "transform_xyz_rpy", "rotation_angle_deg", "METHODS"]
 
 
 class HandEyeError(ValueError):
@@ -120,6 +120,14 @@ def transform(R: np.ndarray, t) -> np.ndarray:
 def transform_xyz_rpy(xyz_m, rpy_deg) -> np.ndarray:
     """4x4 from a translation (m) and roll-pitch-yaw (deg, R = Rz Ry Rx): the cell's hand-eye form."""
     return transform(rpy_to_matrix(*np.radians(np.asarray(rpy_deg, dtype=np.float64))), xyz_m)
+
+
+def rebase_camera_pose(T_world_cam: np.ndarray, T_tool_cam_recorded: np.ndarray,
+                       T_tool_cam_in_use: np.ndarray) -> np.ndarray:
+    """A camera pose made with one hand-eye, re-made with another: the tool pose it came from
+    (``T_world_cam @ inv(T_tool_cam_recorded)``) times the hand-eye in use. All 4x4 rigid transforms."""
+    return np.asarray(T_world_cam, dtype=np.float64) @ _inv(np.asarray(T_tool_cam_recorded, dtype=np.float64)) \
+        @ np.asarray(T_tool_cam_in_use, dtype=np.float64)
 
 
 def _inv(T: np.ndarray) -> np.ndarray:

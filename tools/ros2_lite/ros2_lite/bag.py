@@ -193,14 +193,23 @@ def cmd_play(argv: list[str]) -> int:
     parser.add_argument("--wait-for-subscribers", type=int, default=0, metavar="N",
                         help="before playing, wait (up to 10 s) until every topic has N matched subscribers "
                              "(not in rosbag2)")
+    parser.add_argument("-m", "--remap", nargs="+", default=[], metavar="REMAP",
+                        help='topics to be remapped: in the form "old_topic1:=new_topic1 old_topic2:=new_topic2"')
     args = parser.parse_args(argv)
+    remap = {}
+    for rule in args.remap:
+        old, sep, new = rule.partition(":=")
+        if not sep or not old or not new:
+            raise _UsageError(f"ros2 bag play: error: --remap '{rule}': expected old_topic:=new_topic")
+        remap["/" + old.lstrip("/")] = "/" + new.lstrip("/")
     reader = BagReader(args.bag_path)
     try:
         for note in reader.notes:
             print(f"[WARN] [ros2bag]: {note}", file=sys.stderr)
         options = PlayOptions(rate=args.rate, loop=args.loop, topics=args.topics, exclude_topics=args.exclude_topics,
                               regex=args.regex, exclude_regex=args.exclude_regex, start_offset_s=args.start_offset,
-                              delay_s=args.delay, clock_hz=args.clock, wait_for_subscribers=args.wait_for_subscribers)
+                              delay_s=args.delay, clock_hz=args.clock, wait_for_subscribers=args.wait_for_subscribers,
+                              remap=remap)
         return Player(reader, options).run()
     finally:
         reader.close()

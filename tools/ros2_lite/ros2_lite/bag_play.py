@@ -48,6 +48,7 @@ class PlayOptions:
     clock_hz: float = 0.0  # 0: no /clock
     wait_for_subscribers: int = 0  # our addition: wait until each topic has this many matched subscribers
     wait_timeout_s: float = 10.0
+    remap: dict[str, str] = field(default_factory=dict)  # recorded topic -> the name it is published under
 
 
 def replay_qos(offered: list[Qos], message_size: int = 0):
@@ -117,7 +118,8 @@ class Player:
         try:
             node = rclpy.create_node(LOG_NAME)
             publishers = {
-                name: node.create_publisher(message_class(type_name), name,
+                name: node.create_publisher(message_class(type_name),
+                                            self.options.remap.get("/" + name.lstrip("/"), name),
                                             replay_qos(self.reader.topics[name].offered_qos_profiles,
                                                        self._message_size(name)))
                 for name, type_name in self.playable.items()
@@ -159,21 +161,27 @@ class Player:
     def _wait_for_subscribers(self, node, publishers) -> None:
         """Give discovery a moment so the first messages are not sent before subscribers are matched:
         until every subscriber the graph shows is matched (at least 0.3 s, at most 2 s), or, with
-        ``--wait-for-subscribers N``, until each topic has N matched subscribers."""
+        ``--wait-for-subscribers N``, until each topic has N matched subscribers -- a ``--remap``ped
+        topic one: it is remapped to feed an adapter (the cell's pose_rebase)."""
         start = time.monotonic()
         need = self.options.wait_for_subscribers
         timeout = self.options.wait_timeout_s if need else 2.0
+        remapped = {t for t in publishers if "/" + t.lstrip("/") in self.options.remap}
+
+        def needed(topic: str) -> int:
+            return min(need, 1) if topic in remapped else need
+
         while not self._stop.is_set():
             elapsed = time.monotonic() - start
             if need:
-                if all(p.get_subscription_count() >= need for p in publishers.values()):
+                if all(p.get_subscription_count() >= needed(t) for t, p in publishers.items()):
                     return
             elif elapsed >= 0.3 and all(p.get_subscription_count() >= node.count_subscribers(t)
                                         for t, p in publishers.items()):
                 return
             if elapsed >= timeout:
                 if need:
-                    short = [t for t, p in publishers.items() if p.get_subscription_count() < need]
+                    short = [t for t, p in publishers.items() if p.get_subscription_count() < needed(t)]
                     log("WARN", f"Playing although {', '.join(short)} did not get {need} subscriber(s) in {timeout:g} s")
                 return
             time.sleep(0.02)
