@@ -3,7 +3,6 @@ parameter files and the one-line errors (exit code 2)."""
 from __future__ import annotations
 
 import textwrap
-from pathlib import Path
 
 import pytest
 import yaml

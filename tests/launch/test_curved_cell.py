@@ -13,7 +13,7 @@ from stud_perception.scene import MarkingBoard, Plate, Pose2D, SceneSpec, Trough
 from stud_planner.demo import gun_axes_at_weld, score
 from stud_planner.dxf_layout import read_layout
 from stud_planner.dxf_writer import write_layout_dxf
-from test_cell_ros import REPO, cell_run, free_port  # noqa: F401  (cell_run: the fixture)
+from test_cell_ros import REPO, free_port
 
 BOARD_POSE = Pose2D(0.16, -0.34, 0.0)  # the bundled parts' board (tools/make_demo_data.py)
 DOME_DXF = REPO / "src" / "stud_planner" / "data" / "dome_demo.dxf"

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -15,8 +14,7 @@ from stud_perception.camera_model import CameraModel
 from stud_perception.depth_image import FillRule
 from stud_perception.markers import MarkDetectorConfig, MarkStatus, _hough_candidates, detect_marks
 from stud_perception.registration import registration_from_marks
-from stud_perception.scene import (Dome, MarkingBoard, Pose2D, SceneSpec, demo_camera, demo_dome_scene, load_scene,
-                                   render, view_camera)
+from stud_perception.scene import (Dome, MarkingBoard, Pose2D, SceneSpec, demo_camera, demo_dome_scene, render, view_camera)
 
 SCENE = demo_dome_scene()
 #: The cell layout of the audit that found these cases (its board and registration station, before the

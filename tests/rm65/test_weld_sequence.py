@@ -204,7 +204,6 @@ def test_halt_during_dwell_stops_at_once_and_leaves_the_stud_uncertain(client, s
     t = threading.Thread(target=lambda: out.setdefault("res", seq.run(targets)))
     t.start()
     assert wait_for(lambda: sim.do_state(1) == 1, 10)
-    t0 = time.monotonic()
     seq.halt("e-stop")
     t.join(10)
     assert not t.is_alive()  # ended by the halt (its latency: bench/bench_arm_latency.py, not a unit-test limit)

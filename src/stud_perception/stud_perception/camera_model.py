@@ -95,10 +95,6 @@ class CameraModel:
         return float(self.K[1, 2])
 
     @property
-    def K_inv(self) -> np.ndarray:
-        return np.linalg.inv(self.K)
-
-    @property
     def position_w(self) -> np.ndarray:
         """Optical centre in world (metres)."""
         return self.t_wc
@@ -201,15 +197,3 @@ def nadir_rotation(yaw_rad: float = 0.0) -> np.ndarray:
     Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     return Rz @ base
 
-
-def look_at_rotation(eye_w: np.ndarray, target_w: np.ndarray, up_hint_w=(0.0, 1.0, 0.0)) -> np.ndarray:
-    """R_wc for an optical frame at ``eye_w`` looking at ``target_w`` (optical y ~ -up_hint)."""
-    z = np.asarray(target_w, float) - np.asarray(eye_w, float)
-    z /= np.linalg.norm(z)
-    up = np.asarray(up_hint_w, float)
-    x = np.cross(-up, z)
-    if np.linalg.norm(x) < 1e-9:
-        x = np.cross([1.0, 0.0, 0.0], z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    return np.column_stack([x, y, z])

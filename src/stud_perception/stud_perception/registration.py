@@ -62,9 +62,6 @@ class Registration:
     def to_world(self, xy_m) -> np.ndarray:
         return local_to_world(self.M_local2world, xy_m)
 
-    def to_local(self, xy_m) -> np.ndarray:
-        return world_to_local(self.M_local2world, xy_m)
-
 
 @dataclass(frozen=True, eq=False)
 class RigidFit2D:

@@ -16,8 +16,7 @@ from __future__ import annotations
 import enum
 import math
 import os
-from collections import OrderedDict
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Iterable
 
 from stud_planner.rework import NEEDS_DECISION
