@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-for _pkg in ("rm65_driver",):  # run from a checkout, no build needed
+for _pkg in ("stud_common", "rm65_driver"):  # run from a checkout, no build needed
     _path = str(REPO / "src" / _pkg)
     if _path not in sys.path:
         sys.path.insert(0, _path)

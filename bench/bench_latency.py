@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-for pkg in ("stud_perception", "stud_planner"):
+for pkg in ("stud_common", "stud_perception", "stud_planner"):
     sys.path.insert(0, str(REPO / "src" / pkg))
 
 import numpy as np  # noqa: E402
@@ -29,7 +29,7 @@ from geometry_msgs.msg import Point  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from stud_welding_msgs.msg import Registration, Stud, StudLayout, WeldTargetArray  # noqa: E402
 
-from stud_perception import ros_io  # noqa: E402
+from stud_common import ros_io  # noqa: E402
 from stud_perception.camera_node import shot_messages  # noqa: E402
 from stud_perception.scene import grid_stud_scene, load_scene, render, view_camera  # noqa: E402
 

@@ -43,7 +43,7 @@ from pathlib import Path  # noqa: E402
 from typing import Callable  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
-for _pkg in ("stud_perception", "stud_planner"):  # run from a checkout, no build needed
+for _pkg in ("stud_common", "stud_perception", "stud_planner"):  # run from a checkout, no build needed
     _path = str(REPO / "src" / _pkg)
     if _path not in sys.path:
         sys.path.insert(0, _path)

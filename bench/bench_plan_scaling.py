@@ -38,7 +38,7 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-for _pkg in ("stud_bag", "stud_perception", "stud_planner"):  # run from a checkout, no build needed
+for _pkg in ("stud_common", "stud_bag", "stud_perception", "stud_planner"):  # run from a checkout, no build needed
     _path = str(REPO / "src" / _pkg)
     if _path not in sys.path:
         sys.path.insert(0, _path)
@@ -81,7 +81,7 @@ def _rss_mb() -> float:
 def measure_in_process(drawing: Path, report: Path) -> dict:
     """Run in a child: parse, plan, write; seconds and peak RSS (MB)."""
     from stud_planner import dxf_layout, offline_plan
-    from stud_perception.strict_json import write_json
+    from stud_common.strict_json import write_json
 
     t0 = time.perf_counter()
     layout = dxf_layout.read_layout(drawing)
@@ -118,6 +118,7 @@ def _run_cli(drawing: Path, report: Path) -> tuple[float, float]:
     t0 = time.perf_counter()
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO / "src" / "stud_planner"),
                                                        str(REPO / "src" / "stud_perception"), str(REPO / "src" / "stud_bag"),
+                                                       str(REPO / "src" / "stud_common"),
                                                        os.environ.get("PYTHONPATH", "")]))
     done = subprocess.run([sys.executable, "-c", code, "--drawing", str(drawing), "--bag", str(DEMO_BAG),
                            "--out", str(report), "--quiet"], capture_output=True, text=True, env=env, check=False)

@@ -26,7 +26,7 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-for pkg in ("stud_perception", "stud_planner", "rm65_driver"):
+for pkg in ("stud_common", "stud_perception", "stud_planner", "rm65_driver"):
     sys.path.insert(0, str(REPO / "src" / pkg))
 
 import numpy as np  # noqa: E402
@@ -34,10 +34,10 @@ import numpy as np  # noqa: E402
 from rm65_driver.kinematics import RM65Kinematics  # noqa: E402
 from rm65_driver.safety import SafetyChecker, SafetyLimits  # noqa: E402
 from stud_perception.camera_model import nadir_rotation  # noqa: E402
-from stud_perception.rotations import rpy_to_matrix  # noqa: E402
+from stud_common.rotations import rpy_to_matrix  # noqa: E402
 from stud_perception.scene import (Cylinder, Dome, MarkingBoard, Pose2D, SceneSpec, scene_from_dict,  # noqa: E402
                                    scene_to_dict, surface_height, surface_normal)
-from stud_perception.strict_json import write_json  # noqa: E402
+from stud_common.strict_json import write_json  # noqa: E402
 from stud_planner.cell_job import JobConfig  # noqa: E402
 from stud_planner.dxf_layout import read_layout  # noqa: E402
 from stud_planner.dxf_writer import write_layout_dxf  # noqa: E402

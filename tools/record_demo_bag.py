@@ -18,16 +18,16 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-for pkg in ("stud_perception", "stud_planner"):
+for pkg in ("stud_common", "stud_perception", "stud_planner"):
     sys.path.insert(0, str(REPO / "src" / pkg))
 
 import numpy as np  # noqa: E402
 from stud_bag import BagWriter, Qos  # noqa: E402
-from stud_perception import ros_io  # noqa: E402
+from stud_common import ros_io  # noqa: E402
 from stud_perception.camera_model import nadir_rotation  # noqa: E402
 from stud_perception.camera_node import shot_messages  # noqa: E402
 from stud_perception.scene import load_scene, render, view_camera  # noqa: E402
-from stud_perception.strict_json import write_json  # noqa: E402
+from stud_common.strict_json import write_json  # noqa: E402
 from stud_planner.cell_job import JobConfig  # noqa: E402
 from stud_planner.dxf_layout import read_layout  # noqa: E402
 from stud_planner.msg_convert import layout_to_msg  # noqa: E402

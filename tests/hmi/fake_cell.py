@@ -20,7 +20,8 @@ from stud_welding_msgs.msg import (ArmState, CellStatus, InspectionResult, Rewor
 from stud_welding_msgs.srv import RecordRework, ResolveStud
 
 from rosproc import wait_for
-from stud_perception import ros_io
+from stud_common import ros_io
+from stud_perception import image_io
 from stud_planner.hmi_model import CellState
 
 NAN = math.nan
@@ -103,7 +104,7 @@ class FakeCell:
     def overlay(self, width: int = 1280, height: int = 960) -> None:
         img = np.zeros((height, width, 3), np.uint8)
         img[:, : width // 2] = (0, 0, 255)  # left half red (BGR)
-        self.pub_overlay.publish(ros_io.numpy_to_image(img, "bgr8", frame_id="camera_color_optical_frame"))
+        self.pub_overlay.publish(image_io.numpy_to_image(img, "bgr8", frame_id="camera_color_optical_frame"))
 
     def arm(self, mode=ArmState.MODE_WELDING, current_stud="S0001", done=1, total=3, uncertain=(),
             errors=("joint 3 over temperature",), message="welding S0001") -> None:

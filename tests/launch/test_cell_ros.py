@@ -103,7 +103,7 @@ def test_sim_cell_comes_up_and_ctrl_c_stops_everything_cleanly(probe, cell_run):
     from std_srvs.srv import Trigger
     from stud_welding_msgs.msg import Registration, StudLayout
 
-    from stud_perception import ros_io
+    from stud_common import ros_io
 
     cell = cell_run("--mode", "sim", "--no-hmi", "--drawing", str(DEMO_DXF), "--var", f"arm_port={free_port()}",
                     "--set", "camera.depth_noise_m=0.0")
@@ -142,7 +142,7 @@ def test_sim_cell_comes_up_and_ctrl_c_stops_everything_cleanly(probe, cell_run):
 def test_replay_cell_registers_and_matches_the_bag_then_stops_cleanly(probe, cell_run):
     from stud_welding_msgs.msg import Registration, WeldTargetArray
 
-    from stud_perception import ros_io
+    from stud_common import ros_io
 
     regs, targets = [], []
     probe.create_subscription(Registration, "/registration/result", regs.append, ros_io.LATCHED_QOS)

@@ -15,8 +15,9 @@ import subprocess
 import numpy as np
 import pytest
 
-from stud_perception.hand_eye import rotation_angle_deg, transform_xyz_rpy
-from stud_perception.hand_eye_file import load_hand_eye_file
+from stud_common.rotations import transform_xyz_rpy
+from stud_perception.hand_eye import rotation_angle_deg
+from stud_common.hand_eye_in_use import load_hand_eye_file
 from test_cell_ros import N_DEMO_STUDS, free_port
 
 BELIEVED = ([0.05, 0.0, -0.10], [0.0, 0.0, 0.0])  # cell.yaml's hand_eye_* vars

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from stud_perception.camera_model import CameraModel, CameraModelError
-from stud_perception.rotations import rpy_to_matrix
+from stud_common.rotations import rpy_to_matrix
 
 # A camera tilted and rolled away from nadir, with unequal focal lengths and an off-centre
 # principal point: every term of Eq. 1 matters.

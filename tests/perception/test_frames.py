@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stud_perception.frames import drawing_in_world
+from stud_common.frames import drawing_in_world
 
 
 @settings(max_examples=100, deadline=None)

@@ -20,11 +20,12 @@ from hypothesis import strategies as st
 
 from rm65_driver.kinematics import RM65Kinematics
 from stud_perception.depth_image import depth_mm_to_m
-from stud_perception.hand_eye import (BoardShot, HandEyeError, HandEyeLimits, board_points_m, calibrate_hand_eye,
-                                      check_hand_eye, rotation_angle_deg, rotation_spread_deg, solve_ax_xb, transform,
-                                      transform_xyz_rpy)
+from stud_common.hand_eye_in_use import HandEyeLimits
+from stud_common.rotations import transform, transform_xyz_rpy
+from stud_perception.hand_eye import (BoardShot, HandEyeError, board_points_m, calibrate_hand_eye, check_hand_eye,
+                                      rotation_angle_deg, rotation_spread_deg, solve_ax_xb)
 from stud_perception.markers import MarkDetectorConfig, detect_marks
-from stud_perception.rotations import rpy_to_matrix
+from stud_common.rotations import rpy_to_matrix
 from stud_perception.scene import load_scene, render, view_camera
 from stud_planner.hand_eye_views import plan_calibration_views, plan_check_views
 

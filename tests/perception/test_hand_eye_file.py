@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 import yaml
 
-from stud_perception.hand_eye import HandEyeLimits, calibrate_hand_eye, rotation_angle_deg
-from stud_perception.hand_eye_file import (HandEyeFileError, calibration_record, load_hand_eye_file,
-                                           resolve_hand_eye, write_yaml)
+from stud_common.hand_eye_in_use import HandEyeLimits
+from stud_perception.hand_eye import calibrate_hand_eye, rotation_angle_deg
+from stud_common.hand_eye_in_use import HandEyeFileError, load_hand_eye_file, resolve_hand_eye
+from stud_perception.hand_eye_file import calibration_record, write_yaml
 from test_hand_eye import DRAWING, X_OFF, reachable_tool_poses, synthetic_shots
 
 
@@ -102,7 +103,7 @@ def test_unreadable_files_are_one_line_errors(tmp_path):
 
 def test_rpy_in_the_file_is_the_cells_convention(tmp_path, result):
     cal = load_hand_eye_file(_write(tmp_path, calibration_record(result)))
-    from stud_perception.rotations import rpy_to_matrix
+    from stud_common.rotations import rpy_to_matrix
 
     assert np.allclose(rpy_to_matrix(*np.radians(cal.rpy_deg)), result.T_tool_cam[:3, :3], atol=1e-7)
     assert math.isclose(np.linalg.norm(cal.summary()["quaternion_xyzw"]), 1.0, abs_tol=1e-9)

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stud_perception.strict_json import dumps, dumps_document, json_safe, write_json
+from stud_common.strict_json import dumps, dumps_document, json_safe, write_json
 
 
 def strict_loads(text: str):

@@ -16,7 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stud_perception.rotations import frame_from_normal
+from stud_common.rotations import frame_from_normal
 from stud_perception.scene import (Cylinder, Plate, Pose2D, SceneSpec, load_scene, render, surface_height,
                                    surface_normal, view_camera)
 from stud_perception.welded_studs import StudCylinder, WeldDefect, parse_weld_defects, welded_stud

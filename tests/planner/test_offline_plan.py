@@ -13,7 +13,7 @@ import pytest
 pytest.importorskip("rclpy")
 from stud_bag import BagWriter  # noqa: E402
 
-from stud_perception import ros_io  # noqa: E402
+from stud_common import ros_io  # noqa: E402
 from stud_perception.camera_node import shot_messages  # noqa: E402
 from stud_perception.scene import distort_view, load_scene, render, view_camera  # noqa: E402
 from stud_planner.offline_plan import PlanError, main, plan, read_views  # noqa: E402

@@ -8,7 +8,7 @@ import numpy as np
 from stud_welding_msgs.msg import Registration, WeldTargetArray
 
 from rosproc import REPO, Proc, ros2_run, wait_for
-from stud_perception import ros_io
+from stud_common import ros_io
 
 BAG = REPO / "bags" / "dome_demo"
 

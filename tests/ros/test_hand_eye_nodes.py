@@ -14,10 +14,11 @@ from std_srvs.srv import Trigger
 from stud_welding_msgs.msg import ArmState
 
 from rosproc import REPO, ros2_run, wait_for
-from stud_perception import ros_io
+from stud_common import ros_io
+from stud_perception import image_io
 from stud_perception.camera_node import camera_pose_from_tool
 from stud_perception.hand_eye import rotation_angle_deg
-from stud_perception.rotations import matrix_to_quaternion, rpy_to_matrix
+from stud_common.rotations import matrix_to_quaternion, rpy_to_matrix
 from stud_perception.scene import load_scene, render, view_camera
 
 SCENE_FILE = REPO / "src" / "stud_perception" / "config" / "dome_scene.json"
@@ -81,7 +82,7 @@ def test_sim_camera_renders_with_the_true_hand_eye_and_poses_with_the_calibratio
     template = view_camera((0.0, 0.0, 0.0), distance_m=1.0, yaw_rad=np.radians(90.0))
     truth = render(load_scene(SCENE_FILE), template.with_pose(R_true, t_true), seed=3, depth_noise_m=0.0)
     believed = render(load_scene(SCENE_FILE), template.with_pose(R_file, t_file), seed=3, depth_noise_m=0.0)
-    image = ros_io.color_to_bgr(colors[-1])
+    image = image_io.color_to_bgr(colors[-1])
     assert np.array_equal(image, truth.color_bgr)  # rendered with the true hand-eye ...
     assert not np.array_equal(image, believed.color_bgr)  # ... not with the one /camera/pose says
 

@@ -15,8 +15,8 @@ from stud_welding_msgs.msg import InspectionResult, ReworkDecision, StudInspecti
 from stud_welding_msgs.srv import Inspect, RecordRework
 
 from rosproc import REPO, ros2_run, wait_for
-from stud_perception import ros_io
-from stud_perception.rotations import frame_from_normal, matrix_to_quaternion
+from stud_common import ros_io
+from stud_common.rotations import frame_from_normal, matrix_to_quaternion
 from stud_perception.scene import load_scene, scene_to_dict, surface_height, surface_normal
 
 DEMO_SCENE = REPO / "src" / "stud_perception" / "config" / "shell_scene.json"

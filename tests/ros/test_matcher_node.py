@@ -10,7 +10,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from stud_welding_msgs.msg import Registration, Stud, StudLayout, WeldTargetArray
 
 from rosproc import REPO, ros2_run, wait_for
-from stud_perception import ros_io
+from stud_common import ros_io
 from stud_perception.camera_node import shot_messages
 from stud_perception.scene import load_scene, render, view_camera
 

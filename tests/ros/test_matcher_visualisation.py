@@ -11,7 +11,7 @@ from sensor_msgs.msg import CompressedImage
 from visualization_msgs.msg import Marker, MarkerArray
 
 from rosproc import ros2_run, wait_for
-from stud_perception import ros_io
+from stud_common import ros_io
 from stud_planner.target_markers import ARROW_NS, TEXT_NS, status_rgba
 from stud_planner.view_planning import STATUS_OK
 

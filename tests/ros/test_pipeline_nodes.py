@@ -11,7 +11,7 @@ from stud_welding_msgs.msg import Registration, WeldTargetArray
 from visualization_msgs.msg import MarkerArray
 
 from rosproc import REPO, ros2_run, wait_for
-from stud_perception import ros_io
+from stud_common import ros_io
 from stud_perception.scene import load_scene, render
 
 DEMO_DXF = REPO / "src" / "stud_planner" / "data" / "dome_demo.dxf"

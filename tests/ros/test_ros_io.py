@@ -13,7 +13,7 @@ _PROBE = """
 import sys
 sys.path.insert(0, {src!r})
 import numpy as np
-from stud_perception import ros_io
+from stud_common import ros_io
 ok = ros_io.keep_freed_memory() if {tune} else None
 
 def rss_mb():
@@ -28,7 +28,7 @@ print(ok, rss_mb() - before)
 
 
 def _run(tune: bool) -> tuple[str, float]:
-    code = _PROBE.format(src=str(REPO / "src" / "stud_perception"), tune=tune)
+    code = _PROBE.format(src=str(REPO / "src" / "stud_common"), tune=tune)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
     ok, kept_mb = out.stdout.split()
     return ok, float(kept_mb)
@@ -47,15 +47,16 @@ def test_color_to_bgr_takes_8_bit_images_only():
     import pytest
 
     sys.path.insert(0, str(REPO / "src" / "stud_perception"))
-    from stud_perception import ros_io
+    from stud_common import ros_io
+    from stud_perception import image_io
 
     grey = np.arange(12, dtype=np.uint8).reshape(3, 4)
-    bgr = ros_io.color_to_bgr(ros_io.numpy_to_image(grey, "mono8"))
+    bgr = image_io.color_to_bgr(image_io.numpy_to_image(grey, "mono8"))
     assert bgr.shape == (3, 4, 3) and (bgr[:, :, 2] == grey).all()
     for encoding, dtype in (("16UC1", np.uint16), ("mono16", np.uint16), ("32FC1", np.float32)):
-        msg = ros_io.numpy_to_image(grey.astype(dtype), encoding)
+        msg = image_io.numpy_to_image(grey.astype(dtype), encoding)
         with pytest.raises(ros_io.MessageError, match=f"colour image encoding '{encoding}' is not supported"):
-            ros_io.color_to_bgr(msg)
+            image_io.color_to_bgr(msg)
 
 
 def test_pose_with_a_non_finite_value_is_a_message_error():
@@ -64,7 +65,7 @@ def test_pose_with_a_non_finite_value_is_a_message_error():
     from geometry_msgs.msg import Pose
 
     sys.path.insert(0, str(REPO / "src" / "stud_perception"))
-    from stud_perception import ros_io
+    from stud_common import ros_io
 
     pose = Pose()
     pose.orientation.w = 1.0
@@ -79,27 +80,27 @@ def test_raw_images_are_rectified_and_rectified_ones_use_p():
     from geometry_msgs.msg import Pose
     from sensor_msgs.msg import CameraInfo
 
-    sys.path.insert(0, str(REPO / "src" / "stud_perception"))
-    from stud_perception import ros_io
+    from stud_common import ros_io
+    from stud_perception import image_io
 
     K = [800.0, 0.0, 320.0, 0.0, 800.0, 240.0, 0.0, 0.0, 1.0]
     P = [700.0, 0.0, 330.0, 0.0, 0.0, 700.0, 250.0, 0.0, 0.0, 0.0, 1.0, 0.0]
     info = CameraInfo(width=640, height=480, distortion_model="plumb_bob", d=[0.0] * 5, k=K, p=P)
-    assert ros_io.camera_rectifier(info) is None  # a pinhole camera: nothing to do
+    assert image_io.camera_rectifier(info) is None  # a pinhole camera: nothing to do
     info.d = [0.02, -0.11, 0.0, 0.0, 0.0]
-    rect = ros_io.camera_rectifier(info)
+    rect = image_io.camera_rectifier(info)
     assert rect is not None and rect.D.tolist() == list(info.d) and (rect.width, rect.height) == (640, 480)
-    assert "model 'plumb_bob', largest d[1] = -0.11" in ros_io.rectification_note(info)
+    assert "model 'plumb_bob', largest d[1] = -0.11" in image_io.rectification_note(info)
     pose = Pose()
     pose.orientation.w = 1.0
-    assert ros_io.camera_model_from_msgs(info, pose).K[0, 0] == 800.0  # raw images: K
+    assert image_io.camera_model_from_msgs(info, pose).K[0, 0] == 800.0  # raw images: K
     # image_rect topics: the rectified projection P, and no second rectification
-    assert ros_io.camera_rectifier(info, images_rectified=True) is None
-    assert ros_io.camera_model_from_msgs(info, pose, images_rectified=True).K.tolist() == [
+    assert image_io.camera_rectifier(info, images_rectified=True) is None
+    assert image_io.camera_model_from_msgs(info, pose, images_rectified=True).K.tolist() == [
         [700.0, 0.0, 330.0], [0.0, 700.0, 250.0], [0.0, 0.0, 1.0]]
     info.p = [0.0] * 12
     with pytest.raises(ros_io.MessageError, match=r"camera_info P has fx=0.0, fy=0.0: rectified images need"):
-        ros_io.camera_model_from_msgs(info, pose, images_rectified=True)
+        image_io.camera_model_from_msgs(info, pose, images_rectified=True)
     info.distortion_model = "kannala_brandt"
     with pytest.raises(ValueError, match=r"distortion model 'kannala_brandt' is not supported"):
-        ros_io.camera_rectifier(info)
+        image_io.camera_rectifier(info)

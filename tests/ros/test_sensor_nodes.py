@@ -11,7 +11,8 @@ from stud_welding_msgs.msg import StudLayout
 from stud_welding_msgs.srv import LoadDrawing
 
 from rosproc import REPO, ros2_run, wait_for
-from stud_perception import ros_io
+from stud_common import ros_io
+from stud_perception import image_io
 from stud_perception.scene import load_scene, render
 from stud_planner.dxf_layout import read_layout
 
@@ -63,8 +64,8 @@ def test_camera_node_publishes_one_synchronised_shot_per_trigger(ros_node, procs
     stamps = {k: ros_io.stamp_to_ns(v[0].header.stamp) for k, v in got.items()}
     assert len(set(stamps.values())) == 1, stamps
     assert got["depth"][0].encoding == "16UC1" and got["color"][0].encoding == "bgr8"
-    camera = ros_io.camera_model_from_msgs(got["info"][0], got["pose"][0].pose)
-    depth_m = ros_io.depth_to_metres(got["depth"][0])
+    camera = image_io.camera_model_from_msgs(got["info"][0], got["pose"][0].pose)
+    depth_m = image_io.depth_to_metres(got["depth"][0])
     # The published shot is the scene rendered from the published pose: depth at every stud's
     # pixel lifts (Eq. 1) to the true surface point within the mm quantisation.
     truth = render(load_scene(DEMO_SCENE), camera, depth_noise_m=0.0)

@@ -15,7 +15,7 @@ from std_srvs.srv import Trigger
 from stud_welding_msgs.msg import ArmState
 
 from rosproc import ros2_run, wait_for
-from stud_perception import ros_io
+from stud_common import ros_io
 from stud_perception.camera_model import nadir_rotation
 from stud_perception.camera_node import camera_pose_from_tool, shot_messages
 from stud_perception.scene import load_scene, render, view_camera

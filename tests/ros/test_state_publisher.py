@@ -14,7 +14,7 @@ from rosproc import ros2_run, wait_for
 from rm65_driver.kinematics import RM65Kinematics, pose_to_matrix, rotation_angle
 from rm65_driver.robot_description import JOINT_NAMES
 from rm65_driver.urdf_model import parse_urdf
-from stud_perception import frames, ros_io, tf_io
+from stud_common import frames, ros_io, tf_io
 
 
 def _matrix(t) -> np.ndarray:
@@ -88,7 +88,8 @@ def test_with_a_hand_eye_file_the_camera_frame_is_the_calibrated_one_not_the_typ
     from test_hand_eye import DRAWING, X_OFF, reachable_tool_poses, synthetic_shots
 
     from stud_perception.hand_eye import calibrate_hand_eye
-    from stud_perception.hand_eye_file import calibration_record, load_hand_eye_file, write_yaml
+    from stud_common.hand_eye_in_use import load_hand_eye_file
+    from stud_perception.hand_eye_file import calibration_record, write_yaml
 
     path = write_yaml(tmp_path / "hand_eye.yaml",
                       calibration_record(calibrate_hand_eye(synthetic_shots(X_OFF, reachable_tool_poses(), 11),

@@ -57,8 +57,8 @@ from stud_welding_msgs.action import WeldJob
 from stud_welding_msgs.msg import ArmState, WeldRecord, WeldTarget
 from stud_welding_msgs.srv import MoveTo, ResolveJournal, ResolveStud
 
-from stud_perception import hand_eye_ros, ros_io
-from stud_perception.ros_io import Param
+from stud_common import hand_eye_ros, ros_io
+from stud_common.ros_io import Param
 
 from . import protocol as P
 from .arm_client import ArmClient, ArmError
@@ -658,7 +658,7 @@ def main(args=None) -> int:
     """Init, spin on a multi-threaded executor (a weld job blocks one thread while stop services
     stay responsive), shut down cleanly on Ctrl-C."""
     rclpy.init(args=args)
-    node = None
+    node = executor = None
     code = 0
     try:
         node = DriverNode()
@@ -672,6 +672,8 @@ def main(args=None) -> int:
     finally:
         if node is not None:
             node.shutdown()
+            if executor is not None:
+                ros_io.drain_executor(executor)  # no callback still running on a destroyed node
             node.destroy_node()
         if rclpy.ok():
             rclpy.try_shutdown()

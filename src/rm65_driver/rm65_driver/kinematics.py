@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from stud_perception.rotations import rpy_to_matrix
+from stud_common.rotations import rpy_to_matrix
 
 # --------------------------------------------------------------------------------------------
 # Model data (RM65_PROTOCOL.md §4.1 / §4.2)
@@ -74,7 +74,7 @@ class DHModel:
 
 def euler_zyx_to_matrix(rx: float, ry: float, rz: float) -> np.ndarray:
     """``Rz(rz) · Ry(ry) · Rx(rx)`` (3x3) — the RealMan ``[rx, ry, rz]`` convention, which is
-    REP 103's roll-pitch-yaw (one implementation: stud_perception.rotations)."""
+    REP 103's roll-pitch-yaw (one implementation: stud_common.rotations)."""
     return rpy_to_matrix(rx, ry, rz)
 
 

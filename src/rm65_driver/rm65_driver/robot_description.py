@@ -21,8 +21,8 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from stud_perception import frames
-from stud_perception.rotations import matrix_to_rpy, rpy_to_matrix
+from stud_common import frames
+from stud_common.rotations import matrix_to_rpy, rpy_to_matrix
 
 from .kinematics import D6_BY_VARIANT, JOINT_LIMITS_DEG, JOINT_MAX_SPEED_DEG_S, DHModel
 

@@ -24,8 +24,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from stud_welding_msgs.msg import Registration
 
-from stud_perception import frames, hand_eye_ros, ros_io, tf_io
-from stud_perception.ros_io import Param
+from stud_common import frames, hand_eye_ros, ros_io, tf_io
+from stud_common.ros_io import Param
 
 from .kinematics import D6_BY_VARIANT
 from .robot_description import RM65Description, rm65_urdf

@@ -16,7 +16,7 @@ from typing import Mapping
 
 import numpy as np
 
-from stud_perception.rotations import rpy_to_matrix
+from stud_common.rotations import rpy_to_matrix
 
 MOVING_TYPES = ("revolute", "continuous", "prismatic")
 JOINT_TYPES = MOVING_TYPES + ("fixed",)

@@ -27,11 +27,12 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import Trigger
 
-from stud_perception import hand_eye_ros, ros_io
+from stud_common import hand_eye_ros, ros_io
+from stud_perception import image_io
 from stud_perception.camera_model import CameraModel
 from stud_perception.rectify import FISHEYE_MODELS, PINHOLE_MODELS, has_distortion
-from stud_perception.ros_io import Param
-from stud_perception.rotations import rpy_to_matrix
+from stud_common.ros_io import Param
+from stud_common.rotations import rpy_to_matrix
 from stud_perception.scene import (DEMO_FOV_DISTANCE_M, DEMO_FOV_WIDTH_M, DEMO_IMAGE_SIZE, SceneError, distort_view,
                                    demo_dome_scene, load_scene, render, view_camera)
 from stud_perception.welded_studs import StudCylinder, welded_stud
@@ -118,10 +119,10 @@ def shot_messages(view, depth_encoding: str, stamp, noise_m: float = 0.0, seed: 
     pose.header.stamp, pose.header.frame_id = stamp, "world"
     pose.pose = ros_io.rt_to_pose(posed.R_wc, posed.t_wc)
     return {
-        "color": ros_io.numpy_to_image(view.color_bgr, "bgr8", stamp, OPTICAL_FRAME),
-        "depth": ros_io.numpy_to_image(depth_image(view, depth_encoding, noise_m, seed), depth_encoding, stamp,
+        "color": image_io.numpy_to_image(view.color_bgr, "bgr8", stamp, OPTICAL_FRAME),
+        "depth": image_io.numpy_to_image(depth_image(view, depth_encoding, noise_m, seed), depth_encoding, stamp,
                                        OPTICAL_FRAME),
-        "info": ros_io.camera_info_from_model(camera, stamp, OPTICAL_FRAME, view.distortion_d, view.distortion_model),
+        "info": image_io.camera_info_from_model(camera, stamp, OPTICAL_FRAME, view.distortion_d, view.distortion_model),
         "pose": pose,
     }
 

@@ -27,59 +27,21 @@ is fitted, ``X`` is held): the daily verification.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from stud_perception.rotations import matrix_to_quaternion, matrix_to_rpy, rpy_to_matrix
+from stud_common.hand_eye_in_use import HandEyeLimits
+from stud_common.rotations import matrix_to_quaternion, matrix_to_rpy, rigid_inverse, transform
 
-__all__ = ["HandEyeError", "HandEyeLimits", "BoardShot", "MarkCheck", "HandEyeResult", "HandEyeCheck",
+__all__ = ["HandEyeError", "BoardShot", "MarkCheck", "HandEyeResult", "HandEyeCheck",
            "board_points_m", "board_pose_from_marks", "check_marks", "rotation_spread_deg", "pose_set_problems",
-           "solve_ax_xb", "calibrate_hand_eye", "check_hand_eye", "rebase_camera_pose", "transform",
-           "transform_xyz_rpy", "rotation_angle_deg", "METHODS"]
+           "solve_ax_xb", "calibrate_hand_eye", "check_hand_eye", "rebase_camera_pose",
+           "rotation_angle_deg", "METHODS"]
 
 
 class HandEyeError(ValueError):
     """Shots from which no hand-eye transform can be computed at all (the message says why)."""
-
-
-@dataclass(frozen=True)
-class HandEyeLimits:
-    """What a calibration must meet to be used (and what ``verify`` checks).
-
-    ``min_poses``: usable shots. ``min_rotation_spread_deg``: the poses' orientations must span
-    at least this about each of two axes (:func:`rotation_spread_deg`; rotations about one axis
-    leave part of ``X`` undetermined). ``max_rms_mm`` / ``max_shot_mm``: RMS over shots and the
-    worst shot of the marks' residual (each shot: RMS of its three marks). ``max_rms_deg`` /
-    ``max_shot_deg``: the same for the board orientation. ``mark_distance_tol_mm`` /
-    ``mark_angle_tol_deg``: a shot's measured |OA|, |OB| and angle AOB against the drawing's.
-    ``max_reprojection_px``: above it the intrinsics need attention (a warning, not a refusal).
-    ``methods_agree_mm`` / ``methods_agree_deg``: closed-form methods within this of the refined
-    result agree (reported, not a refusal).
-    """
-
-    min_poses: int = 12
-    min_rotation_spread_deg: float = 30.0
-    max_rms_mm: float = 0.5
-    max_shot_mm: float = 1.0
-    max_rms_deg: float = 0.2
-    max_shot_deg: float = 0.5
-    mark_distance_tol_mm: float = 1.5
-    mark_angle_tol_deg: float = 1.0
-    max_reprojection_px: float = 0.5
-    methods_agree_mm: float = 2.0
-    methods_agree_deg: float = 0.3
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
-                raise ValueError(f"hand-eye limit {f.name} must be a positive number, got {value!r}")
-        if self.min_poses < 3:
-            raise ValueError(f"hand-eye limit min_poses must be at least 3, got {self.min_poses}")
-
-    def as_dict(self) -> dict:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
 @dataclass(frozen=True, eq=False)
@@ -110,34 +72,12 @@ class BoardShot:
 
 
 # -- small geometry ---------------------------------------------------------------------------------
-def transform(R: np.ndarray, t) -> np.ndarray:
-    """4x4 from a rotation (3, 3) and a translation (3,)."""
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, np.asarray(t, dtype=np.float64).reshape(3)
-    return T
-
-
-def transform_xyz_rpy(xyz_m, rpy_deg) -> np.ndarray:
-    """4x4 from a translation (m) and roll-pitch-yaw (deg, R = Rz Ry Rx): the cell's hand-eye form."""
-    return transform(rpy_to_matrix(*np.radians(np.asarray(rpy_deg, dtype=np.float64))), xyz_m)
-
-
 def rebase_camera_pose(T_world_cam: np.ndarray, T_tool_cam_recorded: np.ndarray,
                        T_tool_cam_in_use: np.ndarray) -> np.ndarray:
     """A camera pose made with one hand-eye, re-made with another: the tool pose it came from
     (``T_world_cam @ inv(T_tool_cam_recorded)``) times the hand-eye in use. All 4x4 rigid transforms."""
-    return np.asarray(T_world_cam, dtype=np.float64) @ _inv(np.asarray(T_tool_cam_recorded, dtype=np.float64)) \
+    return np.asarray(T_world_cam, dtype=np.float64) @ rigid_inverse(np.asarray(T_tool_cam_recorded, dtype=np.float64)) \
         @ np.asarray(T_tool_cam_in_use, dtype=np.float64)
-
-
-def _inv(T: np.ndarray) -> np.ndarray:
-    """Inverse of rigid transforms (..., 4, 4)."""
-    R = np.swapaxes(T[..., :3, :3], -1, -2)
-    out = np.zeros(T.shape)
-    out[..., :3, :3] = R
-    out[..., :3, 3] = -np.einsum("...ij,...j->...i", R, T[..., :3, 3])
-    out[..., 3, 3] = 1.0
-    return out
 
 
 def _log(R: np.ndarray) -> np.ndarray:
@@ -278,8 +218,8 @@ def _motion_pairs(T_world_tool: np.ndarray, T_cam_board: np.ndarray, min_angle_d
     """(A, B) motions (M, 4, 4) of every pair of shots whose tool rotates by at least ``min_angle_deg``."""
     n = len(T_world_tool)
     i, j = np.triu_indices(n, k=1)
-    A = _inv(T_world_tool[i]) @ T_world_tool[j]
-    B = T_cam_board[i] @ _inv(T_cam_board[j])
+    A = rigid_inverse(T_world_tool[i]) @ T_world_tool[j]
+    B = T_cam_board[i] @ rigid_inverse(T_cam_board[j])
     keep = np.linalg.norm(_log(A[:, :3, :3]), axis=1) > math.radians(min_angle_deg)
     if keep.sum() < 2:
         raise HandEyeError("fewer than two motions between the shots rotate the tool: the hand-eye "
@@ -386,7 +326,7 @@ def solve_ax_xb(T_world_tool: np.ndarray, T_cam_board: np.ndarray) -> dict[str, 
 # -- least squares on the marks --------------------------------------------------------------------------
 def _predict(X: np.ndarray, T_world_board: np.ndarray, T_world_tool: np.ndarray, board_pts: np.ndarray):
     """Marks predicted in ``cam`` (N, 3, 3) and the predicted ``T_cam_board`` (N, 4, 4)."""
-    T_cam_board = _inv(T_world_tool @ X) @ T_world_board
+    T_cam_board = rigid_inverse(T_world_tool @ X) @ T_world_board
     P = np.einsum("nij,kj->nki", T_cam_board[:, :3, :3], board_pts) + T_cam_board[:, None, :3, 3]
     return P, T_cam_board
 

@@ -1,4 +1,4 @@
-"""The hand-eye calibration file (``hand_eye.yaml``): writing it, and the one loader every node uses.
+"""The hand-eye calibration file (``hand_eye.yaml``): writing it (reading it: stud_common.hand_eye_in_use).
 
 ``hand_eye_calibrator`` writes it; the camera, shot and arm-driver nodes read it when their
 ``hand_eye_file`` parameter is set (``--var hand_eye_file=PATH``) instead of the typed
@@ -19,70 +19,22 @@ weld-tool frame (``T_tool_cam``), metres and degrees, roll-pitch-yaw as everywhe
     methods_agree: true
     problems: []   warnings: []   limits: {...}   shots: [...]
 
-A file is refused (:class:`HandEyeFileError`, one line naming the file, the field and the value)
-when it cannot be read, misses a field, its rotation forms disagree, it was not accepted, or its
-residuals or pose spread are beyond the reader's :class:`~stud_perception.hand_eye.HandEyeLimits`.
+Reading it, and refusing a file that must not be used, is :mod:`stud_common.hand_eye_in_use`.
 """
 from __future__ import annotations
 
 import datetime as _dt
 import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
 
-from stud_perception.hand_eye import HandEyeCheck, HandEyeLimits, HandEyeResult, transform
-from stud_perception.rotations import matrix_to_quaternion, matrix_to_rpy, quaternion_to_matrix, rpy_to_matrix
+from stud_common.hand_eye_in_use import CHILD_FRAME, FORMAT, FRAME, HandEyeInUse
+from stud_perception.hand_eye import HandEyeCheck, HandEyeResult
+from stud_common.rotations import matrix_to_quaternion, matrix_to_rpy
 
-FORMAT = "stud_welding/hand_eye 1"
-FRAME = "weld_tool"
-CHILD_FRAME = "camera_color_optical_frame"
-
-
-class HandEyeFileError(ValueError):
-    """A calibration file that cannot be used: the message names the file, the field and the value."""
-
-
-@dataclass(frozen=True)
-class HandEyeInUse:
-    """The hand-eye transform a node uses, and where it comes from.
-
-    ``xyz_m`` (3,) and ``rpy_deg`` (3,): the optical frame in the weld-tool frame. ``source``:
-    ``"parameters"`` (the typed values) or ``"file"``; ``path``, ``date`` and the residual figures
-    only for a file (NaN otherwise)."""
-
-    xyz_m: tuple[float, float, float]
-    rpy_deg: tuple[float, float, float]
-    source: str = "parameters"
-    path: str = ""
-    date: str = ""
-    position_rms_mm: float = float("nan")
-    position_max_mm: float = float("nan")
-    rotation_rms_deg: float = float("nan")
-    rotation_max_deg: float = float("nan")
-    poses_used: int = 0
-    rotation_spread_deg: tuple[float, ...] = ()
-    reprojection_rms_px: float = float("nan")
-
-    @property
-    def T_tool_cam(self) -> np.ndarray:
-        return transform(rpy_to_matrix(*np.radians(self.rpy_deg)), self.xyz_m)
-
-    def summary(self) -> dict:
-        """Plain data for /calibration/hand_eye (JSON): NaN figures become null."""
-        def num(v):
-            return None if isinstance(v, float) and not math.isfinite(v) else v
-
-        return {"source": self.source, "path": self.path, "date": self.date or None,
-                "xyz_m": list(self.xyz_m), "rpy_deg": list(self.rpy_deg),
-                "quaternion_xyzw": [float(v) for v in matrix_to_quaternion(rpy_to_matrix(*np.radians(self.rpy_deg)))],
-                "position_rms_mm": num(self.position_rms_mm), "position_max_mm": num(self.position_max_mm),
-                "rotation_rms_deg": num(self.rotation_rms_deg), "rotation_max_deg": num(self.rotation_max_deg),
-                "poses_used": self.poses_used, "rotation_spread_deg": list(self.rotation_spread_deg),
-                "reprojection_rms_px": num(self.reprojection_rms_px)}
 
 
 # -- writing ----------------------------------------------------------------------------------------
@@ -163,109 +115,3 @@ def write_yaml(path: str | Path, record: dict, header: str) -> Path:
                    yaml.safe_dump(record, sort_keys=False, default_flow_style=None, width=110))
     tmp.replace(path)
     return path
-
-
-# -- reading ------------------------------------------------------------------------------------------
-def _field(data: dict, dotted: str, path: Path) -> Any:
-    node: Any = data
-    for key in dotted.split("."):
-        if not isinstance(node, dict) or key not in node:
-            raise HandEyeFileError(f"{path}: missing field {dotted}")
-        node = node[key]
-    return node
-
-
-def _vector(data: dict, dotted: str, n: int, path: Path) -> np.ndarray:
-    value = _field(data, dotted, path)
-    try:
-        arr = np.asarray(value, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        arr = np.zeros(0)
-    if arr.shape != (n,) or not np.isfinite(arr).all():
-        raise HandEyeFileError(f"{path}: {dotted} must be {n} finite numbers, got {value!r}")
-    return arr
-
-
-def _number(data: dict, dotted: str, path: Path) -> float:
-    value = _field(data, dotted, path)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise HandEyeFileError(f"{path}: {dotted} must be a finite number, got {value!r}")
-    return float(value)
-
-
-def load_hand_eye_file(path: str | Path, limits: HandEyeLimits = HandEyeLimits()) -> HandEyeInUse:
-    """Read and check a calibration file; :class:`HandEyeFileError` says why it cannot be used."""
-    path = Path(path).expanduser()
-    try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise HandEyeFileError(f"{path}: cannot read the calibration file: {exc.strerror or exc}") from None
-    except yaml.YAMLError as exc:
-        raise HandEyeFileError(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from None
-    if not isinstance(data, dict):
-        raise HandEyeFileError(f"{path}: not a calibration file (a mapping with format: {FORMAT!r} expected)")
-    if data.get("format") != FORMAT:
-        raise HandEyeFileError(f"{path}: format is {data.get('format')!r}, expected {FORMAT!r}")
-    for key, want in (("hand_eye.frame", FRAME), ("hand_eye.child_frame", CHILD_FRAME)):
-        if _field(data, key, path) != want:
-            raise HandEyeFileError(f"{path}: {key} is {_field(data, key, path)!r}, expected {want!r}")
-    xyz = _vector(data, "hand_eye.xyz_m", 3, path)
-    rpy = _vector(data, "hand_eye.rpy_deg", 3, path)
-    q = _vector(data, "hand_eye.quaternion_xyzw", 4, path)
-    if abs(np.linalg.norm(q) - 1.0) > 1e-3:
-        raise HandEyeFileError(f"{path}: hand_eye.quaternion_xyzw {q.tolist()} is not a unit quaternion")
-    R_rpy, R_q = rpy_to_matrix(*np.radians(rpy)), quaternion_to_matrix(*q)
-    if math.degrees(math.acos(np.clip((np.trace(R_rpy.T @ R_q) - 1) / 2, -1, 1))) > 1e-3:
-        raise HandEyeFileError(f"{path}: hand_eye.rpy_deg {rpy.tolist()} and quaternion_xyzw {q.tolist()} "
-                               "are different rotations (edited by hand?)")
-    if _field(data, "accepted", path) is not True:
-        problems = data.get("problems") or []
-        raise HandEyeFileError(f"{path}: accepted is {data.get('accepted')!r}: the calibration was refused"
-                               + (f" ({problems[0]})" if problems else ""))
-    date = _field(data, "date", path)
-    figures = {k: _number(data, f"residuals.{k}", path)
-               for k in ("position_rms_mm", "position_max_mm", "rotation_rms_deg", "rotation_max_deg")}
-    used = _field(data, "poses.used", path)
-    if isinstance(used, bool) or not isinstance(used, int):
-        raise HandEyeFileError(f"{path}: poses.used must be a whole number, got {used!r}")
-    spread = _vector(data, "poses.rotation_spread_deg", 3, path)
-    reproj = data.get("residuals", {}).get("reprojection_rms_px")
-    in_use = HandEyeInUse(
-        xyz_m=tuple(float(v) for v in xyz), rpy_deg=tuple(float(v) for v in np.degrees(matrix_to_rpy(R_q))),
-        source="file", path=str(path.resolve()), date=str(date), poses_used=used,
-        rotation_spread_deg=tuple(float(v) for v in spread),
-        reprojection_rms_px=float(reproj) if isinstance(reproj, (int, float)) else float("nan"), **figures)
-    problems = limit_problems(in_use, limits)
-    if problems:
-        raise HandEyeFileError(f"{path}: refused: {problems[0]}" + (f" (and {len(problems) - 1} more)"
-                                                                     if len(problems) > 1 else ""))
-    return in_use
-
-
-def limit_problems(cal: HandEyeInUse, limits: HandEyeLimits) -> list[str]:
-    """A calibration's recorded figures against ``limits`` (empty: within them)."""
-    problems = []
-    if cal.poses_used < limits.min_poses:
-        problems.append(f"poses.used {cal.poses_used}: too few poses, need at least {limits.min_poses}")
-    spread = sorted(cal.rotation_spread_deg, reverse=True) + [0.0, 0.0]
-    if spread[0] < limits.min_rotation_spread_deg:
-        problems.append(f"poses.rotation_spread_deg {list(cal.rotation_spread_deg)}: rotations too small, need "
-                        f"{limits.min_rotation_spread_deg:g} deg about two axes")
-    elif spread[1] < limits.min_rotation_spread_deg:
-        problems.append(f"poses.rotation_spread_deg {list(cal.rotation_spread_deg)}: rotations about one axis "
-                        f"only, need {limits.min_rotation_spread_deg:g} deg about two axes")
-    for name, value, limit, unit in (("position_rms_mm", cal.position_rms_mm, limits.max_rms_mm, "mm"),
-                                     ("position_max_mm", cal.position_max_mm, limits.max_shot_mm, "mm"),
-                                     ("rotation_rms_deg", cal.rotation_rms_deg, limits.max_rms_deg, "deg"),
-                                     ("rotation_max_deg", cal.rotation_max_deg, limits.max_shot_deg, "deg")):
-        if value > limit:
-            problems.append(f"residuals.{name} {value:g} {unit} exceeds the limit {limit:g} {unit}")
-    return problems
-
-
-def resolve_hand_eye(hand_eye_file: str, xyz_m, rpy_deg, limits: HandEyeLimits = HandEyeLimits()) -> HandEyeInUse:
-    """The hand-eye a node uses: the calibration file when one is given, else the typed values.
-    The one place that decides (camera, shot and driver nodes all call it)."""
-    if hand_eye_file:
-        return load_hand_eye_file(hand_eye_file, limits)
-    return HandEyeInUse(xyz_m=tuple(float(v) for v in xyz_m), rpy_deg=tuple(float(v) for v in rpy_deg))

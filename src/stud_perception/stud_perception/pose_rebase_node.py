@@ -17,9 +17,10 @@ from __future__ import annotations
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 
-from stud_perception import hand_eye_ros, ros_io
-from stud_perception.hand_eye import rebase_camera_pose, transform, transform_xyz_rpy
-from stud_perception.ros_io import Param
+from stud_common import hand_eye_ros, ros_io
+from stud_common.rotations import transform, transform_xyz_rpy
+from stud_perception.hand_eye import rebase_camera_pose
+from stud_common.ros_io import Param
 
 
 def _three(name: str):

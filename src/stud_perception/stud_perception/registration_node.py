@@ -21,9 +21,10 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import Trigger
 from stud_welding_msgs.msg import Registration, StudLayout
 
-from stud_perception import ros_io
+from stud_common import ros_io
+from stud_perception import image_io
 from stud_perception.markers import MarkDetectorConfig
-from stud_perception.ros_io import Param
+from stud_common.ros_io import Param
 from stud_perception.view_registration import config_for_layout, draw_registration_overlay, register_view
 
 PARAMS = [
@@ -36,7 +37,7 @@ PARAMS = [
     Param("min_contrast", 40.0, "least grey-level difference between a mark and its surround", min=1.0, max=255.0),
     Param("sync_slop_s", 0.0, "stamps closer than this belong to one view [s] (0: equal stamps)", min=0.0, max=1.0),
     Param("publish_overlay", True, "publish /registration/overlay"),
-    ros_io.IMAGES_RECTIFIED_PARAM,
+    image_io.IMAGES_RECTIFIED_PARAM,
 ]
 
 
@@ -85,12 +86,12 @@ class RegistrationNode(Node):
             return
         stamp = view["color"].header.stamp
         try:
-            camera = ros_io.camera_model_from_msgs(view["info"], view["pose"].pose, self.p["images_rectified"])
-            rectifier = ros_io.camera_rectifier(view["info"], self.p["images_rectified"])
+            camera = image_io.camera_model_from_msgs(view["info"], view["pose"].pose, self.p["images_rectified"])
+            rectifier = image_io.camera_rectifier(view["info"], self.p["images_rectified"])
             if rectifier is not None:
-                self.get_logger().info(ros_io.rectification_note(view["info"]), once=True)
-            color = ros_io.color_to_bgr(view["color"], rectifier)
-            depth = ros_io.depth_to_metres(view["depth"], rectifier)
+                self.get_logger().info(image_io.rectification_note(view["info"]), once=True)
+            color = image_io.color_to_bgr(view["color"], rectifier)
+            depth = image_io.depth_to_metres(view["depth"], rectifier)
         except (ros_io.MessageError, ValueError) as exc:
             self._publish_invalid(stamp, f"unusable view: {exc}")
             return
@@ -104,7 +105,7 @@ class RegistrationNode(Node):
             self._publish_invalid(stamp, f"unusable view: {exc}")
             return
         if self.p["publish_overlay"]:
-            self.pub_overlay.publish(ros_io.numpy_to_image(draw_registration_overlay(color, result, camera), "bgr8",
+            self.pub_overlay.publish(image_io.numpy_to_image(draw_registration_overlay(color, result, camera), "bgr8",
                                                            stamp, view["color"].header.frame_id))
         if not result.ok:
             self._publish_invalid(stamp, result.message)

@@ -12,7 +12,7 @@ field)::
 
 - ``lean_deg`` / ``lean_azimuth_deg``: the stud leans this far from the gun's axis, toward this
   azimuth in the weld point's tangent frame (x = world X projected onto the tangent plane, y =
-  normal x x: stud_perception.rotations.frame_from_normal);
+  normal x x: stud_common.rotations.frame_from_normal);
 - ``offset_mm``: its base lies this far from the weld point, (x, y) in that tangent frame;
 - ``missing``: no stud stands there (the arc failed, or it fell off);
 - ``height_mm``: it stands this tall instead of the scene's ``stud_length_mm`` (burn-off gone wrong).
@@ -28,7 +28,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from stud_perception.rotations import frame_from_normal
+from stud_common.rotations import frame_from_normal
 
 #: An M16x150 shear stud, as welded.
 DEFAULT_STUD_LENGTH_M = 0.150

@@ -30,16 +30,18 @@ from typing import Protocol
 
 import numpy as np
 
+from stud_common.vocabulary import CellState
 from stud_perception.registration import local_to_world
-from stud_perception.strict_json import write_json
+from stud_common.strict_json import write_json
 from stud_planner import qa_report
 from stud_planner.inspection import InspectionLimits
 from stud_planner.view_planning import STATUS_TEXT, VIEW_DEPENDENT_STATUSES
 from stud_planner.station_planning import footprint_m, plan_stations, reshoot_station
 
-#: Job states, as CellStatus names them (state_text).
+#: Job states (CellStatus state_text): stud_common.vocabulary's, by name.
 IDLE, REGISTERING, MOVING, SHOOTING, MATCHING, WELDING, INSPECTING, PAUSED, DONE, FAILED = (
-    "idle", "registering", "moving", "shooting", "matching", "welding", "inspecting", "paused", "done", "failed")
+    s.text for s in (CellState.IDLE, CellState.REGISTERING, CellState.MOVING, CellState.SHOOTING, CellState.MATCHING,
+                     CellState.WELDING, CellState.INSPECTING, CellState.PAUSED, CellState.DONE, CellState.FAILED))
 
 
 class JobAborted(Exception):

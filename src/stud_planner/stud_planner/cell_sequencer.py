@@ -36,9 +36,10 @@ from stud_welding_msgs.action import WeldJob
 from stud_welding_msgs.msg import ArmState, CellStatus, Registration, StudLayout, WeldTargetArray
 from stud_welding_msgs.srv import Inspect, MoveTo
 
-from stud_perception import ros_io
+from stud_common import ros_io
 from stud_perception.camera_model import nadir_rotation
-from stud_perception.ros_io import Param
+from stud_common.ros_io import Param
+from stud_common.vocabulary import CellState
 from stud_planner import cell_job
 from stud_planner.cell_job import DriverLost, InspectionUnavailable, JobAborted, MoveRefused
 from stud_planner.msg_convert import (inspection_extras, inspection_rows, layout_from_msg, registration_from_msg,
@@ -85,11 +86,7 @@ PARAMS = [
     Param("part_name", "", "the part's name, for the QA record"),
 ]
 
-STATE_TEXT = {CellStatus.STATE_IDLE: "idle", CellStatus.STATE_REGISTERING: "registering",
-              CellStatus.STATE_MOVING: "moving", CellStatus.STATE_SHOOTING: "shooting",
-              CellStatus.STATE_MATCHING: "matching", CellStatus.STATE_WELDING: "welding",
-              CellStatus.STATE_PAUSED: "paused", CellStatus.STATE_DONE: "done", CellStatus.STATE_FAILED: "failed",
-              CellStatus.STATE_INSPECTING: "inspecting"}
+STATE_TEXT = {int(s): s.text for s in CellState}  # CellStatus.STATE_* (tests: the same constants)
 STATE_OF_TEXT = {text: state for state, text in STATE_TEXT.items()}
 
 
@@ -458,6 +455,7 @@ def main(args=None) -> int:
         pass
     finally:
         node._stop.set()
+        ros_io.drain_executor(executor)
         node.destroy_node()
         rclpy.try_shutdown()
     return 0 if node.exit_code in (None, 0) else node.exit_code

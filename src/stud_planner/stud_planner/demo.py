@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from stud_perception.scene import load_scene, surface_height, surface_normal
-from stud_perception.strict_json import write_json
+from stud_common.strict_json import write_json
 
 
 def share_file(package: str, relative: str) -> Path:
@@ -98,7 +98,7 @@ def export_overlays(bag_dir: Path, out_dir: Path) -> int:
     import cv2
     from stud_bag import open_bag
 
-    from stud_perception import ros_io
+    from stud_perception import image_io
 
     if not bag_dir.exists():
         return 0
@@ -107,7 +107,7 @@ def export_overlays(bag_dir: Path, out_dir: Path) -> int:
     with open_bag(bag_dir) as bag:
         for item in bag.messages(["/weld_targets/overlay"]):
             n += 1
-            cv2.imwrite(str(out_dir / f"overlay_{n:02d}.png"), ros_io.color_to_bgr(item.message()))
+            cv2.imwrite(str(out_dir / f"overlay_{n:02d}.png"), image_io.color_to_bgr(item.message()))
     return n
 
 

@@ -19,7 +19,7 @@ from typing import Sequence
 
 import numpy as np
 
-from stud_perception.strict_json import write_json
+from stud_common.strict_json import write_json
 
 from .dxf_layout import DrawingError, StudLayout, read_layout, units_to_metres
 

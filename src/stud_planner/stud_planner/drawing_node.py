@@ -14,8 +14,8 @@ from rclpy.node import Node
 from stud_welding_msgs.msg import StudLayout
 from stud_welding_msgs.srv import LoadDrawing
 
-from stud_perception import ros_io
-from stud_perception.ros_io import Param
+from stud_common import ros_io
+from stud_common.ros_io import Param
 from stud_planner import dxf_layout
 from stud_planner.msg_convert import layout_poses, layout_to_msg
 

@@ -34,13 +34,15 @@ from std_srvs.srv import Trigger
 from stud_welding_msgs.msg import ArmState, StudLayout
 from stud_welding_msgs.srv import MoveTo
 
-from stud_perception import hand_eye_ros, ros_io
+from stud_common import hand_eye_ros, ros_io
+from stud_perception import image_io
+from stud_common.rotations import transform
 from stud_perception.hand_eye import (BoardShot, HandEyeError, board_points_m, board_pose_from_marks,
-                                      calibrate_hand_eye, check_hand_eye, rotation_angle_deg, transform)
+                                      calibrate_hand_eye, check_hand_eye, rotation_angle_deg)
 from stud_perception.hand_eye_file import calibration_record, check_record, write_yaml
 from stud_perception.markers import MarkDetectorConfig, detect_marks
 from stud_perception.registration_node import layout_marks_m
-from stud_perception.ros_io import Param
+from stud_common.ros_io import Param
 from stud_perception.view_registration import config_for_layout
 from stud_planner.hand_eye_views import (CalibrationView, ViewPlanError, plan_calibration_views, plan_check_views,
                                          station_view)
@@ -78,7 +80,7 @@ PARAMS = [
     Param("depth_max_m", 1.2, "mark detection: farthest camera-to-board distance searched [m]", min=0.1, max=10.0),
     Param("min_contrast", 40.0, "mark detection: least grey-level difference of a mark", min=1.0, max=255.0),
     Param("sync_slop_s", 0.0, "stamps closer than this belong to one view [s] (0: equal stamps)", min=0.0, max=1.0),
-    ros_io.IMAGES_RECTIFIED_PARAM,
+    image_io.IMAGES_RECTIFIED_PARAM,
     *hand_eye_ros.PARAMS,
 ]
 
@@ -191,10 +193,10 @@ class HandEyeCalibrator(Node):
         view = self._wait_for(lambda: self.view if self.view is not None and
                               ros_io.stamp_to_ns(self.view["color"].header.stamp) >= t0 else None, "frame of the shot")
         try:
-            camera = ros_io.camera_model_from_msgs(view["info"], view["pose"].pose, self.p["images_rectified"])
-            rectifier = ros_io.camera_rectifier(view["info"], self.p["images_rectified"])
-            color = ros_io.color_to_bgr(view["color"], rectifier)
-            depth = ros_io.depth_to_metres(view["depth"], rectifier)
+            camera = image_io.camera_model_from_msgs(view["info"], view["pose"].pose, self.p["images_rectified"])
+            rectifier = image_io.camera_rectifier(view["info"], self.p["images_rectified"])
+            color = image_io.color_to_bgr(view["color"], rectifier)
+            depth = image_io.depth_to_metres(view["depth"], rectifier)
             det = detect_marks(color, depth, camera, drawing_marks, config)
         except (ros_io.MessageError, ValueError) as exc:
             return None, f"unusable frame: {exc}"
@@ -330,7 +332,7 @@ class HandEyeCalibrator(Node):
 
 def main(args=None) -> int:
     rclpy.init(args=args)
-    node = None
+    node = executor = None
     code = 0
     try:
         node = HandEyeCalibrator()
@@ -348,6 +350,8 @@ def main(args=None) -> int:
     finally:
         if node is not None:
             node.shutdown()
+            if executor is not None:
+                ros_io.drain_executor(executor)  # no callback still running on a destroyed node
             node.destroy_node()
         rclpy.try_shutdown()
     return code

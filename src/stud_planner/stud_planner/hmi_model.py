@@ -19,6 +19,7 @@ import os
 from dataclasses import dataclass
 from typing import Iterable
 
+from stud_common.vocabulary import ArmMode, CellState
 from stud_planner.rework import NEEDS_DECISION
 
 #: Weld states of a stud, as sent in the rows' ``weld`` field.
@@ -201,26 +202,7 @@ class StudTable:
 
 
 
-# -- one vocabulary for the cell's and the arm's states (tests check them against the messages) ------
-class CellState(enum.IntEnum):
-    """CellStatus.STATE_* (the cell sequencer's job)."""
-
-    IDLE = 0
-    REGISTERING = 1
-    MOVING = 2
-    SHOOTING = 3
-    MATCHING = 4
-    WELDING = 5
-    PAUSED = 6
-    DONE = 7
-    FAILED = 8
-    INSPECTING = 9      # a station shot again after its welds, its studs judged
-
-    @property
-    def text(self) -> str:
-        return self.name.lower()
-
-
+# -- the cell's and the arm's states: stud_common.vocabulary (tests check them against the messages) ---
 #: A job is under way in these states (PAUSED is under way too, but does not move).
 RUNNING_STATES = frozenset({CellState.REGISTERING, CellState.MOVING, CellState.SHOOTING, CellState.MATCHING,
                             CellState.WELDING, CellState.INSPECTING})
@@ -228,22 +210,6 @@ RUNNING_STATES = frozenset({CellState.REGISTERING, CellState.MOVING, CellState.S
 ENDED_STATES = frozenset({CellState.IDLE, CellState.DONE, CellState.FAILED})
 #: The sequencer ends a job the operator stopped in FAILED with this message: not an alarm.
 OPERATOR_STOP_TEXT = "stopped by the operator"
-
-
-class ArmMode(enum.IntEnum):
-    """ArmState.MODE_* (the RM-65 driver)."""
-
-    IDLE = 0
-    MOVING = 1
-    WELDING = 2
-    PAUSED = 3
-    FAULT = 4
-    ESTOP = 5
-    DISCONNECTED = 6
-
-    @property
-    def text(self) -> str:
-        return self.name.lower()
 
 
 def _enum_or_int(enum_type, value: int):

@@ -50,8 +50,9 @@ from stud_welding_msgs.msg import (ArmState, CellStatus, InspectionResult, Regis
                                    WeldTargetArray)
 from stud_welding_msgs.srv import RecordRework, ResolveStud
 
-from stud_perception import hand_eye_ros, ros_io
-from stud_perception.ros_io import Param
+from stud_common import hand_eye_ros, ros_io
+from stud_perception import image_io
+from stud_common.ros_io import Param
 from stud_planner.hmi_model import STUD_DECISIONS, ArmInfo, ArmMode, CellInfo, CellView, TargetInfo, Timeouts
 from stud_planner.inspection_node import REWORK_QOS
 from stud_planner.hmi_server import HmiServer, WebSocketConnection, default_static_dir
@@ -348,7 +349,7 @@ class HmiNode(Node):
             return  # (kept: the first browser to connect gets it)
         self._overlay = None
         try:
-            bgr = ros_io.color_to_bgr(msg)
+            bgr = image_io.color_to_bgr(msg)
         except ros_io.MessageError as exc:
             self.get_logger().warn(f"/weld_targets/overlay: {exc}", throttle_duration_sec=10.0)
             self.diag.set(self.diag.WARN, f"overlay not shown: {exc}")

@@ -51,7 +51,7 @@ from pathlib import Path
 from typing import Any, Callable
 from urllib.parse import parse_qs, urlsplit
 
-from stud_perception.strict_json import dumps, json_safe
+from stud_common.strict_json import dumps, json_safe
 
 __all__ = ["HmiServer", "WebSocketConnection", "WebSocketError", "json_safe", "to_json", "json_depth"]
 _log = logging.getLogger(__name__)
@@ -79,7 +79,7 @@ class WebSocketError(Exception):
 # -- JSON -----------------------------------------------------------------------------------------
 def to_json(obj: Any) -> str:
     """Strict, compact JSON text (no NaN tokens, which browsers' JSON.parse rejects):
-    :func:`stud_perception.strict_json.dumps`."""
+    :func:`stud_common.strict_json.dumps`."""
     return dumps(obj, compact=True)
 
 

@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 
 from stud_perception.camera_model import CameraModel
-from stud_perception.rotations import frame_from_normal
+from stud_common.rotations import frame_from_normal
 
 
 class Verdict(str, enum.Enum):

@@ -30,8 +30,9 @@ from sensor_msgs.msg import CameraInfo, Image
 from stud_welding_msgs.msg import InspectionResult, ReworkDecision, StudInspection
 from stud_welding_msgs.srv import Inspect, RecordRework
 
-from stud_perception import ros_io
-from stud_perception.ros_io import Param
+from stud_common import ros_io
+from stud_perception import image_io
+from stud_common.ros_io import Param
 from stud_planner import rework
 from stud_planner.inspection import InspectionLimits, Verdict, draw_inspection_overlay, inspect_studs
 
@@ -52,7 +53,7 @@ PARAMS = [
     Param("view_cache", 8, "views kept for inspections to refer to", min=2, max=64),
     Param("wait_s", 20.0, "longest wait for the shot after the welds [s]", min=0.5, max=600.0),
     Param("sync_slop_s", 0.0, "stamps closer than this belong to one view [s]", min=0.0, max=1.0),
-    ros_io.IMAGES_RECTIFIED_PARAM,
+    image_io.IMAGES_RECTIFIED_PARAM,
 ]
 _VERDICT_CODE = {Verdict.PASS: StudInspection.VERDICT_PASS, Verdict.FAIL: StudInspection.VERDICT_FAIL,
                  Verdict.MISSING: StudInspection.VERDICT_MISSING,
@@ -140,10 +141,10 @@ class InspectorNode(Node):
 
     def _on_view(self, view: dict) -> None:
         try:
-            camera = ros_io.camera_model_from_msgs(view["info"], view["pose"].pose, self.p["images_rectified"])
-            rectifier = ros_io.camera_rectifier(view["info"], self.p["images_rectified"])
-            depth = ros_io.depth_to_metres(view["depth"], rectifier)
-            color = ros_io.color_to_bgr(view["color"], rectifier)
+            camera = image_io.camera_model_from_msgs(view["info"], view["pose"].pose, self.p["images_rectified"])
+            rectifier = image_io.camera_rectifier(view["info"], self.p["images_rectified"])
+            depth = image_io.depth_to_metres(view["depth"], rectifier)
+            color = image_io.color_to_bgr(view["color"], rectifier)
         except (ros_io.MessageError, ValueError) as exc:
             self.get_logger().error(f"unusable view: {exc}", throttle_duration_sec=5.0)
             return

@@ -41,8 +41,9 @@ from std_msgs.msg import Header
 from stud_welding_msgs.msg import Registration, StudLayout, WeldTargetArray
 from visualization_msgs.msg import MarkerArray
 
-from stud_perception import ros_io
-from stud_perception.ros_io import Param
+from stud_common import ros_io
+from stud_perception import image_io
+from stud_common.ros_io import Param
 from stud_planner.gun_clearance import GunModel
 from stud_planner.msg_convert import layout_from_msg, registration_from_msg
 from stud_planner.target_cdr import weld_target_array_cdr
@@ -76,7 +77,7 @@ PARAMS = [
     Param("sync_slop_s", 0.0, "stamps closer than this belong to one view [s] (0: equal stamps)", min=0.0, max=1.0),
     Param("publish_overlay", True, "publish /weld_targets/overlay (and /weld_targets/overlay/compressed)"),
     Param("overlay_jpeg_quality", 80, "JPEG quality of /weld_targets/overlay/compressed", min=1, max=100),
-    ros_io.IMAGES_RECTIFIED_PARAM,
+    image_io.IMAGES_RECTIFIED_PARAM,
 ]
 _ODD = ("fpm_window_px", "hole_window_px")
 
@@ -210,11 +211,11 @@ class MatcherNode(Node):
             return
         self._pending = None
         try:
-            camera = ros_io.camera_model_from_msgs(view["info"], view["pose"].pose, self.p["images_rectified"])
-            rectifier = ros_io.camera_rectifier(view["info"], self.p["images_rectified"])
+            camera = image_io.camera_model_from_msgs(view["info"], view["pose"].pose, self.p["images_rectified"])
+            rectifier = image_io.camera_rectifier(view["info"], self.p["images_rectified"])
             if rectifier is not None:
-                self.get_logger().info(ros_io.rectification_note(view["info"]), once=True)
-            depth = ros_io.depth_to_metres(view["depth"], rectifier)
+                self.get_logger().info(image_io.rectification_note(view["info"]), once=True)
+            depth = image_io.depth_to_metres(view["depth"], rectifier)
             if depth.shape != (camera.height, camera.width):
                 raise ros_io.MessageError(f"depth {depth.shape[1]}x{depth.shape[0]} does not match camera_info "
                                           f"{camera.width}x{camera.height} (is depth registered to colour?)")
@@ -256,16 +257,16 @@ class MatcherNode(Node):
 
     def _publish_overlay(self, targets, camera, rectifier, color_msg: Image) -> None:
         try:
-            color = ros_io.color_to_bgr(color_msg, rectifier)
+            color = image_io.color_to_bgr(color_msg, rectifier)
         except (ros_io.MessageError, ValueError) as exc:
             self.get_logger().warn(f"no overlay: unusable colour image: {exc}", throttle_duration_sec=10.0)
             return
         overlay = draw_targets_overlay(color, targets, camera)
         stamp, frame = color_msg.header.stamp, color_msg.header.frame_id
         if self.pub_overlay.get_subscription_count():
-            self.pub_overlay.publish(ros_io.numpy_to_image(overlay, "bgr8", stamp, frame))
+            self.pub_overlay.publish(image_io.numpy_to_image(overlay, "bgr8", stamp, frame))
         if self.pub_overlay_jpeg.get_subscription_count():
-            self.pub_overlay_jpeg.publish(ros_io.bgr_to_compressed(overlay, stamp, frame,
+            self.pub_overlay_jpeg.publish(image_io.bgr_to_compressed(overlay, stamp, frame,
                                                                    self.p["overlay_jpeg_quality"]))
 
     @staticmethod

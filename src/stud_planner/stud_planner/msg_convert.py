@@ -1,7 +1,8 @@
 """stud_planner's message <-> core conversions (one place, so nodes stay thin).
 
-Image/CameraInfo/Pose conversions are stud_perception.ros_io's; this module handles our
-own interfaces: layouts and registrations (weld targets: target_cdr, the hot path).
+Image/CameraInfo conversions are stud_perception.image_io's, poses stud_common.ros_io's; this module
+handles our own interfaces: layouts, registrations, report entries and inspection results (weld
+targets: target_cdr, the hot path).
 """
 from __future__ import annotations
 

@@ -25,8 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from stud_perception import ros_io
-from stud_perception.strict_json import write_json
+from stud_common import ros_io
+from stud_perception import image_io
+from stud_common.strict_json import write_json
 from stud_perception.markers import MarkDetectorConfig
 from stud_perception.view_registration import config_for_layout, register_view
 from stud_planner import dxf_layout
@@ -235,10 +236,10 @@ def views_with_images(bag_path: Path, topics: dict[str, str], views: list[View])
 def _decode(view: View, bag: Path, images_rectified: bool):
     """The view's pinhole camera and images (raw images with lens distortion rectified onto it)."""
     try:
-        camera = ros_io.camera_model_from_msgs(view.info, view.pose.pose, images_rectified)
-        rectifier = ros_io.camera_rectifier(view.info, images_rectified)
-        color = ros_io.color_to_bgr(view.color, rectifier)
-        depth = ros_io.depth_to_metres(view.depth, rectifier)
+        camera = image_io.camera_model_from_msgs(view.info, view.pose.pose, images_rectified)
+        rectifier = image_io.camera_rectifier(view.info, images_rectified)
+        color = image_io.color_to_bgr(view.color, rectifier)
+        depth = image_io.depth_to_metres(view.depth, rectifier)
     except (ros_io.MessageError, ValueError) as exc:
         raise PlanError(f"{bag}: view {view.index} (depth stamp {view.stamp_ns} ns): {exc}") from None
     if depth.shape != (camera.height, camera.width) or color.shape[:2] != depth.shape:
@@ -266,7 +267,7 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
     """Run the offline planning and return the report (see the module docstring). ``report["warnings"]``
     lists what the user must know about the result (a damaged bag read anyway, drawing circles left
     out for non-finite or out-of-range values). Raw images with lens distortion are rectified; ``images_rectified``: they were already (see
-    :func:`ros_io.camera_model_from_msgs`)."""
+    :func:`image_io.camera_model_from_msgs`)."""
     topics = topics or DEFAULT_TOPICS
     try:
         layout = dxf_layout.read_layout(drawing)

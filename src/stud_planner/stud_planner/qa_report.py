@@ -19,7 +19,7 @@ import datetime as _dt
 import html
 from pathlib import Path
 
-from stud_perception.strict_json import json_safe, write_json
+from stud_common.strict_json import json_safe, write_json
 
 VERDICTS = ("pass", "fail", "missing", "not_inspected", "not_welded")
 CSV_FIELDS = ["stud_id", "x_mm", "y_mm", "verdict", "reasons", "station", "planned_x_m", "planned_y_m", "planned_z_m",

@@ -33,8 +33,8 @@ from enum import IntEnum
 import numpy as np
 
 from stud_perception.camera_model import CameraModel
-from stud_perception.rotations import frame_from_normal
-from stud_perception.rotations import matrix_to_quaternion as quaternion_from_matrix
+from stud_common.rotations import frame_from_normal
+from stud_common.rotations import matrix_to_quaternion as quaternion_from_matrix
 
 #: Paper: M16x150 shear stud, tool-top offset along the normal.
 M16X150_TOP_OFFSET_M = 0.013

@@ -85,3 +85,28 @@ def frame_from_normal(normal_w: np.ndarray) -> np.ndarray:
     x = x / np.linalg.norm(x, axis=-1, keepdims=True)
     y = np.cross(n, x)
     return np.stack([x, y, n], axis=-1)
+
+
+# -- rigid transforms (4x4) -----------------------------------------------------------------------
+def transform(R: np.ndarray, t) -> np.ndarray:
+    """4x4 from a rotation (3, 3) and a translation (3,)."""
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, np.asarray(t, dtype=np.float64).reshape(3)
+    return T
+
+
+
+def transform_xyz_rpy(xyz_m, rpy_deg) -> np.ndarray:
+    """4x4 from a translation (m) and roll-pitch-yaw (deg, R = Rz Ry Rx): the cell's hand-eye form."""
+    return transform(rpy_to_matrix(*np.radians(np.asarray(rpy_deg, dtype=np.float64))), xyz_m)
+
+
+
+def rigid_inverse(T: np.ndarray) -> np.ndarray:
+    """Inverse of rigid transforms (..., 4, 4)."""
+    R = np.swapaxes(T[..., :3, :3], -1, -2)
+    out = np.zeros(T.shape)
+    out[..., :3, :3] = R
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", R, T[..., :3, 3])
+    out[..., 3, 3] = 1.0
+    return out

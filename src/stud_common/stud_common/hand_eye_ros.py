@@ -2,8 +2,8 @@
 
 The camera (sim), shot and arm-driver nodes, and the calibrator, declare :data:`PARAMS`:
 ``hand_eye_xyz_m`` / ``hand_eye_rpy_deg`` (the typed value), ``hand_eye_file`` (a calibration file
-that replaces it, :mod:`stud_perception.hand_eye_file`) and ``hand_eye_limits.*`` (what such a file
-must meet: :class:`~stud_perception.hand_eye.HandEyeLimits`). :func:`hand_eye_in_use` decides which
+that replaces it, :mod:`stud_common.hand_eye_in_use`) and ``hand_eye_limits.*`` (what such a file
+must meet: :class:`~stud_common.hand_eye_in_use.HandEyeLimits`). :func:`hand_eye_in_use` decides which
 value a node uses (a refused file ends the node with exit code 2 and the reason), and
 :class:`CalibrationTopic` publishes it on ``/calibration/hand_eye``: std_msgs/String with a JSON
 object (:meth:`HandEyeInUse.summary`: source, path, date, xyz/rpy/quaternion, residuals), reliable
@@ -17,10 +17,10 @@ from dataclasses import fields
 from rclpy.node import Node
 from std_msgs.msg import String
 
-from stud_perception import ros_io
-from stud_perception.hand_eye import HandEyeLimits
-from stud_perception.hand_eye_file import HandEyeFileError, HandEyeInUse, resolve_hand_eye
-from stud_perception.ros_io import Param
+from stud_common import ros_io
+from stud_common.hand_eye_in_use import HandEyeLimits
+from stud_common.hand_eye_in_use import HandEyeFileError, HandEyeInUse, resolve_hand_eye
+from stud_common.ros_io import Param
 
 TOPIC = "/calibration/hand_eye"
 LIMITS_NS = "hand_eye_limits"

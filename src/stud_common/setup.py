@@ -1,0 +1,19 @@
+"""ament_python package stud_common: what every package of the cell shares."""
+from setuptools import find_packages, setup
+
+PACKAGE = "stud_common"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "tests"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="Stud welding maintainers",
+    maintainer_email="maintainers@stud-welding.org",
+    license="Apache-2.0",
+)
