@@ -77,6 +77,11 @@ REQUEST_TIMEOUT_S = 10.0
 #: A peer that does not answer our close frame in this long is disconnected [s] (stop() waits for it).
 CLOSE_TIMEOUT_S = 2.0
 SERVER_HEADER = "stud-hmi/1"
+#: Where the latest inspection overlay is served (the PNG an InspectionResult names in overlay_file).
+INSPECTION_OVERLAY_URL = "/inspection/overlay.png"
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: Largest file served from outside the page's folder [bytes] (an overlay is a few MB).
+MAX_EXPOSED_BYTES = 64 * 1024 * 1024
 
 
 class WebSocketError(Exception):
@@ -204,6 +209,8 @@ class HmiServer:
         self._clients: set[WebSocketConnection] = set()
         self._retained: OrderedDict[str, str] = OrderedDict()
         self._connections: weakref.WeakSet[ServerConnection] = weakref.WeakSet()  # every TCP connection
+        self._exposed: dict[str, Path] = {}  # URL path -> the one file served there (expose_png)
+        self._exposed_version = itertools.count(1)
         self._started = time.monotonic()
         self._sock = socket.create_server((host, port), family=socket.AF_INET6 if ":" in host else socket.AF_INET)
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -360,6 +367,26 @@ class HmiServer:
         """Send ``message`` to one client, in order with its other replies."""
         conn.send(to_json(message))
 
+    def expose_png(self, url_path: str, file: str | Path) -> str | None:
+        """Serve the PNG ``file`` at ``url_path`` from now on, in place of the one served there before.
+
+        The URL names no file: a request is matched to ``url_path`` exactly and gets ``file``, so no
+        part of a URL reaches the file system (no traversal). Only a regular, readable file of at
+        most ``MAX_EXPOSED_BYTES`` that starts with the PNG signature is served (checked here and at
+        every request); anything else withdraws ``url_path`` (404) and returns None. With
+        ``access_token`` set the request must carry it, as the WebSocket does (the image shows the
+        part, as the camera overlay does). Returns the URL to give the page: ``url_path?v=<n>``, a
+        new ``n`` each call, so that the browser fetches the new image.
+        """
+        path = Path(file)
+        with self._lock:
+            self._exposed.pop(url_path, None)
+        if _read_png(path, signature_only=True) is None:
+            return None
+        with self._lock:
+            self._exposed[url_path] = path
+            return f"{url_path}?v={next(self._exposed_version)}"
+
     def health(self) -> dict:
         return {"ok": True, "clients": self.client_count, "uptime_s": round(time.monotonic() - self._started, 1)}
 
@@ -452,8 +479,12 @@ class HmiServer:
             return _text_response(405, f"{request.method} is not served here", [("Allow", "GET, HEAD")])
         if path == "/ws" and request.method == "GET":
             return self._check_handshake(ws, request)
+        with self._lock:
+            exposed = self._exposed.get(path)
         if path == "/healthz":
             response = _response(200, to_json(self.health()).encode(), "application/json")
+        elif exposed is not None:
+            response = self._exposed_file(ws, request, path, exposed)
         else:
             response = self._static(path)
         if request.method == "HEAD":
@@ -476,6 +507,15 @@ class HmiServer:
             _log.warning("refused WebSocket from %s: missing or wrong access token", _address_text(ws.remote_address))
             return _text_response(403, "access token missing or wrong (open the page with ?token=...)")
         return None  # the library checks the rest (Sec-WebSocket-Key: 400) and answers 101
+
+    def _exposed_file(self, ws: ServerConnection, request: Request, path: str, file: Path) -> Response:
+        if not self.token_ok(request.path, _header(request.headers, "Authorization") or None):
+            _log.warning("refused %s from %s: missing or wrong access token", path, _address_text(ws.remote_address))
+            return _text_response(403, "access token missing or wrong (open the page with ?token=...)")
+        data = _read_png(file)
+        if data is None:  # replaced or removed since it was exposed
+            return _text_response(404, f"not found: {path} (its file is gone or no longer a PNG)")
+        return _response(200, data, "image/png")
 
     def _origin_allowed(self, origin: str | None, host: str | None) -> bool:
         if not origin:
@@ -510,6 +550,20 @@ def _response(status: int, body: bytes, ctype: str, extra: list[tuple[str, str]]
 
 def _text_response(status: int, text: str, extra: list[tuple[str, str]] | None = None) -> Response:
     return _response(status, (text + "\n").encode(), "text/plain; charset=utf-8", extra)
+
+
+def _read_png(path: Path, signature_only: bool = False) -> bytes | None:
+    """The bytes of ``path`` (only its first 8 with ``signature_only``) if it is a regular file of at
+    most ``MAX_EXPOSED_BYTES`` that starts with the PNG signature; None otherwise (missing, a
+    folder, a device, too big, not a PNG)."""
+    try:
+        if not path.is_file() or path.stat().st_size > MAX_EXPOSED_BYTES:
+            return None
+        with path.open("rb") as f:
+            data = f.read(len(PNG_SIGNATURE) if signature_only else MAX_EXPOSED_BYTES)
+    except (OSError, ValueError):
+        return None
+    return data if data.startswith(PNG_SIGNATURE) else None
 
 
 def _header(headers: Headers, name: str) -> str:
