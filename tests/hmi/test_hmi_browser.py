@@ -127,19 +127,24 @@ def browser_factory(tmp_path):
         b.close()
 
 
-ROW_JS = """(() => {{ const r = document.querySelector('#studs tr[data-stud="{sid}"]');
-  return r ? {{cls: r.className, cells: Array.from(r.children).map(td => td.textContent)}} : null; }})()"""
-
-
-def test_page_in_headless_chromium_shows_published_targets_and_its_stop_button_reaches_arm_stop(
-        ros_node, procs, tmp_path, browser_factory):
+def start_hmi_and_page(ros_node, procs, tmp_path, browser_factory):
+    """`ros2 run stud_planner hmi` on a free port, a FakeCell, and Chromium on the page: (hmi, cell, page, url)."""
     port = free_port()
     hmi = ros2_run("stud_planner", "hmi", tmp_path / "hmi.log", {"port": port})
     procs.append(hmi)
     cell = FakeCell(ros_node)
     cell.wait_for_hmi(port, hmi)
     url = f"http://127.0.0.1:{port}/"
-    page = browser_factory(url)
+    return hmi, cell, browser_factory(url), url
+
+
+ROW_JS = """(() => {{ const r = document.querySelector('#studs tr[data-stud="{sid}"]');
+  return r ? {{cls: r.className, cells: Array.from(r.children).map(td => td.textContent)}} : null; }})()"""
+
+
+def test_page_in_headless_chromium_shows_published_targets_and_its_stop_button_reaches_arm_stop(
+        ros_node, procs, tmp_path, browser_factory):
+    hmi, cell, page, url = start_hmi_and_page(ros_node, procs, tmp_path, browser_factory)
     fail = lambda: f"\n--- hmi\n{hmi.output()[-2000:]}\n--- chromium\n{page.output()}"  # noqa: E731
 
     # (a) the page loads and its WebSocket connects (the indicator turns green, buttons enabled)
@@ -351,13 +356,7 @@ def test_page_shows_the_inspection_overlay_the_result_names_and_nothing_a_url_na
     import cv2
     import numpy as np
 
-    port = free_port()
-    hmi = ros2_run("stud_planner", "hmi", tmp_path / "hmi.log", {"port": port})
-    procs.append(hmi)
-    cell = FakeCell(ros_node)
-    cell.wait_for_hmi(port, hmi)
-    url = f"http://127.0.0.1:{port}/"
-    page = browser_factory(url)
+    hmi, cell, page, url = start_hmi_and_page(ros_node, procs, tmp_path, browser_factory)
     js = page.evaluate
 
     def fail() -> str:
