@@ -121,10 +121,10 @@ class FakeCell:
                                          studs_total=studs_total, studs_welded=studs_welded, studs_failed=0,
                                          unreachable=list(unreachable), message=message))
 
-    def inspection(self, verdicts: dict[str, tuple[str, list[str]]], station: int = 1) -> None:
+    def inspection(self, verdicts: dict[str, tuple[str, list[str]]], station: int = 1, overlay_file: str = "") -> None:
         """A latched /inspection/result: stud id -> (verdict text, reasons)."""
         codes = {"pass": 0, "fail": 1, "missing": 2, "not_inspected": 3, "not_welded": 4}
-        self.pub_inspection.publish(InspectionResult(station=station, studs=[
+        self.pub_inspection.publish(InspectionResult(station=station, overlay_file=str(overlay_file), studs=[
             StudInspection(stud_id=sid, verdict=codes[v], verdict_text=v, reasons=list(r))
             for sid, (v, r) in verdicts.items()]))
 

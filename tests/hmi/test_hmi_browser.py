@@ -127,19 +127,24 @@ def browser_factory(tmp_path):
         b.close()
 
 
-ROW_JS = """(() => {{ const r = document.querySelector('#studs tr[data-stud="{sid}"]');
-  return r ? {{cls: r.className, cells: Array.from(r.children).map(td => td.textContent)}} : null; }})()"""
-
-
-def test_page_in_headless_chromium_shows_published_targets_and_its_stop_button_reaches_arm_stop(
-        ros_node, procs, tmp_path, browser_factory):
+def start_hmi_and_page(ros_node, procs, tmp_path, browser_factory):
+    """`ros2 run stud_planner hmi` on a free port, a FakeCell, and Chromium on the page: (hmi, cell, page, url)."""
     port = free_port()
     hmi = ros2_run("stud_planner", "hmi", tmp_path / "hmi.log", {"port": port})
     procs.append(hmi)
     cell = FakeCell(ros_node)
     cell.wait_for_hmi(port, hmi)
     url = f"http://127.0.0.1:{port}/"
-    page = browser_factory(url)
+    return hmi, cell, browser_factory(url), url
+
+
+ROW_JS = """(() => {{ const r = document.querySelector('#studs tr[data-stud="{sid}"]');
+  return r ? {{cls: r.className, cells: Array.from(r.children).map(td => td.textContent)}} : null; }})()"""
+
+
+def test_page_in_headless_chromium_shows_published_targets_and_its_stop_button_reaches_arm_stop(
+        ros_node, procs, tmp_path, browser_factory):
+    hmi, cell, page, url = start_hmi_and_page(ros_node, procs, tmp_path, browser_factory)
     fail = lambda: f"\n--- hmi\n{hmi.output()[-2000:]}\n--- chromium\n{page.output()}"  # noqa: E731
 
     # (a) the page loads and its WebSocket connects (the indicator turns green, buttons enabled)
@@ -342,5 +347,51 @@ def test_page_shows_the_banner_alarms_valid_buttons_progress_and_decisions_as_th
     until("document.querySelector('#alarms li[data-key=\"A201@drawing\"]')", "the drawing's warning")
     assert js("document.querySelectorAll('#alarms li[data-key=\"A201@drawing\"]').length") == 1
     assert "×" not in js("document.querySelector('#alarms li[data-key=\"A201@drawing\"]').textContent")
+    page.close()
+    assert ctrl_c(hmi) == 0 and "Traceback" not in hmi.output(), hmi.output()
+
+
+def test_page_shows_the_inspection_overlay_the_result_names_and_nothing_a_url_names(
+        ros_node, procs, tmp_path, browser_factory):
+    import cv2
+    import numpy as np
+
+    hmi, cell, page, url = start_hmi_and_page(ros_node, procs, tmp_path, browser_factory)
+    js = page.evaluate
+
+    def fail() -> str:
+        shown = js("document.body ? document.body.innerText : ''")
+        return f"\n--- page\n{shown[-1500:]}\n--- hmi\n{hmi.output()[-2000:]}"
+    wait_for(lambda: js("location.href + ' ' + document.readyState") == f"{url} complete", 15, spin=ros_node.spin,
+             what="page load" + fail())
+    assert js("document.getElementById('inspection-empty').textContent") == "no inspection yet (/inspection/result)"
+
+    # the inspector's PNG (a distinctive size: the page must show this very file), outside the page's folder
+    shots = tmp_path / "inspection"
+    shots.mkdir()
+    png = shots / "inspection_station_02_123.png"
+    assert cv2.imwrite(str(png), np.full((60, 90, 3), (0, 0, 255), np.uint8))
+    (tmp_path / "secret.txt").write_text("not for the browser")
+    cell.inspection({"S0001": ("pass", []), "S0002": ("fail", ["lean 8.0 deg > 5.0"])}, station=2, overlay_file=png)
+    img = "document.getElementById('inspection-overlay')"
+    wait_for(lambda: js(f"{img}.complete && {img}.naturalWidth") == 90, 15, spin=ros_node.spin,
+             what="the inspection overlay on the page" + fail())
+    assert js(f"{img}.naturalHeight") == 60 and "/inspection/overlay.png?v=" in js(f"{img}.src")
+    assert js("document.getElementById('inspection-info').textContent") == "station 2 · inspection_station_02_123.png"
+
+    # from the page: URLs that try to climb to a file beside the overlay get 404, never the file
+    def status(u: str) -> list:
+        return js("(() => { const x = new XMLHttpRequest(); x.open('GET', " + json.dumps(u) + ", false); x.send();"
+                  " return [x.status, x.responseText.includes('not for the browser')]; })()")
+    for attempt in ("/inspection/..%2f..%2fsecret.txt", "/inspection/%2e%2e/%2e%2e/secret.txt",
+                    "/inspection/overlay.png/..%2f..%2fsecret.txt", "/..%2f..%2fsecret.txt"):
+        assert status(attempt) == [404, False], attempt
+
+    # a result naming a file that is no PNG: the old image goes, the page says so, the file is not served
+    cell.inspection({"S0001": ("pass", [])}, station=3, overlay_file=tmp_path / "secret.txt")
+    wait_for(lambda: js("document.getElementById('inspection-empty').textContent") == "overlay secret.txt not available",
+             15, spin=ros_node.spin, what="the missing overlay said" + fail())
+    assert js(f"{img}.classList.contains('shown')") is False
+    assert status("/inspection/overlay.png") == [404, False]
     page.close()
     assert ctrl_c(hmi) == 0 and "Traceback" not in hmi.output(), hmi.output()

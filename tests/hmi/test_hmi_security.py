@@ -13,6 +13,7 @@ from ws_client import HandshakeRefused, WsClient
 
 
 def make_server(tmp_path, **kw) -> HmiServer:
+    tmp_path.mkdir(parents=True, exist_ok=True)
     (tmp_path / "index.html").write_text("<!DOCTYPE html><title>test page</title>")
     commands = []
 
@@ -172,3 +173,68 @@ def test_a_message_over_the_size_limit_closes_with_1009(server):
     assert c.recv_message() is None and c.closed_with == 1009
     c.close()
     assert server.commands == []
+
+
+# -- the inspection overlay: one file named by the inspection result, nothing else -------------------
+def _png(path, width=8, height=4) -> bytes:
+    import cv2
+    import numpy as np
+
+    ok, data = cv2.imencode(".png", np.full((height, width, 3), (0, 200, 0), np.uint8))
+    assert ok
+    path.write_bytes(data.tobytes())
+    return data.tobytes()
+
+
+def test_the_inspection_overlay_is_served_and_no_url_reaches_another_file(tmp_path):
+    srv = make_server(tmp_path / "page")  # static folder tmp/page; the overlay and a secret beside it
+    try:
+        overlay = _png(tmp_path / "inspection_station_01.png")
+        (tmp_path / "secret.txt").write_text("not for the browser")
+        (tmp_path / "page" / "inspection").mkdir()
+        url = srv.expose_png(hmi_server.INSPECTION_OVERLAY_URL, tmp_path / "inspection_station_01.png")
+        assert url.startswith("/inspection/overlay.png?v=")
+        status, body = http_get(srv.port, url, f"127.0.0.1:{srv.port}")
+        assert status == 200 and body == overlay
+        for attempt in ("/inspection/overlay.png/../../secret.txt", "/inspection/../../secret.txt",
+                        "/inspection/%2e%2e/%2e%2e/secret.txt", "/inspection/..%2f..%2fsecret.txt",
+                        "/%2e%2e/secret.txt", "/inspection/overlay.png%00/../../secret.txt",
+                        "/inspection/inspection_station_01.png", "/inspection_station_01.png"):
+            status, body = http_get(srv.port, attempt, f"127.0.0.1:{srv.port}")
+            assert status == 404 and b"not for the browser" not in body and body != overlay, attempt
+        # a query names no file: it still gets the overlay
+        assert http_get(srv.port, "/inspection/overlay.png?file=../secret.txt", None)[1] == overlay
+        # the Host check applies here too
+        assert http_get(srv.port, url, f"evil.example:{srv.port}")[0] == 403
+    finally:
+        srv.stop()
+
+
+def test_an_inspection_result_naming_a_file_that_is_no_png_withdraws_the_overlay(tmp_path):
+    srv = make_server(tmp_path / "page")
+    try:
+        _png(tmp_path / "good.png")
+        (tmp_path / "secret.png").write_text("not for the browser")  # named .png, is no PNG
+        assert srv.expose_png(hmi_server.INSPECTION_OVERLAY_URL, tmp_path / "good.png") is not None
+        for bad in (tmp_path / "secret.png", tmp_path / "missing.png", tmp_path, "/etc/passwd", ""):
+            assert srv.expose_png(hmi_server.INSPECTION_OVERLAY_URL, bad) is None, bad
+            status, body = http_get(srv.port, hmi_server.INSPECTION_OVERLAY_URL, None)
+            assert status == 404 and b"not for the browser" not in body and b"root:" not in body
+        # exposed, then replaced on disk by something that is not a PNG: not served either
+        assert srv.expose_png(hmi_server.INSPECTION_OVERLAY_URL, tmp_path / "good.png") is not None
+        (tmp_path / "good.png").write_text("not for the browser")
+        assert http_get(srv.port, hmi_server.INSPECTION_OVERLAY_URL, None)[0] == 404
+    finally:
+        srv.stop()
+
+
+def test_with_an_access_token_the_inspection_overlay_needs_it_too(tmp_path):
+    srv = make_server(tmp_path / "page", access_token="4711")
+    try:
+        overlay = _png(tmp_path / "o.png")
+        url = srv.expose_png(hmi_server.INSPECTION_OVERLAY_URL, tmp_path / "o.png")
+        assert http_get(srv.port, url, None)[0] == 403
+        assert http_get(srv.port, url + "&token=0000", None)[0] == 403
+        assert http_get(srv.port, url + "&token=4711", None) == (200, overlay)
+    finally:
+        srv.stop()

@@ -1,8 +1,8 @@
-"""hmi_server without ROS: the RFC 6455 handshake and framing against a raw-socket client,
-several clients, retained messages, strict JSON, HTTP routes, origin check, clean stop."""
+"""hmi_server without ROS: the RFC 6455 handshake and framing (the websockets library's, behind our
+HTTP routes and checks) against an independent raw-socket client, several clients, retained
+messages, strict JSON, HTTP routes, origin check, clean stop."""
 from __future__ import annotations
 
-import io
 import json
 import math
 import socket
@@ -15,7 +15,7 @@ import urllib.request
 import pytest
 
 from stud_planner import hmi_server
-from stud_planner.hmi_server import HmiServer, accept_key, encode_frame, read_frame, to_json
+from stud_planner.hmi_server import HmiServer, to_json
 from ws_client import HandshakeRefused, WsClient
 
 
@@ -51,20 +51,52 @@ def wait_until(cond, timeout_s=5.0, what="condition"):
         time.sleep(0.01)
 
 
-# -- framing, pure functions ------------------------------------------------------------------------
-def test_accept_key_is_the_rfc_6455_example():
-    assert accept_key("dGhlIHNhbXBsZSBub25jZQ==") == "s3pPLMBiTxaQ9kYGzzhZRbK+xOo="
+# -- framing ---------------------------------------------------------------------------------------
+def test_accept_key_is_the_rfc_6455_example(server):
+    key = "dGhlIHNhbXBsZSBub25jZQ=="  # RFC 6455 Sec. 1.3
+    with socket.create_connection(("127.0.0.1", server.port), timeout=5) as s:
+        s.sendall((f"GET /ws HTTP/1.1\r\nHost: 127.0.0.1:{server.port}\r\nUpgrade: websocket\r\n"
+                   f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n").encode())
+        head = b""
+        while b"\r\n\r\n" not in head:
+            chunk = s.recv(4096)
+            assert chunk, head
+            head += chunk
+    lines = head.split(b"\r\n\r\n")[0].decode("latin-1").split("\r\n")
+    assert lines[0].split()[1] == "101"
+    headers = {k.strip().lower(): v.strip() for k, v in (ln.split(":", 1) for ln in lines[1:])}
+    assert headers["sec-websocket-accept"] == "s3pPLMBiTxaQ9kYGzzhZRbK+xOo="
+
+
+def _exactly(n: int, shell: dict, key: str) -> dict:
+    """``shell`` with ``key`` padded so that its compact JSON text is ``n`` bytes (at least its own length)."""
+    base = len(json.dumps({**shell, key: ""}, separators=(",", ":")))
+    return {**shell, key: "x" * max(0, n - base)}
 
 
 @pytest.mark.parametrize("n", [0, 5, 125, 126, 65535, 65536, 300_000])
-def test_frames_of_every_length_encoding_round_trip_masked_and_unmasked(n):
-    payload = bytes(range(256)) * (n // 256) + bytes(range(n % 256))
-    masked = encode_frame(hmi_server.OP_TEXT, payload, mask=b"\x01\x02\x03\x04")
-    assert masked[1] & 0x80 and (n == 0 or masked[-n:] != payload)
-    assert read_frame(io.BytesIO(masked), require_mask=True, max_bytes=1 << 20) == (True, hmi_server.OP_TEXT, payload)
-    plain = encode_frame(hmi_server.OP_TEXT, payload)
-    assert len(plain) == n + (2 if n < 126 else 4 if n < 65536 else 10)
-    assert read_frame(io.BytesIO(plain), require_mask=False, max_bytes=1 << 20) == (True, hmi_server.OP_TEXT, payload)
+def test_frames_of_every_length_encoding_round_trip_masked_and_unmasked(server, n):
+    # 7-bit, 16-bit and 64-bit payload lengths (RFC 6455 Sec. 5.2), at and around each boundary.
+    # Unmasked: server -> client, any length (n below the smallest message's length: the smallest).
+    c = connect(server)
+    published = _exactly(n, {"type": "pad"}, "p")
+    server.publish(published)
+    fin, op, payload = c.recv_frame()
+    assert (fin, op) == (True, 0x1) and len(payload) == max(n, 21) and json.loads(payload) == published
+    # Masked: client -> server, up to the size limit; beyond it the server closes with 1009.
+    if n == 0:
+        c.send_frame(0x1, b"")  # an empty text message
+        assert c.recv_message() == {"type": "reply", "ok": False, "error": "message is not JSON"}
+    elif n <= hmi_server.MAX_INCOMING_BYTES:
+        sent = _exactly(n, {"id": 1}, "p")
+        text = json.dumps(sent, separators=(",", ":")).encode()
+        assert len(text) == max(n, 15)
+        c.send_frame(0x1, text)
+        assert c.recv_message() == {"type": "reply", "id": 1, "echo": sent}
+    else:
+        c.send_frame(0x1, b"x" * n)
+        assert c.recv_message() is None and c.closed_with == 1009
+    c.close()
 
 
 def test_json_has_no_nan_tokens():

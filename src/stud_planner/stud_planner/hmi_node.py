@@ -32,6 +32,7 @@ from __future__ import annotations
 import base64
 import json
 import logging
+import os
 import queue
 import time
 from dataclasses import dataclass, field
@@ -55,7 +56,7 @@ from stud_perception import image_io
 from stud_common.ros_io import Param
 from stud_planner.hmi_model import STUD_DECISIONS, ArmInfo, ArmMode, CellInfo, CellView, TargetInfo, Timeouts
 from stud_planner.inspection_node import REWORK_QOS
-from stud_planner.hmi_server import HmiServer, WebSocketConnection, default_static_dir
+from stud_planner.hmi_server import INSPECTION_OVERLAY_URL, HmiServer, WebSocketConnection, default_static_dir
 
 PARAMS = [
     Param("port", 8090, "TCP port of the HMI page and its WebSocket (/ws)", min=1, max=65535, read_only=True),
@@ -326,6 +327,14 @@ class HmiNode(Node):
     def _on_inspection(self, msg: InspectionResult) -> None:
         self.view.on_inspection(((s.stud_id, s.verdict_text, tuple(s.reasons)) for s in msg.studs), time.time())
         self._table_dirty = True
+        # The overlay PNG the inspector wrote: served as the one file at INSPECTION_OVERLAY_URL (the
+        # server checks it is a PNG); the page is told its URL, or that there is none to show.
+        url = self.server.expose_png(INSPECTION_OVERLAY_URL, msg.overlay_file) if msg.overlay_file else None
+        if msg.overlay_file and url is None:
+            self.get_logger().warn(f"/inspection/result station {msg.station}: overlay_file {msg.overlay_file!r} "
+                                   "is not a readable PNG: not shown", throttle_duration_sec=10.0)
+        self.server.publish({"type": "inspection_overlay", "url": url, "station": int(msg.station),
+                             "file": os.path.basename(msg.overlay_file), "stamp": ros_io.stamp_to_ns(msg.header.stamp) * 1e-9})
 
     def _on_rework(self, msg: ReworkDecision) -> None:
         self.view.on_rework(msg.stud_id, msg.decision, time.time())

@@ -1,14 +1,18 @@
 """The HMI's web server: HTTP (the page, static files, ``/healthz``) and one WebSocket (``/ws``).
 
-ROS-free and stdlib-only (no pip dependency): the RFC 6455 handshake and framing are implemented
-here, just what a browser needs — text frames (fragmented or not), ping/pong, close — and nothing
-else (no extensions, no binary messages: those are refused with close code 1003).
+ROS-free. The WebSocket protocol (RFC 6455: handshake, framing, fragmentation, ping/pong, close
+codes, masking, UTF-8 checks, the size limit) is the ``websockets`` library's asyncio server; its
+``process_request`` hook answers the plain HTTP requests and runs the security checks below before
+the library accepts a handshake. No extension is negotiated (no compression); binary messages are
+refused with close code 1003.
 
-Threads: one accept thread (``serve_forever``); per HTTP request one handler thread; per WebSocket
-client that same handler thread reads, and a writer thread sends. :meth:`HmiServer.publish` never
-blocks on a client: every client has an outbox that keeps only the *latest* message of each
-retained type (a slow browser skips overlay frames instead of stalling the ROS executor), while
-replies are queued in order. :meth:`HmiServer.stop` closes every connection and joins every thread.
+Threads: one, ``hmi-server``, runs the asyncio event loop (every connection is a task in it).
+:meth:`HmiServer.publish` and :meth:`HmiServer.reply` may be called from any thread and never block
+on a client: every client has an outbox that keeps only the *latest* message of each retained type
+(a slow browser skips overlay frames instead of stalling the ROS executor), while replies are
+queued in order; a writer task per client drains it. ``on_command`` runs on the event loop, so it
+must not block (the node hands the command to its executor through a queue).
+:meth:`HmiServer.stop` closes every connection (1001) and joins the thread.
 
 Security (the page's buttons move the arm; docs/HMI.md says it for operators):
 
@@ -17,23 +21,23 @@ Security (the page's buttons move the arm; docs/HMI.md says it for operators):
   an address this server serves (the loopback names, the bind address, this computer's name when
   bound beyond loopback, the local address the request came in on) or the host of an
   ``allowed_origins`` entry is refused (403). A page on evil.example whose DNS name is re-pointed at
-  127.0.0.1 still sends ``Host: evil.example:PORT``;
+  127.0.0.1 still sends ``Host: evil.example:PORT``. (The library leaves this check to the
+  application: ``ServerProtocol.process_request`` "doesn't check the Host header".)
 * **Origin check**: browsers let any page open a WebSocket to any host, so a handshake whose
   ``Origin`` is neither this server's own (``Host``) nor in ``allowed_origins`` is refused (403).
   Clients that send no ``Origin`` (not a browser: scripts, other HMIs) are accepted;
 * **access token**: with ``access_token`` set, a WebSocket handshake must carry it (``/ws?token=``,
   or ``Authorization: Bearer``), else 403. Bound beyond loopback without a token, every client is
   *view only*: commands are answered ``ok: false`` and never reach ``on_command``;
-* **bounded messages**: a message over ``MAX_INCOMING_BYTES`` closes the connection with 1009, one
-  nested deeper than ``MAX_MESSAGE_DEPTH`` with 1008 (before it is parsed: 64 KB of brackets must
-  not exhaust the parser's recursion), invalid UTF-8 with 1007.
+* **bounded messages**: a message over ``MAX_INCOMING_BYTES`` closes the connection with 1009 (the
+  library's ``max_size``), one nested deeper than ``MAX_MESSAGE_DEPTH`` with 1008 (checked before
+  it is parsed: 64 KB of brackets must not exhaust the parser's recursion), invalid UTF-8 with 1007.
 """
 from __future__ import annotations
 
-import base64
-import hashlib
+import asyncio
 import hmac
-import http.server
+import http
 import ipaddress
 import itertools
 import json
@@ -42,34 +46,46 @@ import mimetypes
 import os
 import re
 import socket
-import socketserver
-import struct
 import threading
 import time
-from collections import OrderedDict
+import weakref
+from collections import OrderedDict, deque
 from pathlib import Path
 from typing import Any, Callable
-from urllib.parse import parse_qs, urlsplit
+from urllib.parse import parse_qs, unquote, urlsplit
+
+from websockets.asyncio.server import Server, ServerConnection, serve
+from websockets.datastructures import Headers
+from websockets.exceptions import ConnectionClosed
+from websockets.frames import CloseCode
+from websockets.http11 import Request, Response
+from websockets.protocol import State
 
 from stud_common.strict_json import dumps, json_safe
 
 __all__ = ["HmiServer", "WebSocketConnection", "WebSocketError", "json_safe", "to_json", "json_depth"]
 _log = logging.getLogger(__name__)
 
-WS_GUID = "258EAFA5-E914-47DA-95CA-C5AB0DC85B11"  # RFC 6455 Sec. 1.3
-OP_CONT, OP_TEXT, OP_BINARY, OP_CLOSE, OP_PING, OP_PONG = 0x0, 0x1, 0x2, 0x8, 0x9, 0xA
-CLOSE_NORMAL, CLOSE_GOING_AWAY, CLOSE_PROTOCOL_ERROR, CLOSE_UNSUPPORTED = 1000, 1001, 1002, 1003
-CLOSE_INVALID_DATA, CLOSE_POLICY, CLOSE_TOO_BIG = 1007, 1008, 1009
 #: Largest message a browser may send us (commands are a few dozen bytes).
 MAX_INCOMING_BYTES = 64 * 1024
 #: Deepest nesting of a message's JSON (commands are flat objects).
 MAX_MESSAGE_DEPTH = 16
 #: Names that always mean this computer.
 LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
+#: A connection that sends no complete HTTP request in this long is dropped [s].
+REQUEST_TIMEOUT_S = 10.0
+#: A peer that does not answer our close frame in this long is disconnected [s] (stop() waits for it).
+CLOSE_TIMEOUT_S = 2.0
+SERVER_HEADER = "stud-hmi/1"
+#: Where the latest inspection overlay is served (the PNG an InspectionResult names in overlay_file).
+INSPECTION_OVERLAY_URL = "/inspection/overlay.png"
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: Largest file served from outside the page's folder [bytes] (an overlay is a few MB).
+MAX_EXPOSED_BYTES = 64 * 1024 * 1024
 
 
 class WebSocketError(Exception):
-    """A protocol violation by the peer; ``code`` is the close code to answer with."""
+    """A message the server refuses; ``code`` is the close code to answer with."""
 
     def __init__(self, code: int, reason: str):
         super().__init__(reason)
@@ -94,224 +110,90 @@ def json_depth(text: str) -> int:
     return max(itertools.accumulate(1 if c in "[{" else -1 for c in brackets), default=0)
 
 
-# -- RFC 6455 framing -----------------------------------------------------------------------------
-def accept_key(sec_websocket_key: str) -> str:
-    """Sec-WebSocket-Accept for a client's Sec-WebSocket-Key (RFC 6455 Sec. 4.2.2)."""
-    digest = hashlib.sha1((sec_websocket_key.strip() + WS_GUID).encode("ascii")).digest()
-    return base64.b64encode(digest).decode("ascii")
-
-
-def encode_frame(opcode: int, payload: bytes, fin: bool = True, mask: bytes | None = None) -> bytes:
-    """One frame. Servers send unmasked frames; a client passes a 4-byte ``mask``."""
-    head = bytes([(0x80 if fin else 0) | opcode])
-    n = len(payload)
-    mask_bit = 0x80 if mask is not None else 0
-    if n < 126:
-        head += bytes([mask_bit | n])
-    elif n < 1 << 16:
-        head += bytes([mask_bit | 126]) + struct.pack("!H", n)
-    else:
-        head += bytes([mask_bit | 127]) + struct.pack("!Q", n)
-    if mask is not None:
-        if len(mask) != 4:
-            raise ValueError("a WebSocket mask is 4 bytes")
-        return head + mask + apply_mask(payload, mask)
-    return head + payload
-
-
-def apply_mask(payload: bytes, mask: bytes) -> bytes:
-    """XOR with the 4-byte mask (masking and unmasking are the same operation)."""
-    if not payload:
-        return b""
-    n = len(payload)
-    key = int.from_bytes((mask * (n // 4 + 1))[:n], "big")
-    return (int.from_bytes(payload, "big") ^ key).to_bytes(n, "big")
-
-
-def close_payload(code: int, reason: str = "") -> bytes:
-    return struct.pack("!H", code) + reason.encode("utf-8")[:120]
-
-
-def read_exact(sock_file, n: int) -> bytes:
-    data = sock_file.read(n) if n else b""
-    if len(data) != n:
-        raise ConnectionError("connection closed mid-frame")
-    return data
-
-
-def read_frame(sock_file, require_mask: bool, max_bytes: int = MAX_INCOMING_BYTES) -> tuple[bool, int, bytes]:
-    """Read one frame from a binary file object -> (fin, opcode, unmasked payload).
-
-    ``require_mask``: a server must refuse unmasked client frames (RFC 6455 Sec. 5.1)."""
-    b0, b1 = read_exact(sock_file, 2)
-    fin, rsv, opcode = bool(b0 & 0x80), b0 & 0x70, b0 & 0x0F
-    masked, n = bool(b1 & 0x80), b1 & 0x7F
-    if rsv:
-        raise WebSocketError(CLOSE_PROTOCOL_ERROR, "reserved bits set (no extension was negotiated)")
-    if n == 126:
-        n = struct.unpack("!H", read_exact(sock_file, 2))[0]
-    elif n == 127:
-        n = struct.unpack("!Q", read_exact(sock_file, 8))[0]
-    if opcode >= 0x8 and (n > 125 or not fin):
-        raise WebSocketError(CLOSE_PROTOCOL_ERROR, "control frames must be short and unfragmented")
-    if require_mask and not masked:
-        raise WebSocketError(CLOSE_PROTOCOL_ERROR, "client frames must be masked")
-    if n > max_bytes:
-        raise WebSocketError(CLOSE_TOO_BIG, f"frame of {n} bytes exceeds {max_bytes}")
-    mask = read_exact(sock_file, 4) if masked else None
-    payload = read_exact(sock_file, n)
-    return fin, opcode, apply_mask(payload, mask) if mask else payload
-
-
 # -- one WebSocket client -------------------------------------------------------------------------
 class WebSocketConnection:
-    """A connected browser: :meth:`send` queues (never blocks), a writer thread sends."""
+    """A connected browser: :meth:`send` queues (from any thread, never blocks), :meth:`write_loop`
+    (a task on the server's event loop) sends."""
 
-    def __init__(self, sock: socket.socket, rfile, peer: str, max_fifo: int = 200, may_command: bool = True):
-        self.sock = sock
-        self.rfile = rfile
-        self.peer = peer
+    def __init__(self, ws: ServerConnection, may_command: bool = True, max_fifo: int = 200):
+        self.ws = ws
+        self.peer = _address_text(ws.remote_address)
         self.may_command = may_command  # False: view only (bound beyond loopback without a token)
-        self.max_fifo = max_fifo
-        self._cv = threading.Condition()
-        self._latest: OrderedDict[str, bytes] = OrderedDict()  # retained type -> newest frame
-        self._fifo: list[bytes] = []                           # in-order messages (replies, ...)
-        self._closing: bytes | None = None
+        self._loop = asyncio.get_running_loop()
+        self._lock = threading.Lock()
+        self._latest: OrderedDict[str, str] = OrderedDict()  # retained type -> newest text
+        self._fifo: deque[str] = deque(maxlen=max_fifo)       # in-order messages (replies, ...); a
+        self._ready = asyncio.Event()                          # client this far behind lost the old ones
         self._closed = False
-        self.writer = threading.Thread(target=self._write_loop, name=f"hmi-ws-writer {peer}", daemon=True)
-        self.writer.start()
 
-    # -- sending ---------------------------------------------------------------------------------
     def send(self, text: str, key: str | None = None) -> None:
         """Queue a text message. With ``key``, an unsent older message of that key is replaced."""
-        frame = encode_frame(OP_TEXT, text.encode("utf-8"))
-        with self._cv:
-            if self._closed or self._closing is not None:
+        with self._lock:
+            if self._closed:
                 return
             if key is None:
-                if len(self._fifo) >= self.max_fifo:
-                    self._fifo.pop(0)  # a client this far behind has lost the old ones anyway
-                self._fifo.append(frame)
+                self._fifo.append(text)
             else:
                 self._latest.pop(key, None)
-                self._latest[key] = frame
-            self._cv.notify()
-
-    def _send_raw(self, data: bytes) -> None:
-        self.sock.sendall(data)
-
-    def close(self, code: int = CLOSE_NORMAL, reason: str = "") -> None:
-        """Send a close frame (after what is queued) and end the connection."""
-        with self._cv:
-            if self._closing is None and not self._closed:
-                self._closing = encode_frame(OP_CLOSE, close_payload(code, reason))
-            self._cv.notify()
-
-    def _write_loop(self) -> None:
+                self._latest[key] = text
         try:
-            while True:
-                with self._cv:
-                    while not (self._fifo or self._latest or self._closing or self._closed):
-                        self._cv.wait()
-                    if self._closed:
-                        return
-                    frames = self._fifo + list(self._latest.values())
-                    self._fifo, self._latest = [], OrderedDict()
-                    closing = self._closing
-                for f in frames:
-                    self._send_raw(f)
-                if closing is not None:
-                    self._send_raw(closing)
-                    # Let the peer answer with its close frame; the reader then ends the socket.
-                    self._shutdown(socket.SHUT_WR)
-                    return
-        except OSError:
-            pass
-        finally:
-            self._mark_closed()
+            self._loop.call_soon_threadsafe(self._ready.set)
+        except RuntimeError:
+            pass  # the server's loop has ended: nobody to send to
 
-    def _shutdown(self, how: int) -> None:
-        try:
-            self.sock.shutdown(how)
-        except OSError:
-            pass
+    async def write_loop(self) -> None:
+        """Send what is queued until the connection closes (ConnectionClosed ends it)."""
+        while True:
+            await self._ready.wait()
+            self._ready.clear()
+            with self._lock:
+                texts = [*self._fifo, *self._latest.values()]
+                self._fifo.clear()
+                self._latest.clear()
+            for text in texts:
+                await self.ws.send(text)
 
-    def _mark_closed(self) -> None:
-        with self._cv:
+    def mark_closed(self) -> None:
+        with self._lock:
             self._closed = True
-            self._cv.notify_all()
-
-    def abort(self) -> None:
-        """Drop the connection now (server stop): unblocks the reader and the writer."""
-        self._mark_closed()
-        self._shutdown(socket.SHUT_RDWR)
 
     @property
     def closed(self) -> bool:
         return self._closed
 
-    # -- receiving -------------------------------------------------------------------------------
-    def read_loop(self, on_text: Callable[["WebSocketConnection", str], None]) -> None:
-        """Read frames until the connection ends; text messages go to ``on_text``."""
-        parts: list[bytes] = []
-        try:
-            while not self._closed:
-                fin, opcode, payload = read_frame(self.rfile, require_mask=True)
-                if opcode == OP_PING:
-                    with self._cv:
-                        self._fifo.append(encode_frame(OP_PONG, payload))
-                        self._cv.notify()
-                elif opcode == OP_PONG:
-                    pass
-                elif opcode == OP_CLOSE:
-                    code = struct.unpack("!H", payload[:2])[0] if len(payload) >= 2 else CLOSE_NORMAL
-                    self.close(code if code in (CLOSE_NORMAL, CLOSE_GOING_AWAY) else CLOSE_NORMAL)
-                    break
-                elif opcode == OP_BINARY:
-                    raise WebSocketError(CLOSE_UNSUPPORTED, "binary messages are not supported")
-                elif opcode in (OP_TEXT, OP_CONT):
-                    if (opcode == OP_TEXT) == bool(parts):
-                        raise WebSocketError(CLOSE_PROTOCOL_ERROR, "unexpected continuation/text frame")
-                    parts.append(payload)
-                    if sum(map(len, parts)) > MAX_INCOMING_BYTES:
-                        raise WebSocketError(CLOSE_TOO_BIG, f"message exceeds {MAX_INCOMING_BYTES} bytes")
-                    if fin:
-                        data, parts = b"".join(parts), []
-                        try:
-                            text = data.decode("utf-8")
-                        except UnicodeDecodeError:
-                            raise WebSocketError(CLOSE_INVALID_DATA, "text message is not UTF-8") from None
-                        if len(text) > 2 * MAX_MESSAGE_DEPTH and json_depth(text) > MAX_MESSAGE_DEPTH:
-                            raise WebSocketError(CLOSE_POLICY, f"message nests deeper than {MAX_MESSAGE_DEPTH}")
-                        on_text(self, text)
-                else:
-                    raise WebSocketError(CLOSE_PROTOCOL_ERROR, f"unknown opcode {opcode:#x}")
-        except WebSocketError as exc:
-            _log.warning("WebSocket %s: %s", self.peer, exc)
-            self.close(exc.code, str(exc))
-        except (ConnectionError, OSError):
-            pass
-        finally:
-            self.writer.join(timeout=2.0)
-            self.abort()
+
+class _Connection(ServerConnection):
+    """The library's connection, with its ``close_timeout`` applied to closes the peer starts too.
+
+    After a close handshake the *client* began, websockets half-closes the TCP connection and waits
+    for the client's end with no deadline (``close_timeout`` bounds only closes this side starts):
+    a client that never closes its socket would keep its connection. Here it is dropped at the
+    deadline the library sets (``close_deadline``) when the close frame arrives."""
+
+    _drop_at: asyncio.TimerHandle | None = None
+
+    def data_received(self, data: bytes) -> None:
+        super().data_received(data)
+        if self.close_deadline is not None and self._drop_at is None:
+            self._drop_at = self.loop.call_at(self.close_deadline, self.transport.abort)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if self._drop_at is not None:
+            self._drop_at.cancel()
+        super().connection_lost(exc)
 
 
 # -- the server -----------------------------------------------------------------------------------
 CommandHandler = Callable[[WebSocketConnection, dict], None]
 
 
-class _ThreadingServer(socketserver.ThreadingMixIn, http.server.HTTPServer):
-    daemon_threads = False       # handler threads are joined in server_close()
-    block_on_close = True
-    allow_reuse_address = True
-
-
 class HmiServer:
     """HTTP + WebSocket server for the HMI page, on a background thread.
 
-    ``on_command(conn, message)`` is called (on the client's thread) for every JSON object a
-    browser sends; answer with :meth:`reply`. Messages published with ``retain=True`` (the
-    default) are also sent to clients that connect later, newest per ``type``.
+    ``on_command(conn, message)`` is called (on the server's event loop: it must not block) for
+    every JSON object a browser sends; answer with :meth:`reply`. Messages published with
+    ``retain=True`` (the default) are also sent to clients that connect later, newest per ``type``.
+    The socket is bound in the constructor (a busy port raises ``OSError`` there).
     """
 
     def __init__(self, static_dir: str | Path, host: str = "127.0.0.1", port: int = 8090,
@@ -326,12 +208,16 @@ class HmiServer:
         self._lock = threading.Lock()
         self._clients: set[WebSocketConnection] = set()
         self._retained: OrderedDict[str, str] = OrderedDict()
-        self._sockets: set[socket.socket] = set()  # every open connection, HTTP or WebSocket
+        self._connections: weakref.WeakSet[ServerConnection] = weakref.WeakSet()  # every TCP connection
+        self._exposed: dict[str, Path] = {}  # URL path -> the one file served there (expose_png)
+        self._exposed_version = itertools.count(1)
         self._started = time.monotonic()
-        self._httpd = _ThreadingServer((host, port), self._handler_class())
+        self._sock = socket.create_server((host, port), family=socket.AF_INET6 if ":" in host else socket.AF_INET)
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._server: Server | None = None
         self._thread: threading.Thread | None = None
         self.access_token = access_token
-        bind = self._httpd.server_address[0]
+        bind = self._sock.getsockname()[0]
         self.loopback_only = _is_loopback(bind)
         #: without a token, a server reachable from the network shows but does not command
         self.commands_need_token = not self.loopback_only and not access_token
@@ -384,44 +270,79 @@ class HmiServer:
 
     @property
     def port(self) -> int:
-        return self._httpd.server_address[1]
+        return self._sock.getsockname()[1]
 
     @property
     def address(self) -> str:
-        return f"http://{self._httpd.server_address[0]}:{self.port}/"
+        return f"http://{self._sock.getsockname()[0]}:{self.port}/"
 
     @property
     def client_count(self) -> int:
+        """Browsers connected now (a WebSocket whose closing handshake has begun no longer counts)."""
         with self._lock:
-            return len(self._clients)
+            return sum(c.ws.protocol.state is State.OPEN for c in self._clients)
 
     def start(self) -> "HmiServer":
-        self._thread = threading.Thread(target=self._httpd.serve_forever, kwargs={"poll_interval": 0.2},
-                                        name="hmi-http", daemon=True)
+        ready = threading.Event()
+        self._thread = threading.Thread(target=self._run, args=(ready,), name="hmi-server", daemon=True)
         self._thread.start()
+        if not ready.wait(10.0) or self._server is None:
+            raise RuntimeError("the HMI server's event loop did not start")
         return self
 
+    def _run(self, ready: threading.Event) -> None:
+        loop = self._loop = asyncio.new_event_loop()
+        try:
+            self._server = loop.run_until_complete(self._open())
+        finally:
+            ready.set()
+        try:
+            if self._server is not None:
+                loop.run_until_complete(self._server.wait_closed())
+        finally:
+            loop.run_until_complete(loop.shutdown_default_executor())
+            loop.close()
+
+    async def _open(self) -> Server:
+        return await serve(
+            self._serve_client, sock=self._sock, process_request=self._process_request,
+            server_header=SERVER_HEADER, compression=None, max_size=MAX_INCOMING_BYTES,
+            open_timeout=REQUEST_TIMEOUT_S, close_timeout=CLOSE_TIMEOUT_S, create_connection=self._new_connection)
+
+    def _new_connection(self, *args, **kwargs) -> ServerConnection:
+        conn = _Connection(*args, **kwargs)
+        self._connections.add(conn)
+        return conn
+
     def stop(self, timeout_s: float = 5.0) -> None:
-        """Close every WebSocket (close code 1001), stop accepting, join all threads."""
-        with self._lock:
-            clients = list(self._clients)
-        for c in clients:
-            c.close(CLOSE_GOING_AWAY, "server shutting down")
+        """Close every WebSocket (close code 1001), stop accepting, end the server's thread."""
+        if self._thread is None or self._loop is None:
+            self._sock.close()
+            return
         deadline = time.monotonic() + timeout_s
-        for c in clients:
-            c.writer.join(timeout=max(0.0, min(1.0, deadline - time.monotonic())))
-            c.abort()  # the reader thread ends too, even if the peer never answers the close
-        if self._thread is not None:
-            self._httpd.shutdown()
-            self._thread.join(timeout=max(0.1, deadline - time.monotonic()))
-        with self._lock:
-            sockets = list(self._sockets)
-        for sock in sockets:  # idle HTTP connections (browsers pre-connect) must not hold a thread
+        if not self._loop.is_closed():
+            future = asyncio.run_coroutine_threadsafe(self._shutdown(), self._loop)
             try:
-                sock.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
-        self._httpd.server_close()  # joins the request threads (block_on_close)
+                future.result(timeout=timeout_s)
+            except Exception:  # (timeout) a peer holds on: drop every connection
+                _log.warning("HMI server: connections did not close in %.1f s, dropping them", timeout_s)
+                try:
+                    self._loop.call_soon_threadsafe(self._abort_all)
+                except RuntimeError:
+                    pass
+        self._thread.join(timeout=max(0.5, deadline - time.monotonic()))
+
+    async def _shutdown(self) -> None:
+        assert self._server is not None
+        self._server.close()  # 1001 to open WebSockets, 503 to handshakes under way
+        for conn in list(self._connections):
+            if conn.protocol.state is State.CONNECTING and conn.request is None:
+                conn.transport.abort()  # connected, but no request yet (browsers pre-connect)
+        await self._server.wait_closed()
+
+    def _abort_all(self) -> None:
+        for conn in list(self._connections):
+            conn.transport.abort()
 
     def __enter__(self) -> "HmiServer":
         return self.start()
@@ -446,14 +367,56 @@ class HmiServer:
         """Send ``message`` to one client, in order with its other replies."""
         conn.send(to_json(message))
 
-    # -- internals -------------------------------------------------------------------------------
-    def _origin_allowed(self, origin: str | None, host: str | None) -> bool:
-        if not origin:
-            return True  # not a browser
-        origin = origin.rstrip("/").lower()
-        if origin in self.allowed_origins or "*" in self.allowed_origins:
-            return True
-        return bool(host) and urlsplit(origin).netloc == host.lower()
+    def expose_png(self, url_path: str, file: str | Path) -> str | None:
+        """Serve the PNG ``file`` at ``url_path`` from now on, in place of the one served there before.
+
+        The URL names no file: a request is matched to ``url_path`` exactly and gets ``file``, so no
+        part of a URL reaches the file system (no traversal). Only a regular, readable file of at
+        most ``MAX_EXPOSED_BYTES`` that starts with the PNG signature is served (checked here and at
+        every request); anything else withdraws ``url_path`` (404) and returns None. With
+        ``access_token`` set the request must carry it, as the WebSocket does (the image shows the
+        part, as the camera overlay does). Returns the URL to give the page: ``url_path?v=<n>``, a
+        new ``n`` each call, so that the browser fetches the new image.
+        """
+        path = Path(file)
+        with self._lock:
+            self._exposed.pop(url_path, None)
+        if _read_png(path, signature_only=True) is None:
+            return None
+        with self._lock:
+            self._exposed[url_path] = path
+            return f"{url_path}?v={next(self._exposed_version)}"
+
+    def health(self) -> dict:
+        return {"ok": True, "clients": self.client_count, "uptime_s": round(time.monotonic() - self._started, 1)}
+
+    # -- WebSocket connections -------------------------------------------------------------------
+    async def _serve_client(self, ws: ServerConnection) -> None:
+        """One accepted WebSocket, from hello to close. Protocol violations (unmasked frames,
+        invalid UTF-8, over ``max_size``) are closed by the library with their RFC codes."""
+        conn = WebSocketConnection(ws, may_command=not self.commands_need_token)
+        self._add(conn)
+        writer = asyncio.create_task(conn.write_loop(), name=f"hmi-ws-writer {conn.peer}")
+        try:
+            async for message in ws:
+                try:
+                    if isinstance(message, bytes):
+                        raise WebSocketError(CloseCode.UNSUPPORTED_DATA, "binary messages are not supported")
+                    self._on_text(conn, message)
+                except WebSocketError as exc:
+                    _log.warning("WebSocket %s: %s", conn.peer, exc)
+                    await ws.close(exc.code, str(exc))
+                    break
+        except ConnectionClosed:
+            pass
+        finally:
+            conn.mark_closed()
+            writer.cancel()
+            try:
+                await writer
+            except (asyncio.CancelledError, ConnectionClosed):
+                pass
+            self._remove(conn)
 
     def _add(self, conn: WebSocketConnection) -> None:
         with self._lock:
@@ -473,13 +436,15 @@ class HmiServer:
         _log.info("WebSocket client %s disconnected (%d connected)", conn.peer, self.client_count)
 
     def _on_text(self, conn: WebSocketConnection, text: str) -> None:
+        if len(text) > 2 * MAX_MESSAGE_DEPTH and json_depth(text) > MAX_MESSAGE_DEPTH:
+            raise WebSocketError(CloseCode.POLICY_VIOLATION, f"message nests deeper than {MAX_MESSAGE_DEPTH}")
         try:
             msg = json.loads(text)
         except ValueError:
             self.reply(conn, {"type": "reply", "ok": False, "error": "message is not JSON"})
             return
         except RecursionError:  # json_depth bounds nesting first; this is the last line of defence
-            raise WebSocketError(CLOSE_POLICY, "message nests too deeply") from None
+            raise WebSocketError(CloseCode.POLICY_VIOLATION, "message nests too deeply") from None
         if not isinstance(msg, dict):
             self.reply(conn, {"type": "reply", "ok": False, "error": "message is not a JSON object"})
             return
@@ -499,136 +464,118 @@ class HmiServer:
             self.reply(conn, {"type": "reply", "cmd": msg.get("cmd"), "id": msg.get("id"), "ok": False,
                               "error": f"internal error: {exc}"})
 
-    def health(self) -> dict:
-        return {"ok": True, "clients": self.client_count, "uptime_s": round(time.monotonic() - self._started, 1)}
+    # -- HTTP: every request passes here first ---------------------------------------------------
+    def _process_request(self, ws: ServerConnection, request: Request) -> Response | None:
+        """The ``process_request`` hook: the Host check for every request, then the HTTP routes;
+        for ``/ws`` the handshake checks (``None``: the library accepts the handshake)."""
+        hosts = request.headers.get_all("Host")
+        path = urlsplit(request.path).path
+        if len(hosts) > 1 or not self.host_allowed(hosts[0] if hosts else None, _address_text(ws.local_address, False)):
+            _log.warning("refused %s %s with Host %r (not an address this server serves; allowed_origins "
+                         "adds names)", request.method, path, ", ".join(hosts))
+            return _text_response(403, f"Host {', '.join(hosts)!r} is not served here (a DNS-rebinding page?); "
+                                       "add the name to allowed_origins if it is yours")
+        if request.method not in ("GET", "HEAD"):
+            return _text_response(405, f"{request.method} is not served here", [("Allow", "GET, HEAD")])
+        if path == "/ws" and request.method == "GET":
+            return self._check_handshake(ws, request)
+        with self._lock:
+            exposed = self._exposed.get(path)
+        if path == "/healthz":
+            response = _response(200, to_json(self.health()).encode(), "application/json")
+        elif exposed is not None:
+            response = self._exposed_file(ws, request, path, exposed)
+        else:
+            response = self._static(path)
+        if request.method == "HEAD":
+            response.body = b""  # Content-Length still says what a GET would get
+        return response
 
-    def _handler_class(self):
-        server = self
+    def _check_handshake(self, ws: ServerConnection, request: Request) -> Response | None:
+        h = request.headers
+        upgrade = _header(h, "Upgrade").lower()
+        connection = [t.strip().lower() for t in _header(h, "Connection").split(",")]
+        if upgrade != "websocket" or "upgrade" not in connection:
+            return _text_response(400, "expected a WebSocket upgrade (Upgrade: websocket, Connection: Upgrade)")
+        if _header(h, "Sec-WebSocket-Version") != "13":  # RFC 6455 Sec. 4.4: 426 and the versions we speak
+            return _text_response(426, "WebSocket version 13 only", [("Sec-WebSocket-Version", "13")])
+        origin, host = h.get_all("Origin"), _header(h, "Host")
+        if len(origin) > 1 or not self._origin_allowed(origin[0] if origin else None, host):
+            _log.warning("refused WebSocket from origin %s (Host %s)", ", ".join(origin), host)
+            return _text_response(403, f"origin {', '.join(origin)} not allowed (set the allowed_origins parameter)")
+        if not self.token_ok(request.path, _header(h, "Authorization") or None):
+            _log.warning("refused WebSocket from %s: missing or wrong access token", _address_text(ws.remote_address))
+            return _text_response(403, "access token missing or wrong (open the page with ?token=...)")
+        return None  # the library checks the rest (Sec-WebSocket-Key: 400) and answers 101
 
-        class Handler(http.server.BaseHTTPRequestHandler):
-            server_version = "stud-hmi/1"
-            protocol_version = "HTTP/1.0"  # one request per connection: nothing idles at shutdown
-            timeout = 10  # a half-open HTTP connection cannot hold a thread forever
+    def _exposed_file(self, ws: ServerConnection, request: Request, path: str, file: Path) -> Response:
+        if not self.token_ok(request.path, _header(request.headers, "Authorization") or None):
+            _log.warning("refused %s from %s: missing or wrong access token", path, _address_text(ws.remote_address))
+            return _text_response(403, "access token missing or wrong (open the page with ?token=...)")
+        data = _read_png(file)
+        if data is None:  # replaced or removed since it was exposed
+            return _text_response(404, f"not found: {path} (its file is gone or no longer a PNG)")
+        return _response(200, data, "image/png")
 
-            def setup(self):
-                super().setup()
-                with server._lock:
-                    server._sockets.add(self.connection)
+    def _origin_allowed(self, origin: str | None, host: str | None) -> bool:
+        if not origin:
+            return True  # not a browser
+        origin = origin.rstrip("/").lower()
+        if origin in self.allowed_origins or "*" in self.allowed_origins:
+            return True
+        return bool(host) and urlsplit(origin).netloc == host.lower()
 
-            def finish(self):
-                with server._lock:
-                    server._sockets.discard(self.connection)
-                try:
-                    super().finish()
-                except OSError:
-                    pass  # the peer is gone; nothing left to flush
+    def _static(self, path: str) -> Response:
+        rel = "index.html" if path in ("", "/") else unquote(path).lstrip("/")
+        try:
+            target = (self.static_dir / rel).resolve()
+            found = self.static_dir in target.parents and target.is_file()
+        except (OSError, ValueError):  # a NUL byte, a name too long
+            found = False
+        if not found:
+            return _text_response(404, f"not found: {path}")
+        ctype = mimetypes.guess_type(target.name)[0] or "application/octet-stream"
+        if ctype.startswith("text/") or ctype in ("application/javascript", "application/json"):
+            ctype += "; charset=utf-8"
+        return _response(200, target.read_bytes(), ctype)
 
-            def handle(self):
-                try:
-                    super().handle()
-                except (ConnectionError, socket.timeout):
-                    pass  # a browser dropping a connection is not an error
 
-            def log_message(self, fmt, *args):  # quiet: the node logs what matters
-                _log.debug("%s %s", self.address_string(), fmt % args)
+def _response(status: int, body: bytes, ctype: str, extra: list[tuple[str, str]] | None = None) -> Response:
+    """A plain HTTP response; the connection closes after it (one request per connection)."""
+    status = http.HTTPStatus(status)
+    headers = Headers([("Content-Type", ctype), ("Content-Length", str(len(body))), ("Cache-Control", "no-store"),
+                       ("Connection", "close"), *(extra or [])])
+    return Response(status.value, status.phrase, headers, body)
 
-            def _host_refused(self) -> bool:
-                """The Host check (DNS rebinding): answer 403 and say so when the Host is not ours."""
-                host = self.headers.get("Host")
-                if server.host_allowed(host, self.connection.getsockname()[0]):
-                    return False
-                _log.warning("refused %s %s with Host %r (not an address this server serves; allowed_origins "
-                             "adds names)", self.command, urlsplit(self.path).path, host)
-                self._error(403, f"Host {host!r} is not served here (a DNS-rebinding page?); add the name to "
-                                 "allowed_origins if it is yours")
-                return True
 
-            def do_GET(self):
-                if self._host_refused():
-                    return
-                path = urlsplit(self.path).path
-                if path == "/ws":
-                    self._websocket()
-                elif path == "/healthz":
-                    self._send(200, to_json(server.health()).encode(), "application/json")
-                else:
-                    self._static(path)
+def _text_response(status: int, text: str, extra: list[tuple[str, str]] | None = None) -> Response:
+    return _response(status, (text + "\n").encode(), "text/plain; charset=utf-8", extra)
 
-            def do_HEAD(self):
-                if not server.host_allowed(self.headers.get("Host"), self.connection.getsockname()[0]):
-                    self.send_response(403)
-                    self.end_headers()
-                    return
-                self.send_response(200 if urlsplit(self.path).path in ("/", "/healthz") else 404)
-                self.end_headers()
 
-            def _send(self, code: int, body: bytes, ctype: str, extra: dict | None = None) -> None:
-                self.send_response(code)
-                self.send_header("Content-Type", ctype)
-                self.send_header("Content-Length", str(len(body)))
-                self.send_header("Cache-Control", "no-store")
-                for k, v in (extra or {}).items():
-                    self.send_header(k, v)
-                self.end_headers()
-                self.wfile.write(body)
+def _read_png(path: Path, signature_only: bool = False) -> bytes | None:
+    """The bytes of ``path`` (only its first 8 with ``signature_only``) if it is a regular file of at
+    most ``MAX_EXPOSED_BYTES`` that starts with the PNG signature; None otherwise (missing, a
+    folder, a device, too big, not a PNG)."""
+    try:
+        if not path.is_file() or path.stat().st_size > MAX_EXPOSED_BYTES:
+            return None
+        with path.open("rb") as f:
+            data = f.read(len(PNG_SIGNATURE) if signature_only else MAX_EXPOSED_BYTES)
+    except (OSError, ValueError):
+        return None
+    return data if data.startswith(PNG_SIGNATURE) else None
 
-            def _error(self, code: int, text: str, extra: dict | None = None) -> None:
-                self._send(code, (text + "\n").encode(), "text/plain; charset=utf-8", extra)
 
-            def _static(self, path: str) -> None:
-                rel = "index.html" if path in ("", "/") else path.lstrip("/")
-                target = (server.static_dir / rel).resolve()
-                if server.static_dir not in target.parents or not target.is_file():
-                    self._error(404, f"not found: {path}")
-                    return
-                ctype = mimetypes.guess_type(target.name)[0] or "application/octet-stream"
-                if ctype.startswith("text/") or ctype in ("application/javascript", "application/json"):
-                    ctype += "; charset=utf-8"
-                self._send(200, target.read_bytes(), ctype)
+def _header(headers: Headers, name: str) -> str:
+    """A header's value; repeated headers joined with ", " (RFC 9110 Sec. 5.3), "" when absent."""
+    return ", ".join(headers.get_all(name))
 
-            def _websocket(self) -> None:
-                h = self.headers
-                upgrade = (h.get("Upgrade") or "").lower()
-                connection = [t.strip().lower() for t in (h.get("Connection") or "").split(",")]
-                key = h.get("Sec-WebSocket-Key")
-                if upgrade != "websocket" or "upgrade" not in connection:
-                    self._error(400, "expected a WebSocket upgrade (Upgrade: websocket, Connection: Upgrade)")
-                    return
-                if h.get("Sec-WebSocket-Version") != "13":
-                    self._error(426, "WebSocket version 13 only", {"Sec-WebSocket-Version": "13"})
-                    return
-                try:
-                    if not key or len(base64.b64decode(key, validate=True)) != 16:
-                        raise ValueError
-                except ValueError:
-                    self._error(400, "bad Sec-WebSocket-Key")
-                    return
-                if not server._origin_allowed(h.get("Origin"), h.get("Host")):
-                    _log.warning("refused WebSocket from origin %s (Host %s)", h.get("Origin"), h.get("Host"))
-                    self._error(403, f"origin {h.get('Origin')} not allowed (set the allowed_origins parameter)")
-                    return
-                if not server.token_ok(self.path, h.get("Authorization")):
-                    _log.warning("refused WebSocket from %s: missing or wrong access token", self.client_address[0])
-                    self._error(403, "access token missing or wrong (open the page with ?token=...)")
-                    return
-                self.send_response(101, "Switching Protocols")
-                self.send_header("Upgrade", "websocket")
-                self.send_header("Connection", "Upgrade")
-                self.send_header("Sec-WebSocket-Accept", accept_key(key))
-                self.end_headers()
-                self.wfile.flush()
-                self.connection.settimeout(None)  # a WebSocket idles between messages
-                self.close_connection = True
-                peer = f"{self.client_address[0]}:{self.client_address[1]}"
-                conn = WebSocketConnection(self.connection, self.rfile, peer,
-                                           may_command=not server.commands_need_token)
-                server._add(conn)
-                try:
-                    conn.read_loop(server._on_text)
-                finally:
-                    server._remove(conn)
 
-        return Handler
+def _address_text(address: Any, with_port: bool = True) -> str:
+    """``host:port`` (or ``host``) of a socket address tuple; "" when unknown."""
+    if not address:
+        return ""
+    return f"{address[0]}:{address[1]}" if with_port else str(address[0])
 
 
 def _is_loopback(bind: str) -> bool:

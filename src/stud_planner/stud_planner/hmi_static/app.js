@@ -293,6 +293,24 @@ function onOverlay(m) {
   text($("overlay-info"), m.source_width + "×" + m.source_height);
 }
 
+// The latest inspection's overlay PNG, served by the HMI at the URL the message gives (null: none to show).
+function onInspectionOverlay(m) {
+  const img = $("inspection-overlay");
+  const what = "station " + m.station + (m.file ? " · " + m.file : "");
+  if (m.url) {
+    img.src = m.url + (token ? "&token=" + encodeURIComponent(token) : "");
+    img.classList.add("shown");
+    $("inspection-empty").style.display = "none";
+    text($("inspection-info"), what);
+  } else {
+    img.removeAttribute("src");
+    img.classList.remove("shown");
+    $("inspection-empty").style.display = "";
+    text($("inspection-empty"), m.file ? "overlay " + m.file + " not available" : "no overlay for " + what);
+    text($("inspection-info"), what);
+  }
+}
+
 // -- stud table: rows updated in place (thousands of studs) --------------------------------------
 const rowsById = new Map();
 const COLS = ["stud_id", "status", "inclination_deg", "x", "y", "z", "xy_error_mm", "view", "weld", "inspection"];
@@ -336,7 +354,8 @@ function onHello(msg) {
 }
 
 const HANDLERS = { hello: onHello, targets: onTargets, overlay: onOverlay, arm: onArm, cell: onCell, status: onStatus,
-                   alarms: onAlarms, registration: onRegistration, job: onJob, reply: onReply };
+                   alarms: onAlarms, registration: onRegistration, job: onJob, reply: onReply,
+                   inspection_overlay: onInspectionOverlay };
 
 setConnected(false, "connecting…");
 connect();
