@@ -53,12 +53,15 @@ class Listener(Node):
                                  QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
 
     def _on_status(self, msg: CellStatus) -> None:
+        # The sequencer's stamp (system clock, this machine): a latched status delivered late, when the
+        # listener is matched after the job began, keeps its time.
+        stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         with self._lock:
-            self.events.append(CycleEvent(time.monotonic(), "cell", msg.state_text))
+            self.events.append(CycleEvent(stamp if stamp > 0 else time.time(), "cell", msg.state_text))
 
-    def _on_feedback(self, msg) -> None:
+    def _on_feedback(self, msg) -> None:  # no stamp: the arrival (matched long before the first weld)
         with self._lock:
-            self.events.append(CycleEvent(time.monotonic(), "weld", msg.feedback.phase, msg.feedback.stud_id))
+            self.events.append(CycleEvent(time.time(), "weld", msg.feedback.phase, msg.feedback.stud_id))
 
 
 def run_part(part: str, out: Path, arm_port: int, extra: list[str]) -> dict:

@@ -50,6 +50,11 @@ def test_the_journal_motion_times_split_the_approach_phase():
     s = split_cycle(TIMELINE, studs=2, motion_s=motion)
     assert s.seconds["moves_between_studs"] == pytest.approx(0.25 + 0.2)
     assert s.seconds["approach"] == pytest.approx(0.15)
+    # a status re-published mid-approach cuts the phase in two: the split is of the whole phase
+    cut = sorted(TIMELINE + [cell(4.3, "welding")], key=lambda e: e.t_s)
+    s2 = split_cycle(cut, studs=2, motion_s=motion)
+    assert s2.seconds["moves_between_studs"] == pytest.approx(0.25 + 0.2)
+    assert s2.seconds["approach"] == pytest.approx(0.15)
 
 
 def test_no_studs_gives_no_rate_and_a_table_still_prints():

@@ -81,10 +81,13 @@ def split_cycle(events: Iterable[CycleEvent], studs: int,
     t_prev = evs[0].t_s if evs else 0.0
     start = t_prev
     end = t_prev
+    approach: dict[str, float] = {}  # per stud: its approach phase may be cut by re-published statuses
     for e in evs:
         dt = e.t_s - t_prev
-        if category:
-            _add(out, category, stud, dt, motion_s)
+        if category == "approach":
+            approach[stud] = approach.get(stud, 0.0) + dt
+        elif category:
+            out.seconds[category] += dt
         t_prev = end = e.t_s
         if e.kind == "cell":
             if e.name == cell_state:
@@ -96,18 +99,13 @@ def split_cycle(events: Iterable[CycleEvent], studs: int,
             category, stud = CELL_CATEGORY.get(cell_state, ""), ""
         elif e.kind == "weld" and cell_state == "welding":
             category, stud = PHASE_CATEGORY.get(e.name, "weld_overhead"), e.stud_id
+    for sid, dt in approach.items():
+        measured = motion_s.get(sid)
+        move = dt if measured is None else min(dt, float(measured.get("move", dt)))
+        out.seconds["moves_between_studs"] += move
+        out.seconds["approach"] += dt - move
     out.total_s = end - start
     return out
-
-
-def _add(out: CycleSplit, category: str, stud: str, dt: float, motion_s: Mapping[str, Mapping[str, float]]) -> None:
-    if category != "approach":
-        out.seconds[category] += dt
-        return
-    measured = motion_s.get(stud)
-    move = dt if measured is None else min(dt, float(measured.get("move", dt)))
-    out.seconds["moves_between_studs"] += move
-    out.seconds["approach"] += dt - move
 
 
 def motion_from_journal(records: Iterable[Mapping]) -> dict[str, dict[str, float]]:
