@@ -10,7 +10,7 @@ studs "unreachable" (reported, never silently dropped).
 
 Fewer stations: every station costs a camera move, a shot and an inspection. The tiling is fixed
 to a grid, so a cluster of studs astride a tile border costs two stations where one would see it.
-With ``fewest`` (default) a greedy set cover also places inner footprints freely -- every
+With ``fewest`` a greedy set cover also places inner footprints freely -- every
 placement can be slid until a stud touches its left and one its bottom edge, so those (N^2)
 placements are the candidates -- and it is taken when it needs fewer stations than the grid
 (each stud to the chosen station it is most central in; stations visited nearest-first from the
@@ -56,7 +56,7 @@ FEWEST_MAX_STUDS = 300  # the candidates grow as N^2
 def plan_stations(studs_xy_w: np.ndarray, fov_m: tuple[float, float], camera_height_m: float,
                   overlap: float = 0.15, yaw_rad: float = 0.0,
                   camera_reachable: Callable[[np.ndarray], bool] | None = None,
-                  plane_z_m: float = 0.0, fewest: bool = True) -> StationPlan:
+                  plane_z_m: float = 0.0, fewest: bool = False) -> StationPlan:
     """Stations for studs at ``studs_xy_w`` (N, 2) with a nadir camera ``camera_height_m`` above
     the working plane (world height ``plane_z_m``, e.g. the registered marks' height: the world
     is the arm's base frame, which need not lie in the plane) whose footprint is ``fov_m`` =
