@@ -252,3 +252,12 @@ def test_an_internal_error_ends_the_job_with_a_state_not_a_vanished_thread(tmp_p
     cell.weld = weld
     job, state, code, qa = run(cell, tmp_path)
     assert state == "failed" and "boom" in qa["job"]["message"] and code == 1
+
+
+def test_fewest_stations_covers_the_plate_with_fewer_stations_and_welds_every_stud_once(tmp_path):
+    grid_job, *_ = run(FakeCell(grid()), tmp_path / "grid")
+    cell = FakeCell(grid())
+    job, state, code, qa = run(cell, tmp_path / "few", fewest_stations=True)
+    assert (state, code) == ("done", 0)
+    assert job.stations_total < grid_job.stations_total
+    assert sorted(cell.journal) == sorted(cell.studs) and qa["summary"]["pass"] == len(cell.studs)

@@ -80,3 +80,36 @@ def test_a_reshoot_station_sees_the_stud_from_a_new_direction_each_attempt():
     # four different sides of the stud, 90 deg apart: the viewing direction changes every time
     gaps = np.diff(np.unwrap(seen))
     np.testing.assert_allclose(gaps, np.radians(90.0))
+
+
+def test_a_cluster_astride_the_grid_border_takes_one_station_not_two():
+    # 0.2 x 0.15 m footprint, no overlap: the grid tiles the 0.41 m span with three tiles from -0.095 m,
+    # which cut the cluster 0..0.2 m in two; two footprints placed freely see everything.
+    xy = np.array([[0.0, 0.0], [0.1, 0.02], [0.2, 0.0], [0.31, 0.01], [0.41, 0.0]])
+    grid = plan_stations(xy, (0.2, 0.15), 0.3, overlap=0.0, fewest=False)
+    few = plan_stations(xy, (0.2, 0.15), 0.3, overlap=0.0, fewest=True)
+    assert len(few.stations) < len(grid.stations)
+    assigned = sorted(i for s in few.stations for i in s.stud_indices)
+    assert assigned == list(range(len(xy))) and few.unreachable == ()
+    for st in few.stations:
+        assert _in_footprint(st, xy[list(st.stud_indices)], (0.2, 0.15), 0.0).all()
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_fewest_never_needs_more_stations_than_the_grid_and_each_stud_is_seen(seed):
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform((-0.2, 0.1), (0.4, 0.4), (int(rng.integers(5, 60)), 2))
+    fov = footprint_m(0.46, 0.5, 0.75, 0.3, 0.05)
+    grid = plan_stations(xy, fov, 0.3, overlap=0.15, yaw_rad=0.3, fewest=False)
+    few = plan_stations(xy, fov, 0.3, overlap=0.15, yaw_rad=0.3, fewest=True)
+    assert len(few.stations) <= len(grid.stations)
+    assert sorted(i for s in few.stations for i in s.stud_indices) == list(range(len(xy)))
+    for st in few.stations:
+        assert _in_footprint(st, xy[list(st.stud_indices)], fov, 0.15).all()
+
+
+def test_fewest_skips_a_placement_the_arm_cannot_reach_and_reports_what_nothing_covers():
+    xy = np.array([[0.0, 0.0], [0.19, 0.0], [0.5, 0.0], [0.69, 0.0], [2.0, 0.0]])
+    plan = plan_stations(xy, (0.2, 0.15), 0.3, overlap=0.0, camera_reachable=lambda p: p[0] < 1.0,
+                         fewest=True)
+    assert plan.unreachable == (4,) and plan.covered == 4

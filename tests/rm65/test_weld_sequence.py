@@ -6,6 +6,7 @@ import json
 import os
 import threading
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -338,3 +339,77 @@ def test_studs_on_any_slope_up_to_35_deg_are_welded_with_the_gun_along_their_nor
     axis = edge.tcp_pose[:3, 2]  # the tool's z: the gun, pointing into the part
     assert np.degrees(np.arccos(np.clip(axis @ -n, -1.0, 1.0))) < 1.0
     np.testing.assert_allclose(edge.position, target.position, atol=1e-4)
+
+
+# -- the cycle: fast approach to a short standoff, the slow final move, the studs' order -------------------
+FAST_CYCLE = WeldParams(standoff_m=0.05, tool_offset_m=0.15, pulse_s=0.01, dwell_s=0.01, joint_speed_pct=50,
+                        linear_speed_pct=10, approach_speed_pct=30, final_approach_m=0.01, stud_order="tour",
+                        motion_timeout_s=5.0, reconnect_timeout_s=3.0)
+
+
+def _linear_moves(sim):
+    return [(P.pose_from_wire(c.msg["pose"])[:3], c.msg["v"]) for c in sim.commands_named("movel")]
+
+
+def test_fast_approach_stops_short_and_the_last_stretch_is_slow(client, sim, tmp_path):
+    targets = dome_targets(rings=((0.0, 1), (0.05, 3)))
+    seq, journal = make_seq(client, tmp_path, params=FAST_CYCLE)
+    res = seq.run(targets)
+    assert res.success, res.message
+    assert set(welds_per_stud(sim, targets).values()) == {1}
+    by_stud = {t.stud_id: t for t in targets}
+    moves = _linear_moves(sim)
+    assert len(moves) == 3 * len(targets)  # fast approach, slow final move, retract
+    order = [r["stud"] for r in (json.loads(x) for x in (tmp_path / "weld.jsonl").read_text().splitlines())
+             if r["event"] == "started"]
+    for k, sid in enumerate(order):
+        t = by_stud[sid]
+        (p_short, v_fast), (p_contact, v_slow), (p_back, v_back) = moves[3 * k: 3 * k + 3]
+        np.testing.assert_allclose(p_short, t.position + 0.01 * t.normal, atol=1e-5)  # the short standoff
+        np.testing.assert_allclose(p_contact, t.position, atol=1e-5)
+        np.testing.assert_allclose(p_back, t.position + 0.05 * t.normal, atol=1e-5)  # clear of the stud again
+        assert (v_fast, v_slow, v_back) == (30, 10, 30)  # the contact is always approached at the slow speed
+    started = [json.loads(x) for x in (tmp_path / "weld.jsonl").read_text().splitlines()]
+    motion = [r["motion_s"] for r in started if r["event"] == "started"]
+    assert all(set(m) == {"move", "approach", "descend"} and min(m.values()) > 0 for m in motion)
+
+
+def test_a_fast_approach_above_the_speed_cap_is_refused_before_anything_moves(client, sim, tmp_path):
+    params = replace(FAST_CYCLE, approach_speed_pct=40)
+    seq, _journal = make_seq(client, tmp_path, params=params, max_linear_speed_pct=30)
+    res = seq.run(dome_targets(rings=((0.0, 1),)))
+    assert not res.success and "linear speed 40 % outside 1..30 %" in res.message
+    assert not sim.commands_named("movej") and not sim.commands_named("movel")
+
+
+def test_studs_are_welded_along_a_short_joint_path_each_once_and_reported_in_request_order(client, sim, tmp_path):
+    ring = dome_targets(rings=((0.10, 10),))
+    shuffled = [ring[k] for k in (0, 5, 1, 6, 2, 7, 3, 8, 4, 9)]  # across the ring and back, every time
+    seq, journal = make_seq(client, tmp_path, params=FAST_CYCLE)
+    res = seq.run(shuffled)
+    assert res.success, res.message
+    assert res.welded == [t.stud_id for t in shuffled]
+    assert set(welds_per_stud(sim, shuffled).values()) == {1}
+    joints = np.array([q for kind, q in sim.motion_log if kind == "movej"])
+    travel = np.sum(np.max(np.abs(np.diff(joints, axis=0)), axis=1))
+    # the given order crosses the ring each time: its approach joints travel far more
+    (tmp_path / "given").mkdir()
+    given_seq, _ = make_seq(client, tmp_path / "given", params=replace(FAST_CYCLE, stud_order="given"))
+    n_before = len(sim.motion_log)
+    assert given_seq.run(shuffled).success
+    given = np.array([q for kind, q in sim.motion_log[n_before:] if kind == "movej"])
+    assert travel < 0.7 * np.sum(np.max(np.abs(np.diff(given, axis=0)), axis=1))
+
+
+def test_a_drop_during_the_fast_approach_backs_out_along_the_normal_and_welds_the_stud_once(client, sim, tmp_path):
+    targets = dome_targets(rings=((0.0, 1), (0.05, 2)))
+    sim.drop_mid_motion(nth=1, fraction=0.5, command="movel")  # the first stud's fast approach
+    seq, journal = make_seq(client, tmp_path, params=FAST_CYCLE)
+    res = seq.run(targets)
+    assert res.success, res.message
+    assert set(welds_per_stud(sim, targets).values()) == {1}
+    first = [r for r in (json.loads(x) for x in (tmp_path / "weld.jsonl").read_text().splitlines())][0]["stud"]
+    t = {x.stud_id: x for x in targets}[first]
+    moves = _linear_moves(sim)
+    # after the reconnect: straight back out to the standoff before the stud is approached again
+    np.testing.assert_allclose(moves[1][0], t.position + 0.05 * t.normal, atol=1e-5)

@@ -105,6 +105,14 @@ PARAMS = [
     Param("dwell_s", 0.5, "hold still after the pulse while the gun completes the weld [s]", min=0.0, max=10.0),
     Param("joint_speed_pct", 30, "joint-move speed [% of max]", min=1, max=100),
     Param("linear_speed_pct", 10, "linear-move speed [% of max]", min=1, max=100),
+    Param("final_approach_m", 0.01, "the slow controlled final move: this last stretch before the contact at "
+          "linear_speed_pct; the rest of the standoff and the retract at approach_speed_pct (0: the whole "
+          "standoff slow) [m]", min=0.0, max=0.3),
+    Param("approach_speed_pct", 30, "the fast straight approach to final_approach_m and the retract "
+          "[% of max; within max_linear_speed_pct]", min=1, max=100),
+    Param("stud_order", "tour", "the order a job's studs are welded in: 'tour' (a short joint-space path from "
+          "the current joints and back), 'path' (no way back) or 'given' (the request's)",
+          choices=("tour", "path", "given")),
     Param("max_joint_speed_pct", 50, "speed cap for joint moves [%]", min=1, max=100),
     Param("max_linear_speed_pct", 30, "speed cap for linear moves [%]", min=1, max=100),
     Param("workspace_min_m", [-0.70, -0.70, -0.02], "workspace box lower corner, world [m]",
@@ -140,7 +148,8 @@ def job_config(p: dict) -> tuple[WeldParams, SafetyLimits]:
         trigger_on_tool=p["trigger_on_tool"], set_io_mode=p["set_io_mode"], pulse_s=p["pulse_s"],
         dwell_s=p["dwell_s"], joint_speed_pct=p["joint_speed_pct"], linear_speed_pct=p["linear_speed_pct"],
         motion_timeout_s=p["motion_timeout_s"], reconnect_timeout_s=p["reconnect_timeout_s"],
-        on_disconnect=p["on_disconnect"])
+        on_disconnect=p["on_disconnect"], final_approach_m=p["final_approach_m"],
+        approach_speed_pct=p["approach_speed_pct"], stud_order=p["stud_order"])
     limits = SafetyLimits(
         workspace_min_m=tuple(p["workspace_min_m"]), workspace_max_m=tuple(p["workspace_max_m"]),
         max_tool_tilt_deg=p["max_tool_tilt_deg"], yaw_step_deg=p["yaw_step_deg"],

@@ -12,16 +12,25 @@ Per target, in order:
 2. safety check (gun tilt from vertical, workspace, reach/IK inside the joint limits for the
    free rotation about the stud's axis nearest the current joints, straight descent
    feasible): a rejection is journaled ``skipped(reason)`` and nothing is sent;
-3. ``approach``: ``movej`` to the checked joint solution of the approach pose, ``standoff_m``
-   out along the surface normal, tool z pointing into the surface;
-4. ``descend``: ``movel`` along the normal to the contact pose (tool tip on the surface, or
-   ``plunge_m`` beyond it);
+3. ``approach``: ``movej`` to the checked joint solution of the approach (clearance) pose,
+   ``standoff_m`` out along the surface normal, tool z pointing into the surface; then, with
+   ``final_approach_m`` shorter than the standoff, a fast ``movel`` (``approach_speed_pct``)
+   along the normal to the short standoff ``final_approach_m`` from the surface;
+4. ``descend``: the slow controlled final ``movel`` (``linear_speed_pct``) along the normal to
+   the contact pose (tool tip on the surface, or ``plunge_m`` beyond it);
 5. ``weld``: journal ``started`` (fsync'ed), digital output ``trigger_io`` high for ``pulse_s``,
    then low. **The controller's outputs source at most 2 mA (RM65_PROTOCOL.md §1.8): a real
    stud-welding gun must be triggered through an external relay / opto-coupled FET module on
    that output, never wired to it directly.**
 6. ``dwell`` ``dwell_s`` (the gun completes its cycle), journal ``welded``;
-7. ``retract``: ``movel`` back to the approach pose.
+7. ``retract``: ``movel`` back to the approach pose (at ``approach_speed_pct`` when the fast
+   approach is on: away from the surface nothing is touched).
+
+Order: with ``stud_order`` "path" the job's studs are welded along a short path through their
+approach joints from the arm's current joints (:mod:`.stud_order`, nearest neighbour + 2-opt);
+"tour" also counts the way back to the start (the cell shoots the station again after its
+welds); "given" keeps the request's order. Every stud is still processed exactly once and the
+result lists it in the request's order.
 
 Stops: :meth:`WeldSequence.cancel` is graceful (motions before the trigger are stopped at once and
 the tool backs out along the normal; once the trigger fired, the weld, dwell and retract finish;
@@ -58,12 +67,14 @@ import numpy as np
 
 from .arm_client import ArmClient, ArmCommandError, ArmConnectionError, ArmError, ArmStopped, ArmTimeout
 from .journal import Journal, JournalError
-from .kinematics import matrix_to_pose6
+from .kinematics import matrix_to_pose6, tool_pose_facing
 from .safety import SafetyChecker, StudPlan
+from .stud_order import order_by_path
 
 _log = logging.getLogger(__name__)
 
 PHASES = ("approach", "descend", "weld", "dwell", "retract", "skip")
+STUD_ORDERS = ("given", "path", "tour")
 
 
 @dataclass(frozen=True)
@@ -103,22 +114,35 @@ class WeldParams:
     joint_speed_pct: int = 30
     linear_speed_pct: int = 10
     motion_timeout_s: float = 60.0
+    # The fast approach: the last final_approach_m before the contact at linear_speed_pct (slow,
+    # controlled), the rest of the standoff and the retract at approach_speed_pct. 0 (or not
+    # shorter than the standoff): the whole standoff slow, the retract too.
+    final_approach_m: float = 0.0
+    approach_speed_pct: int = 10
+    stud_order: str = "given"  # "given" | "path" | "tour"
     reconnect_timeout_s: float = 10.0
     max_reconnects_per_stud: int = 3
     on_disconnect: str = "continue"  # or "abort"
     require_base_work_frame: bool = True
 
     def __post_init__(self) -> None:
+        if self.stud_order not in STUD_ORDERS:
+            raise ValueError(f"stud_order={self.stud_order!r}: expected one of {', '.join(STUD_ORDERS)}")
         if self.on_disconnect not in ("continue", "abort"):
             raise ValueError(f"on_disconnect={self.on_disconnect!r}: expected 'continue' or 'abort'")
         for name in ("standoff_m", "tool_offset_m", "plunge_m", "tool_payload_kg", "pulse_s", "dwell_s",
-                     "motion_timeout_s", "reconnect_timeout_s"):
+                     "motion_timeout_s", "reconnect_timeout_s", "final_approach_m"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"{name}={getattr(self, name)} must be a finite number")
             if getattr(self, name) < 0:
                 raise ValueError(f"{name}={getattr(self, name)} must not be negative")
         if self.standoff_m <= 0:
             raise ValueError("standoff_m must be positive (the approach pose must be off the surface)")
+
+    @property
+    def fast_approach(self) -> bool:
+        """A fast approach to a short standoff before the slow final move (see the fields)."""
+        return 0.0 < self.final_approach_m < self.standoff_m
 
     @property
     def tool_T(self) -> np.ndarray:
@@ -178,6 +202,7 @@ class WeldSequence:
         self.done = 0
         self.total = 0
         self.job_id = ""  # of the running (or last) job; in every journal record it writes
+        self._below_clearance = False  # the tool is nearer the surface than the standoff (fast approach on)
 
     # ------------------------------------------------------------------------------------
     # control from other threads
@@ -246,6 +271,7 @@ class WeldSequence:
                 return res
             self.running = True
             self._cancel = self._halt = self._paused = False
+            self._below_clearance = False
             self.total, self.done = len(targets), 0
             self.job_id = res.job_id = new_job_id()
         try:
@@ -262,7 +288,8 @@ class WeldSequence:
         if len(set(ids)) != len(ids):
             res.message = "duplicate stud ids in the job: " + ", ".join(sorted({i for i in ids if ids.count(i) > 1}))
             return
-        for v, linear in ((self.params.joint_speed_pct, False), (self.params.linear_speed_pct, True)):
+        for v, linear in ((self.params.joint_speed_pct, False), (self.params.linear_speed_pct, True),
+                          (self.params.approach_speed_pct, True)):
             why = self.safety.check_speed(v, linear)
             if why:
                 res.message = f"job refused: {why}"
@@ -282,6 +309,46 @@ class WeldSequence:
 
         with self._lock:
             self._epoch = self.client.stop_count  # any stop from now on ends every motion of this job
+        request_order = {t.stud_id: k for k, t in enumerate(targets)}
+        if self.params.stud_order != "given":
+            try:
+                targets = self._ordered(targets)
+            except ArmError as exc:
+                res.message = f"job not started: {exc}"
+                return
+        try:
+            self._weld_all(targets, resume, res)
+        finally:
+            for ids_ in (res.welded, res.skipped, res.failed):  # the request's order, whatever the welding order
+                ids_.sort(key=lambda sid: request_order.get(sid, len(request_order)))
+
+    def _ordered(self, targets: list[StudTarget]) -> list[StudTarget]:
+        """``targets`` along a short joint-space path from the current joints (:mod:`.stud_order`).
+        Each stud's place comes from the IK of its approach pose at the wrist's current yaw; one
+        without a solution keeps its relative place at the end (its own check refuses it)."""
+        p = self.params
+        q_now = self.client.get_state().joints_rad
+        kin, tool_T = self.safety.kin, self.safety.tool_T
+        x_hint = (kin.fk(q_now) @ tool_T)[:3, 0]
+        solved, Q, rest = [], [], []
+        for t in targets:
+            if self.journal.status(t.stud_id) in ("welded", "uncertain"):
+                rest.append(t)  # not moved to: the journal decides at once
+                continue
+            ik = kin.ik(tool_pose_facing(t.position + p.standoff_m * t.normal, t.normal, x_hint=x_hint), q_now,
+                        tool=tool_T)
+            if ik.success:
+                solved.append(t)
+                Q.append(ik.q)
+            else:
+                rest.append(t)
+        if not solved:
+            return targets
+        order = order_by_path(q_now, np.asarray(Q), kin.max_speed_rad_s,
+                              q_end=q_now if p.stud_order == "tour" else None)
+        return [solved[k] for k in order] + rest
+
+    def _weld_all(self, targets: list[StudTarget], resume: bool, res: JobResult) -> None:
         i = 0
         reconnects = 0
         while i < len(targets):
@@ -439,6 +506,12 @@ class WeldSequence:
         else:
             self.client.move_linear_and_wait(matrix_to_pose6(target), v, p.motion_timeout_s, stop_count=self._epoch)
 
+    def _timed_move(self, kind: str, target, v: int) -> float:
+        """:meth:`_move`, returning how long it took (s), for the journal's ``motion_s``."""
+        t0 = time.monotonic()
+        self._move(kind, target, v)
+        return round(time.monotonic() - t0, 4)
+
     def _between_phases(self) -> None:
         self._wait_not_paused()
         self._check_halt()
@@ -470,21 +543,33 @@ class WeldSequence:
             if self._cancel:
                 raise _JobEnded("cancelled")
             self._set_phase(t, "approach")
-            self._move("joint", plan.q_approach, p.joint_speed_pct)
+            motion_s = {"move": self._timed_move("joint", plan.q_approach, p.joint_speed_pct)}
+            if p.fast_approach:
+                self._below_clearance = True  # from here on, a recovery backs out along the normal
+                T_short = plan.T_contact.copy()
+                T_short[:3, 3] = t.position + p.final_approach_m * t.normal
+                self._between_phases()
+                if self._cancel:
+                    self._back_out(plan)
+                    raise _JobEnded("cancelled")
+                motion_s["approach"] = self._timed_move("linear", T_short, p.approach_speed_pct)
             self._between_phases()
             if self._cancel:
+                if p.fast_approach:
+                    self._back_out(plan)
                 raise _JobEnded("cancelled")
             self._set_phase(t, "descend")
-            self._move("linear", plan.T_contact, p.linear_speed_pct)
+            motion_s["descend"] = self._timed_move("linear", plan.T_contact, p.linear_speed_pct)
             self._between_phases()
             if self._cancel:
                 self._back_out(plan)
                 raise _JobEnded("cancelled")
             self._set_phase(t, "weld")
-            self._weld(t, plan)
+            self._weld(t, plan, motion_s)
             self._between_phases()
             self._set_phase(t, "retract")
-            self._move("linear", plan.T_approach, p.linear_speed_pct)
+            self._move("linear", plan.T_approach, p.approach_speed_pct if p.fast_approach else p.linear_speed_pct)
+            self._below_clearance = False
         except ArmStopped as exc:
             if self._halt:
                 raise _JobEnded(self._stop_message()) from exc
@@ -501,14 +586,14 @@ class WeldSequence:
             self.done += 1
         return "welded"
 
-    def _weld(self, t: StudTarget, plan: StudPlan) -> None:
+    def _weld(self, t: StudTarget, plan: StudPlan, motion_s: dict[str, float] | None = None) -> None:
         p = self.params
         # The joints the controller reports at the contact pose: the gun's real axis at the weld
         # (forward kinematics), for the QA record and the demo's check against the true normal.
         q_at_weld = self.client.get_state().joints_rad
         # Durable *before* the trigger: after a crash this stud reads "uncertain", never "not welded".
         self.journal.started(t.stud_id, job=self.job_id, position=t.position, normal=t.normal, joints=plan.q_contact,
-                             joints_at_weld=q_at_weld)
+                             joints_at_weld=q_at_weld, **({"motion_s": motion_s} if motion_s else {}))
         try:
             self.client.set_do(p.trigger_io, True, tool=p.trigger_on_tool)
             self._sleep(p.pulse_s, interruptible=True)
@@ -536,6 +621,7 @@ class WeldSequence:
         try:
             self.client.move_linear_and_wait(matrix_to_pose6(plan.T_approach), self.params.linear_speed_pct,
                                              self.params.motion_timeout_s, stop_count=stop_count)
+            self._below_clearance = False
         except ArmError as exc:
             _log.error("could not back out along the normal: %s", exc)
 
@@ -562,8 +648,9 @@ class WeldSequence:
         self.client.wait_idle(p.motion_timeout_s)
         self._prepare()
         self._check_halt()
-        if phase in ("descend", "weld", "dwell", "retract"):
+        if phase in ("descend", "weld", "dwell", "retract") or self._below_clearance:
             # Straight back along the normal to the standoff, keeping the current orientation.
             T_back = self.safety.kin.fk(self.client.get_state().joints_rad) @ p.tool_T
             T_back[:3, 3] = t.position + p.standoff_m * t.normal
             self._move("linear", T_back, p.linear_speed_pct)
+            self._below_clearance = False

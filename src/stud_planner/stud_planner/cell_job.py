@@ -151,6 +151,7 @@ class JobConfig:
     fov_distance_m: float = 0.5
     image_aspect: float = 0.75
     overlap: float = 0.15
+    fewest_stations: bool = False  # station_planning: free footprints when they need fewer stations than the grid
     weld_resends: int = 3
     reshoot_attempts: int = 2
     reshoot_offset_m: float = 0.08
@@ -216,7 +217,7 @@ class CellJob:
 
         fov = footprint_m(c.fov_width_m, c.fov_distance_m, c.image_aspect, c.camera_height_m, c.part_height_m)
         plan = plan_stations(studs_w, fov, c.camera_height_m, overlap=c.overlap,
-                             yaw_rad=math.radians(c.camera_yaw_deg), plane_z_m=plane_z)
+                             yaw_rad=math.radians(c.camera_yaw_deg), plane_z_m=plane_z, fewest=c.fewest_stations)
         for i in plan.unreachable:
             self.stud_report[layout.ids[i]]["status"] = "unreachable"
             self.qa[layout.ids[i]]["reasons"] = ["unreachable: no camera station the arm reaches covers it"]

@@ -66,6 +66,10 @@ PARAMS = [
     Param("fov_distance_m", _JOB.fov_distance_m, "distance of fov_width_m [m]", min=0.05, max=10.0),
     Param("image_aspect", _JOB.image_aspect, "image height / width", min=0.1, max=10.0),
     Param("overlap", _JOB.overlap, "footprint fraction kept free at the image border", min=0.0, max=0.85),
+    # On in the cell (fewer stations: fewer camera moves, shots and inspections); the job's own default
+    # keeps the grid tiling.
+    Param("fewest_stations", True, "place the stations' footprints freely when that needs fewer stations than "
+          "the grid tiling"),
     Param("step_timeout_s", 60.0, "longest wait for a move, a shot, a registration or the targets [s]",
           min=1.0, max=3600.0),
     Param("weld_timeout_s", 1800.0, "longest wait for one station's weld job [s]", min=1.0, max=86400.0),
