@@ -4,10 +4,10 @@
 A bridge carries about 250,000 shear studs. This script writes drawings of 10k, 50k and 250k
 studs into a temporary folder (never into the repository): the demo drawing's marks O, A, B
 and 17 studs, plus a 100 mm grid of 19 mm studs around them, through
-:mod:`stud_planner.dxf_writer` (an R2010 mm drawing as CAD writes it). Each size then runs in a
+:mod:`stud_planner.drawing.dxf_writer` (an R2010 mm drawing as CAD writes it). Each size then runs in a
 fresh process, as a user runs it:
 
-* ``parse``: :func:`dxf_layout.read_layout` (ezdxf load + circles + ids + checks);
+* ``parse``: :func:`stud_planner.drawing.read_layout` (ezdxf load + circles + ids + checks);
 * ``plan``: :func:`offline_plan.plan` over ``bags/dome_demo`` (3 views: registration, matching,
   the best view per stud; parses the drawing again inside, as the command does);
 * ``write``: the JSON report (strict JSON, as ``plan --out`` writes it);
@@ -54,8 +54,8 @@ def write_drawing(path: Path, n_studs: int) -> Path:
     """The demo drawing's marks and studs plus a grid around them: ``n_studs`` studs in all."""
     import numpy as np
 
-    from stud_planner.dxf_layout import read_layout
-    from stud_planner.dxf_writer import write_scene_drawing
+    from stud_planner.drawing import read_layout
+    from stud_planner.drawing.dxf_writer import write_scene_drawing
 
     demo = read_layout(DEMO_DRAWING)
     marks = {k: (m.x_m, m.y_m) for k, m in demo.marks.items()}
@@ -80,11 +80,12 @@ def _rss_mb() -> float:
 
 def measure_in_process(drawing: Path, report: Path) -> dict:
     """Run in a child: parse, plan, write; seconds and peak RSS (MB)."""
-    from stud_planner import dxf_layout, offline_plan
     from stud_common.strict_json import write_json
+    from stud_planner import offline_plan
+    from stud_planner.drawing import read_layout
 
     t0 = time.perf_counter()
-    layout = dxf_layout.read_layout(drawing)
+    layout = read_layout(drawing)
     t1 = time.perf_counter()
     result = offline_plan.plan(drawing, DEMO_BAG, quiet=True)
     t2 = time.perf_counter()

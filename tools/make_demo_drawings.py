@@ -7,7 +7,7 @@ Writes ``flat_plate_demo.dxf``: a 600 x 400 mm flat plate, 4 x 3 studs of 19 mm 
 100 mm grid, marks O, A, B (30 mm circles, labelled) at three corners; mm, R2010, the drawing
 frame rotated by 15 deg and shifted in the WCS so that the frame transform is exercised.
 Only small files (< 50 kB) are committed. The demo dome drawing is written from the demo
-scene through :func:`stud_planner.dxf_writer.write_scene_drawing` (same format), once that
+scene through :func:`stud_planner.drawing.dxf_writer.write_scene_drawing` (same format), once that
 scene exists.
 """
 from __future__ import annotations
@@ -21,10 +21,10 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 try:
-    from stud_planner.dxf_writer import write_scene_drawing
+    from stud_planner.drawing.dxf_writer import write_scene_drawing
 except ImportError:  # run from a checkout without the workspace sourced
     sys.path.insert(0, str(REPO / "src" / "stud_planner"))
-    from stud_planner.dxf_writer import write_scene_drawing
+    from stud_planner.drawing.dxf_writer import write_scene_drawing
 
 DATA_DIR = REPO / "src" / "stud_planner" / "data"
 MAX_COMMITTED_BYTES = 50_000

@@ -13,7 +13,7 @@ import subprocess
 import pytest
 
 from rosproc import REPO, wait_for
-from stud_planner.dxf_layout import read_layout
+from stud_planner.drawing import read_layout
 from stud_planner.launcher import group_members
 
 N_DEMO_STUDS = len(read_layout(REPO / "src" / "stud_planner" / "data" / "dome_demo.dxf").studs)

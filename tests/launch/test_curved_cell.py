@@ -11,8 +11,8 @@ import numpy as np
 
 from stud_perception.scene import MarkingBoard, Plate, Pose2D, SceneSpec, Trough, load_scene, scene_from_dict, scene_to_dict
 from stud_planner.demo import gun_axes_at_weld, score
-from stud_planner.dxf_layout import read_layout
-from stud_planner.dxf_writer import write_layout_dxf
+from stud_planner.drawing import read_layout
+from stud_planner.drawing.dxf_writer import write_layout_dxf
 from test_cell_ros import REPO, free_port
 
 BOARD_POSE = Pose2D(0.16, -0.34, 0.0)  # the bundled parts' board (tools/make_demo_data.py)

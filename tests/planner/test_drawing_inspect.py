@@ -12,7 +12,7 @@ import pytest
 
 from stud_planner import drawing_inspect
 from stud_planner.drawing_inspect import main
-from stud_planner.dxf_writer import write_layout_dxf
+from stud_planner.drawing.dxf_writer import write_layout_dxf
 
 REPO = Path(__file__).resolve().parents[2]
 CORPUS = REPO.parent / "shared" / "data" / "dxf"

@@ -1,6 +1,6 @@
-"""stud_planner.dxf_layout: DXF drawings -> StudLayout (drawing frame, metres).
+"""stud_planner.drawing: DXF drawings -> StudLayout (drawing frame, metres).
 
-Round trips through drawings written by stud_planner.dxf_writer (several DXF versions, binary,
+Round trips through drawings written by stud_planner.drawing.dxf_writer (several DXF versions, binary,
 block references, units), every error and warning the parser promises, and the real corpus in
 shared/data/dxf (CAD programs' and libraries' files: each parses or fails with DrawingError).
 """
@@ -19,7 +19,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stud_planner.dxf_layout import (
+from stud_planner.drawing import (
     DrawingError,
     StudLayout,
     close_pairs,
@@ -27,7 +27,7 @@ from stud_planner.dxf_layout import (
     read_layout,
     units_to_metres,
 )
-from stud_planner.dxf_writer import write_layout_dxf
+from stud_planner.drawing.dxf_writer import write_layout_dxf
 
 REPO = Path(__file__).resolve().parents[2]
 CORPUS = REPO.parent / "shared" / "data" / "dxf"
@@ -108,7 +108,7 @@ def test_block_references_are_expanded_with_their_full_transform(tmp_path, flavo
 
 
 def test_insert_matrices_match_ezdxf_for_random_references():
-    from stud_planner.dxf_layout import _insert_matrices, _matrix
+    from stud_planner.drawing.circles import _insert_matrices, _matrix
 
     rng = np.random.default_rng(3)
     doc = ezdxf.new("R2010")
@@ -636,7 +636,7 @@ def test_error_collinear_and_coincident_marks(tmp_path):
 
 
 def test_unexpected_ezdxf_failures_become_drawing_errors(tmp_path, monkeypatch):
-    import stud_planner.dxf_layout as dl
+    import stud_planner.drawing.circles as dl
 
     path = write_layout_dxf(tmp_path / "ok.dxf", STUDS, MARKS)
 

@@ -1,4 +1,4 @@
-"""dxf_plain_circles is a faster path, not a second parser: on every file -- the DXF corpus, the
+"""stud_planner.drawing.plain_circles is a faster path, not a second parser: on every file -- the DXF corpus, the
 writer's variants and hand-made oddities -- read_circles gives exactly the same result with it
 as with ezdxf alone, and it declines whatever it cannot decode as ezdxf does."""
 from __future__ import annotations
@@ -9,9 +9,10 @@ import ezdxf
 import numpy as np
 import pytest
 
-from stud_planner.dxf_layout import DrawingError, _check_file, _load_with_plain_circles, read_circles, read_layout
-from stud_planner.dxf_plain_circles import split_plain_circles
-from stud_planner.dxf_writer import write_layout_dxf
+from stud_planner.drawing import DrawingError, read_circles, read_layout
+from stud_planner.drawing.dxf_file import _check_file, _load_with_plain_circles
+from stud_planner.drawing.dxf_writer import write_layout_dxf
+from stud_planner.drawing.plain_circles import split_plain_circles
 
 REPO = Path(__file__).resolve().parents[2]
 CORPUS = REPO.parent / "shared" / "data" / "dxf"

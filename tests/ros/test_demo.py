@@ -8,7 +8,7 @@ import subprocess
 
 from rosproc import REPO
 
-from stud_planner.dxf_layout import read_layout
+from stud_planner.drawing import read_layout
 
 DXF = REPO / "src" / "stud_planner" / "data" / "dome_demo.dxf"
 

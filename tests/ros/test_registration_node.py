@@ -16,7 +16,7 @@ from rosproc import ros2_run, wait_for
 from stud_common import ros_io
 from stud_perception.camera_node import shot_messages
 from stud_perception.scene import MarkingBoard, load_scene, render, view_camera
-from stud_planner.dxf_layout import read_layout
+from stud_planner.drawing import read_layout
 from stud_planner.msg_convert import layout_to_msg
 
 from test_sensor_nodes import DEMO_DXF, DEMO_SCENE

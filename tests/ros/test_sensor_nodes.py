@@ -14,7 +14,7 @@ from rosproc import REPO, ros2_run, wait_for
 from stud_common import ros_io
 from stud_perception import image_io
 from stud_perception.scene import load_scene, render
-from stud_planner.dxf_layout import read_layout
+from stud_planner.drawing import read_layout
 
 DEMO_DXF = REPO / "src" / "stud_planner" / "data" / "dome_demo.dxf"
 DEMO_SCENE = REPO / "src" / "stud_perception" / "config" / "dome_scene.json"

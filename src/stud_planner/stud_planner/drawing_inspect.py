@@ -21,7 +21,7 @@ import numpy as np
 
 from stud_common.strict_json import write_json
 
-from .dxf_layout import DrawingError, StudLayout, read_layout, units_to_metres
+from stud_planner.drawing import DrawingError, StudLayout, read_layout, units_to_metres
 
 PROG = "drawing_inspect"
 

@@ -1,6 +1,6 @@
 """Drawing node: `ros2 run stud_planner drawing --ros-args -p drawing_file:=part.dxf`.
 
-Reads the DXF (stud_planner.dxf_layout) and publishes ``/drawing/layout`` (StudLayout,
+Reads the DXF (stud_planner.drawing) and publishes ``/drawing/layout`` (StudLayout,
 reliable + transient local, so a late subscriber such as the HMI or a matcher started
 later still gets it) and ``/drawing/poses`` (PoseArray in the ``drawing`` frame, for
 visualisation). ``/drawing/load`` (LoadDrawing) reloads the file or loads another one. A
@@ -16,7 +16,7 @@ from stud_welding_msgs.srv import LoadDrawing
 
 from stud_common import ros_io
 from stud_common.ros_io import Param
-from stud_planner import dxf_layout
+from stud_planner.drawing import DrawingError, read_layout
 from stud_planner.msg_convert import layout_poses, layout_to_msg
 
 PARAMS = [
@@ -51,13 +51,13 @@ class DrawingNode(Node):
     def load(self, path: str) -> tuple[bool, str, int]:
         p = self.p
         try:
-            layout = dxf_layout.read_layout(
+            layout = read_layout(
                 path, stud_layers=list(p["stud_layers"]), mark_layer=p["mark_layer"],
                 units_if_unitless=p["units_if_unitless"],
                 min_diameter_m=p["min_diameter_m"] or None, max_diameter_m=p["max_diameter_m"] or None,
                 min_spacing_m=None if p["min_spacing_m"] < 0 else p["min_spacing_m"],
                 include_hidden_layers=p["include_hidden_layers"])
-        except dxf_layout.DrawingError as exc:
+        except DrawingError as exc:
             self.get_logger().error(str(exc))
             self.diag.set(self.diag.ERROR, str(exc), file=path)
             self.diag.publish()

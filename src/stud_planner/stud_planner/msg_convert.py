@@ -12,10 +12,10 @@ import numpy as np
 from geometry_msgs.msg import Point, Pose, PoseArray, Quaternion
 from stud_welding_msgs.msg import Registration, Stud, StudLayout
 
-from stud_planner import dxf_layout
+from stud_planner import drawing
 
 
-def layout_to_msg(layout: dxf_layout.StudLayout, stamp=None) -> StudLayout:
+def layout_to_msg(layout: drawing.StudLayout, stamp=None) -> StudLayout:
     msg = StudLayout()
     if stamp is not None:
         msg.header.stamp = stamp

@@ -30,7 +30,7 @@ from stud_perception import image_io
 from stud_common.strict_json import write_json
 from stud_perception.markers import MarkDetectorConfig
 from stud_perception.view_registration import config_for_layout, register_view
-from stud_planner import dxf_layout
+from stud_planner.drawing import DrawingError, read_layout
 from stud_planner.gun_clearance import GunModel
 from stud_planner.view_planning import (ALGORITHMS, STATUS_OK, STATUS_OUT_OF_VIEW, STATUS_TEXT, PlannerConfig,
                                         draw_targets_overlay, plan_view)
@@ -270,8 +270,8 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
     :func:`image_io.camera_model_from_msgs`)."""
     topics = topics or DEFAULT_TOPICS
     try:
-        layout = dxf_layout.read_layout(drawing)
-    except dxf_layout.DrawingError as exc:
+        layout = read_layout(drawing)
+    except DrawingError as exc:
         raise PlanError(str(exc)) from None
     config = config or PlannerConfig(algorithm=algorithm)
     warnings: list[str] = []

@@ -19,7 +19,7 @@ import ezdxf
 import numpy as np
 from ezdxf.math import OCS
 
-from .dxf_layout import units_to_metres
+from stud_planner.drawing.units import units_to_metres
 
 __all__ = ["write_layout_dxf", "write_scene_drawing"]
 

@@ -1,0 +1,142 @@
+"""The marks O, A, B (by labels or by geometry) and the drawing frame they define."""
+from __future__ import annotations
+
+import fnmatch
+import math
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from stud_planner.drawing.circles import _LABEL_LETTERS
+from stud_planner.drawing.layout_types import CircleSet, DrawingError
+from stud_planner.drawing.neighbours import _TooDense, close_pairs
+
+
+
+# -- marks and the frame ---------------------------------------------------------------------------
+def _layer_matcher(patterns: str | Sequence[str]):
+    pats = [patterns] if isinstance(patterns, str) else list(patterns)
+    pats = [p.casefold() for p in pats if p]
+
+    def match(layer: str) -> bool:
+        lay = layer.casefold()
+        # the exact name first: AutoCAD allows [ ] in layer names, which fnmatch reads as a class
+        return any(lay == p or fnmatch.fnmatchcase(lay, p) for p in pats)
+
+    return match, pats
+
+
+def _fmt_pats(patterns: str | Sequence[str]) -> str:
+    return ", ".join([patterns] if isinstance(patterns, str) else list(patterns))
+
+
+def _merge_concentric(path: Path, idx: np.ndarray, xy: np.ndarray, r: np.ndarray, tol: float) -> np.ndarray:
+    """Indices of mark circles with concentric duplicates merged (the largest circle is kept)."""
+    if idx.size < 2:
+        return idx
+    order = idx[np.lexsort((xy[idx, 1], xy[idx, 0], -r[idx]))]  # largest first, then by position
+    alive = np.ones(order.size, dtype=bool)
+    try:
+        i, j, _ = close_pairs(xy[order], tol)
+    except _TooDense:
+        raise DrawingError(f"{path}: marks ambiguous: too many coincident circles on the mark layer") from None
+    for a, b in sorted(zip(i.tolist(), j.tolist())):
+        if alive[a]:
+            alive[b] = False
+    kept = order[alive]
+    return kept[np.lexsort((xy[kept, 1], xy[kept, 0]))]
+
+
+def _angle_deg(p: np.ndarray, q: np.ndarray, s: np.ndarray) -> float:
+    """Angle at p between pq and ps, degrees."""
+    a, b = q - p, s - p
+    return math.degrees(math.atan2(abs(a[0] * b[1] - a[1] * b[0]), float(a @ b)))
+
+
+def _identify_marks(
+    path: Path, cs: CircleSet, mark_layer: str | Sequence[str], dup_tol_units: float,
+    label_distance_factor: float, collinear_tol_deg: float, right_angle_ambiguity_deg: float,
+) -> tuple[dict[str, int], str, list[str], np.ndarray]:
+    """Pick the O, A, B circles (indices into ``cs``).
+
+    Returns (marks, rule, warnings, members): ``members`` are all mark-layer circles concentric
+    with a chosen mark (the rings of a target symbol), which are never studs.
+    """
+    match, _ = _layer_matcher(mark_layer)
+    xy, r = cs.centers_wcs, cs.radii
+    hit = {lay: match(lay) for lay in set(cs.layers)}
+    on_layer = np.array([k for k, lay in enumerate(cs.layers) if hit[lay]], dtype=np.int64)
+    cand = _merge_concentric(path, on_layer, xy, r, dup_tol_units)
+    where = f"on layer {_fmt_pats(mark_layer)}"
+    warns: list[str] = []
+    if cand.size < 3:
+        raise DrawingError(
+            f"{path}: marks missing: found {cand.size} mark circle{'s' if cand.size != 1 else ''} {where}, "
+            f"need 3 (O, A, B){cs.skipped_summary()}; layers: {cs.layer_summary()}"
+        )
+
+    # Labels: each candidate circle takes the letter of its nearest O/A/B label within reach.
+    by_letter: dict[str, list[int]] = {k: [] for k in _LABEL_LETTERS}
+    if cs.labels:
+        lab_xy = np.array([(x, y) for _, x, y in cs.labels])
+        letters = [lt for lt, _, _ in cs.labels]
+        for k in cand:
+            d = np.hypot(*(lab_xy - xy[k]).T)
+            j = int(np.argmin(d))
+            if d[j] <= label_distance_factor * 2.0 * r[k]:
+                by_letter[letters[j]].append(int(k))
+    labelled = {lt: ks for lt, ks in by_letter.items() if ks}
+    multi = {lt: ks for lt, ks in labelled.items() if len(ks) > 1}
+    if multi:
+        lt, ks = next(iter(multi.items()))
+        raise DrawingError(f"{path}: marks ambiguous: label {lt!r} is nearest to {len(ks)} mark circles {where}")
+    if len(labelled) == 3:
+        marks = {lt: ks[0] for lt, ks in labelled.items()}
+        if cand.size > 3:
+            warns.append(f"{path.name}: {cand.size - 3} unlabelled circles {where} ignored (marks found by labels)")
+        return marks, "labels", warns, _members(marks, on_layer, xy, dup_tol_units)
+
+    if cand.size > 3:
+        raise DrawingError(
+            f"{path}: marks ambiguous: found {cand.size} mark circles {where} but only "
+            f"{len(labelled)} of the labels O, A, B next to them; need exactly 3 circles or all three labels"
+        )
+    p = [xy[k] for k in cand]
+    for s1, s2 in ((0, 1), (0, 2), (1, 2)):
+        dist = math.dist(p[s1], p[s2])
+        if dist <= 2.0 * max(r[cand[s1]], r[cand[s2]]):
+            raise DrawingError(f"{path}: marks coincident: two of the 3 mark circles {where} overlap "
+                               f"(centres {dist:g} drawing units apart)")
+    angles = [_angle_deg(p[k], p[(k + 1) % 3], p[(k + 2) % 3]) for k in range(3)]
+    if max(angles) > 180.0 - collinear_tol_deg:
+        raise DrawingError(f"{path}: marks collinear: the 3 mark circles {where} lie on one line "
+                           f"(angles {', '.join(f'{a:.2f}' for a in angles)} deg), they define no frame")
+    off = sorted(range(3), key=lambda k: abs(angles[k] - 90.0))
+    if abs(angles[off[1]] - 90.0) - abs(angles[off[0]] - 90.0) < right_angle_ambiguity_deg:
+        shown = ", ".join(f"{a:.1f}" for a in angles)
+        raise DrawingError(
+            f"{path}: marks ambiguous: no clear right angle among the mark triangle's angles ({shown} deg); "
+            f"label the marks O, A, B"
+        )
+    o = off[0]
+    a, b = (o + 1) % 3, (o + 2) % 3
+    oa, ob = p[a] - p[o], p[b] - p[o]
+    if oa[0] * ob[1] - oa[1] * ob[0] < 0:
+        a, b = b, a
+    marks = {"O": int(cand[o]), "A": int(cand[a]), "B": int(cand[b])}
+    if labelled:
+        disagree = [lt for lt, ks in labelled.items() if marks[lt] != ks[0]]
+        if disagree:
+            raise DrawingError(
+                f"{path}: marks ambiguous: label(s) {', '.join(disagree)} disagree with the geometry rule "
+                f"(right angle at O, B counter-clockwise from A); label all three marks"
+            )
+        warns.append(f"{path.name}: only label(s) {', '.join(sorted(labelled))} found next to the marks; "
+                     f"marks identified by geometry")
+    return marks, "geometry", warns, _members(marks, on_layer, xy, dup_tol_units)
+
+
+def _members(marks: dict[str, int], on_layer: np.ndarray, xy: np.ndarray, tol: float) -> np.ndarray:
+    centres = xy[list(marks.values())]
+    d = np.hypot(*(xy[on_layer][:, None, :] - centres[None, :, :]).transpose(2, 0, 1))
+    return on_layer[np.any(d <= tol, axis=1)]
