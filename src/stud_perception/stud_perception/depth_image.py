@@ -114,14 +114,13 @@ def _window_samples(depth_m: np.ndarray, ui: np.ndarray, vi: np.ndarray, window:
     half = window // 2
     offs = np.arange(-half, half + 1)
     dv, du = np.meshgrid(offs, offs, indexing="ij")
-    du = du.ravel()
-    dv = dv.ravel()
-    cols = ui[:, None] + du[None, :]
-    rows = vi[:, None] + dv[None, :]
-    inside = (cols >= 0) & (cols < w) & (rows >= 0) & (rows < h)
-    vals = depth_m[np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1)].astype(np.float64)
+    # The window is separable: gather rows x columns (row-major, as du, dv are raveled).
+    cols = ui[:, None] + offs[None, :]
+    rows = vi[:, None] + offs[None, :]
+    inside = ((rows >= 0) & (rows < h))[:, :, None] & ((cols >= 0) & (cols < w))[:, None, :]
+    vals = depth_m[np.clip(rows, 0, h - 1)[:, :, None], np.clip(cols, 0, w - 1)[:, None, :]].astype(np.float64)
     vals[~inside] = np.nan
-    return vals, du.astype(np.float64), dv.astype(np.float64)
+    return vals.reshape(ui.size, -1), du.ravel().astype(np.float64), dv.ravel().astype(np.float64)
 
 
 def _mean_of_valid(vals: np.ndarray):
@@ -130,7 +129,9 @@ def _mean_of_valid(vals: np.ndarray):
     filled = np.where(valid, vals, 0.0)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = filled.sum(axis=1) / n
-        var = np.where(valid, (vals - mean[:, None]) ** 2, 0.0).sum(axis=1) / n
+        # One pass for the spread: sum of squares about the mean (depths are ~0.1-10 m and their
+        # spreads >= 1e-6 m, far inside float64's range of exact cancellation).
+        var = np.maximum(np.einsum("nk,nk->n", filled, filled) / n - mean * mean, 0.0)
     return mean, n, np.sqrt(var)
 
 
@@ -147,8 +148,9 @@ def _plane_fit(vals, du, dv, frac_u, frac_v, min_points: int, min_spread_px: flo
     inv = np.where(valid, 1.0 / np.where(valid, vals, 1.0), 0.0)
     # Normal equations of [1, du, dv] . p = 1/z, batched over queries.
     A = np.stack([np.ones_like(du), du, dv], axis=1)                       # (k, 3)
-    AtA = np.einsum("nk,ki,kj->nij", wgt, A, A)                            # (N, 3, 3)
-    Atb = np.einsum("nk,ki->ni", wgt * inv, A)                             # (N, 3)
+    # As matrix products (BLAS): sum_k wgt_nk A_ki A_kj and sum_k wgt_nk inv_nk A_ki.
+    AtA = (wgt @ (A[:, :, None] * A[:, None, :]).reshape(-1, 9)).reshape(-1, 3, 3)  # (N, 3, 3)
+    Atb = inv @ A                                                          # (N, 3); inv is 0 where invalid
     # Refuse fits whose samples do not spread in both image directions (a line of samples
     # cannot fix a plane): smallest eigenvalue of the (du, dv) scatter, in pixels^2.
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -259,7 +261,9 @@ def fill_depth_at(
             if pending.size == 0:
                 break
             vals, du, dv = _window_samples(depth_m, ui[pending], vi[pending], size)
-            mean, n, std = _mean_of_valid(vals)
+            last = k == len(sizes) - 1
+            if k == 0 or fallback == "grow" or last:  # the plane rule uses the mean only at the end
+                mean, n, std = _mean_of_valid(vals)
             fit_ok = np.zeros(pending.size, dtype=bool)
             if k == 0:
                 take_mean, rule = n >= min_valid, FillRule.MEAN_WINDOW
@@ -271,9 +275,10 @@ def fill_depth_at(
                 z_fit, fit_ok, n_fit, rms = _plane_fit(vals, du, dv, frac_u, frac_v, min_plane_points, 1.0)
                 store(pending[fit_ok], z_fit[fit_ok], FillRule.PLANE_FIT, n_fit[fit_ok], size, rms[fit_ok])
                 # A plane needs more samples than a mean: only the largest window falls back to the mean.
-                take_mean = ~fit_ok & (n >= min_valid) & (k == len(sizes) - 1)
+                take_mean = (~fit_ok & (n >= min_valid)) if last else np.zeros_like(fit_ok)
                 rule = FillRule.GROWN_WINDOW
-            store(pending[take_mean], mean[take_mean], rule, n[take_mean], size, std[take_mean])
+            if take_mean.any():
+                store(pending[take_mean], mean[take_mean], rule, n[take_mean], size, std[take_mean])
             pending = pending[~(fit_ok | take_mean)]
 
     return FilledDepth(
@@ -314,30 +319,44 @@ def sample_depth_bilinear(depth_m: np.ndarray, u, v, max_step_m: float = 0.005) 
         inside = np.isfinite(uf) & np.isfinite(vf) & (uf >= 0) & (uf <= w - 1) & (vf >= 0) & (vf <= h - 1)
     status[~inside] = SampleStatus.OUT_OF_IMAGE
     idx = np.flatnonzero(inside)
-    if idx.size:
-        # Clamp the base pixel so a query on the last row/column still has a 2x2 cell.
-        u0 = np.minimum(np.floor(uf[idx]).astype(np.int64), max(w - 2, 0))
-        v0 = np.minimum(np.floor(vf[idx]).astype(np.int64), max(h - 2, 0))
-        fu = uf[idx] - u0
-        fv = vf[idx] - v0
-        u1 = np.minimum(u0 + 1, w - 1)
-        v1 = np.minimum(v0 + 1, h - 1)
-        z = np.stack(
-            [depth_m[v0, u0], depth_m[v0, u1], depth_m[v1, u0], depth_m[v1, u1]], axis=1
-        ).astype(np.float64)
+    if idx.size == 0:
+        return DepthSample(depth_m=out.reshape(shape), status=status.reshape(shape))
+    # Clamp the base pixel so a query on the last row/column still has a 2x2 cell.
+    u0 = np.minimum(uf[idx].astype(np.int64), max(w - 2, 0))  # in-image, so truncation is floor
+    v0 = np.minimum(vf[idx].astype(np.int64), max(h - 2, 0))
+    fu = uf[idx] - u0
+    fv = vf[idx] - v0
+    du = np.minimum(u0 + 1, w - 1) - u0
+    dv = (np.minimum(v0 + 1, h - 1) - v0) * w
+    flat = depth_m.reshape(-1)
+    i00 = v0 * w + u0
+    z00, z01, z10, z11 = (flat[i].astype(np.float64) for i in (i00, i00 + du, i00 + dv, i00 + dv + du))
+    # Fast path: all four corners have depth and lie within the step threshold. NaN fails every
+    # comparison, so a missing corner falls to the exact path below, which also handles corners
+    # of zero weight (a query on a pixel's row or column may ignore a hole beside it).
+    lo = np.minimum(np.minimum(z00, z01), np.minimum(z10, z11))
+    hi = np.maximum(np.maximum(z00, z01), np.maximum(z10, z11))
+    with np.errstate(invalid="ignore"):
+        easy = (lo > 0) & (hi - lo <= max_step_m)
+    top = z00 + fu * (z01 - z00)
+    bottom = z10 + fu * (z11 - z10)
+    out[idx[easy]] = (top + fv * (bottom - top))[easy]
+    hard = np.flatnonzero(~easy)
+    if hard.size:
+        z = np.stack([z00[hard], z01[hard], z10[hard], z11[hard]], axis=1)
+        fu, fv = fu[hard], fv[hard]
         wt = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], axis=1)
         used = wt > 0
         with np.errstate(invalid="ignore"):
             bad = (used & ~(np.isfinite(z) & (z > 0))).any(axis=1)
-        zu = np.where(used, z, np.nan)
+        zu = np.where(used & ~bad[:, None], z, np.nan)
         with np.errstate(invalid="ignore"):
-            step = np.nanmax(np.where(bad[:, None], 0.0, zu), axis=1) - np.nanmin(
-                np.where(bad[:, None], 0.0, zu), axis=1
-            )
+            step = np.nanmax(np.where(bad[:, None], 0.0, zu), axis=1) - np.nanmin(np.where(bad[:, None], 0.0, zu), axis=1)
         jump = ~bad & (step > max_step_m)
         good = ~bad & ~jump
         val = (np.where(used, z, 0.0) * wt).sum(axis=1)
-        out[idx[good]] = val[good]
-        status[idx[bad]] = SampleStatus.INVALID_DEPTH
-        status[idx[jump]] = SampleStatus.DISCONTINUITY
+        j = idx[hard]
+        out[j[good]] = val[good]
+        status[j[bad]] = SampleStatus.INVALID_DEPTH
+        status[j[jump]] = SampleStatus.DISCONTINUITY
     return DepthSample(depth_m=out.reshape(shape), status=status.reshape(shape))

@@ -230,8 +230,39 @@ def _depth_at_pixel(depth_m: np.ndarray, u: int, v: int, window_px: int, fallbac
     return float(f.depth_m), FillRule(int(f.rule))
 
 
+class _PixelFills:
+    """:func:`fill_depth_at` of integer pixels of one depth image, each pixel computed once.
+
+    A stud whose look-ups touch a hole revisits the same few pixels on every iteration of the
+    batch matcher; filling each once (vectorised over the pixels first seen in a call) keeps the
+    cost of holes to the pixels the studs' samples touch. The stores are ``np.zeros``, so only the
+    memory pages of pixels actually asked for are ever written.
+    """
+
+    def __init__(self, depth_m: np.ndarray, window_px: int, max_window_px: int) -> None:
+        self._depth_m, self._window, self._max_window = depth_m, window_px, max_window_px
+        size = depth_m.size
+        self._known = np.zeros(size, dtype=bool)
+        self._value = np.zeros(size)
+        self._rule = np.zeros(size, dtype=np.int8)
+        self._spread = np.zeros(size)
+
+    def __call__(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(depth_m, FillRule int8, spread_m) at in-image integer pixels (u, v), any shape."""
+        W = self._depth_m.shape[1]
+        lin = v * W + u
+        new = np.unique(lin[~self._known[lin]])
+        if new.size:
+            f = fill_depth_at(self._depth_m, new % W, new // W, window=self._window, max_window=self._max_window,
+                              fallback="plane")
+            self._value[new], self._rule[new], self._spread[new] = f.depth_m, f.rule, f.spread_m
+            self._known[new] = True
+        return self._value[lin], self._rule[lin], self._spread[lin]
+
+
 def _depth_at_subpixel(
-    depth_m: np.ndarray, u: np.ndarray, v: np.ndarray, window_px: int, max_window_px: int, discontinuity_m: float
+    depth_m: np.ndarray, u: np.ndarray, v: np.ndarray, window_px: int, max_window_px: int, discontinuity_m: float,
+    fills: _PixelFills | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Bilinear depth at sub-pixel (u, v) (n,), in-image, with holes filled and steps respected.
 
@@ -259,11 +290,11 @@ def _depth_at_subpixel(
     cu = np.stack([u0, u0 + 1, u0, u0 + 1], axis=1)
     cv = np.stack([v0, v0, v0 + 1, v0 + 1], axis=1)
     w = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], axis=1)
-    f = fill_depth_at(depth_m, cu, cv, window=window_px, max_window=max_window_px, fallback="plane")
-    d = np.array(f.depth_m, dtype=np.float64)
-    crule = np.array(f.rule, dtype=np.int8)
+    if fills is None:
+        fills = _PixelFills(depth_m, window_px, max_window_px)
+    d, crule, spread = fills(cu, cv)
     with np.errstate(invalid="ignore"):
-        straddle = (crule != FillRule.DIRECT) & (crule != FillRule.NONE) & ~(f.spread_m <= 0.5 * discontinuity_m)
+        straddle = (crule != FillRule.DIRECT) & (crule != FillRule.NONE) & ~(spread <= 0.5 * discontinuity_m)
     d[straddle] = np.nan
     # Reference: the heaviest corner that has a depth.
     ref = np.argmax(np.where(np.isfinite(d), w + 1.0, w), axis=1)
@@ -578,13 +609,15 @@ def match_batch(
     if active.size == 0:
         return MatchResults(**out)
 
+    fills = _PixelFills(depth, hole_window_px, hole_max_window_px)
+
     def evaluate(idx: np.ndarray, z: np.ndarray):
         P = np.column_stack([xy[idx], z])
         u, v, _ = camera.world_to_pixel(P)
         # z is inside the in-view interval, so u, v are in the image up to rounding.
         u = np.clip(u, 0.0, camera.width - 1.0)
         v = np.clip(v, 0.0, camera.height - 1.0)
-        d, rule, step = _depth_at_subpixel(depth, u, v, hole_window_px, hole_max_window_px, discontinuity_m)
+        d, rule, step = _depth_at_subpixel(depth, u, v, hole_window_px, hole_max_window_px, discontinuity_m, fills)
         Q = camera.pixel_to_world(u, v, d)  # Eq. 1 at the sub-pixel
         g = Q[:, 2] - z
         res = np.hypot(Q[:, 0] - xy[idx, 0], Q[:, 1] - xy[idx, 1])
