@@ -35,6 +35,7 @@ import numpy as np
 from stud_perception.camera_model import CameraModel
 from stud_perception.rotations import frame_from_normal
 from stud_perception.rotations import matrix_to_quaternion as quaternion_from_matrix
+from stud_planner.window_moments import BLOCK_PX, BlockMoments
 
 #: Paper: M16x150 shear stud, tool-top offset along the normal.
 M16X150_TOP_OFFSET_M = 0.013
@@ -127,8 +128,14 @@ class _InverseDepthFit:
     scale: np.ndarray
     beta: np.ndarray
     cov: np.ndarray
-    inliers: np.ndarray
+    inliers: np.ndarray | None
     rms_w: np.ndarray
+
+    def take(self, k: np.ndarray) -> "_InverseDepthFit":
+        """The fits of windows ``k``."""
+        return _InverseDepthFit(x0=self.x0[k], y0=self.y0[k], scale=self.scale[k], beta=self.beta[k],
+                                cov=self.cov[k], inliers=None if self.inliers is None else self.inliers[k],
+                                rms_w=self.rms_w[k])
 
     def gradient_map(self, xt: np.ndarray, yt: np.ndarray) -> np.ndarray:
         """(n, 3, 6) linear map beta -> g = (w_x, w_y, w - w_x x~ - w_y y~) at normalised image
@@ -161,10 +168,24 @@ class _InverseDepthFit:
         norm = np.linalg.norm(g, axis=1, keepdims=True)
         n = g / norm
         n = np.where((n[:, 2:3] > 0), -n, n)  # the camera looks along +z: toward it is -z
-        cov_g = np.matmul(np.matmul(L, self.cov), np.swapaxes(L, 1, 2))
-        P = (np.eye(3) - n[:, :, None] * n[:, None, :]) / norm[:, :, None]
-        cov_n = np.matmul(np.matmul(P, cov_g), np.swapaxes(P, 1, 2))
-        return n, np.sqrt(np.maximum(np.linalg.eigvalsh(cov_n)[:, -1], 0.0))
+        cov_g = np.matmul(np.matmul(L, self.cov), np.swapaxes(L, 1, 2)) / (norm * norm)[:, :, None]
+        return n, np.sqrt(_largest_tangent_variance(cov_g, n))
+
+
+def _largest_tangent_variance(C: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Largest eigenvalue (n,) of (I - n n^T) C (I - n n^T): the variance of a unit normal ``n``
+    (k, 3) about its least certain axis, from the covariance ``C`` (k, 3, 3) of the unnormalised
+    gradient divided by its squared length. Closed form: the two tangent eigenvalues have the sum
+    tr C - n^T C n and the product n^T adj(C) n (the 2x2 minor of C in any tangent basis)."""
+    c00, c11, c22 = C[:, 0, 0], C[:, 1, 1], C[:, 2, 2]
+    c01, c02, c12 = C[:, 0, 1], C[:, 0, 2], C[:, 1, 2]
+    n0, n1, n2 = n[:, 0], n[:, 1], n[:, 2]
+    nCn = c00 * n0 * n0 + c11 * n1 * n1 + c22 * n2 * n2 + 2 * (c01 * n0 * n1 + c02 * n0 * n2 + c12 * n1 * n2)
+    nAn = ((c11 * c22 - c12 * c12) * n0 * n0 + (c00 * c22 - c02 * c02) * n1 * n1 + (c00 * c11 - c01 * c01) * n2 * n2
+           + 2 * ((c02 * c12 - c01 * c22) * n0 * n1 + (c01 * c12 - c02 * c11) * n0 * n2
+                  + (c01 * c02 - c00 * c12) * n1 * n2))
+    half = 0.5 * (c00 + c11 + c22 - nCn)
+    return np.maximum(half + np.sqrt(np.maximum(half * half - nAn, 0.0)), 0.0)
 
 
 #: The fit's terms as powers (p, q) of the window coordinates (a, b): 1, a, b, a^2, ab, b^2.
@@ -234,8 +255,34 @@ def _solve_normal_equations(Mw: np.ndarray, My: np.ndarray, ca: np.ndarray, cb: 
     # A tiny ridge keeps windows with too few or collinear points solvable; their covariance is
     # then huge, which is what the uncertainty should say.
     A += 1e-9 * np.eye(len(_TERMS))
-    A_inv = np.linalg.inv(A)
+    A_inv = _inverse_spd(A)
     return np.einsum("nij,nj->ni", A_inv, rhs), A_inv, rhs
+
+
+def _inverse_spd(A: np.ndarray) -> np.ndarray:
+    """Inverses (n, m, m) of symmetric positive (semi-)definite matrices (n, m, m), by a Cholesky
+    factorisation written out over the batch: np.linalg.inv pays a per-matrix overhead that
+    dominates at 6x6. A pivot that rounding leaves at or below zero is clamped to a tiny positive
+    value, so a degenerate window gets a huge (honest) covariance instead of NaN."""
+    m = A.shape[-1]
+    a = np.ascontiguousarray(np.moveaxis(A, 0, -1))  # (m, m, n): each entry a contiguous vector
+    L: list[list] = [[None] * m for _ in range(m)]
+    tiny = 1e-300
+    for j in range(m):
+        L[j][j] = np.sqrt(np.maximum(a[j][j] - sum(L[j][k] * L[j][k] for k in range(j)), tiny))
+        inv = 1.0 / L[j][j]
+        for i in range(j + 1, m):
+            L[i][j] = (a[i][j] - sum(L[i][k] * L[j][k] for k in range(j))) * inv
+    Li: list[list] = [[None] * m for _ in range(m)]  # L^-1, lower triangular
+    for i in range(m):
+        Li[i][i] = 1.0 / L[i][i]
+        for j in range(i):
+            Li[i][j] = -sum(L[i][k] * Li[k][j] for k in range(j, i)) * Li[i][i]
+    out = np.empty(a.shape)
+    for j in range(m):  # A^-1 = L^-T L^-1
+        for k in range(j, m):
+            out[j, k] = out[k, j] = sum(Li[i][j] * Li[i][k] for i in range(k, m))
+    return np.moveaxis(out, -1, 0)
 
 
 def _evaluate(beta: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -343,6 +390,9 @@ def estimate_surface_poses(
     valid: np.ndarray | None = None,
     target_xy_w: np.ndarray | None = None,
     chunk: int = 256,
+    fast_fit: bool = True,
+    fast_fit_noise_ratio: float = 1.25,
+    fast_fit_floor_m: float = 1e-4,
 ) -> SurfacePoses:
     """Normals and weld poses at N matched points by a robust least-squares fit of the window.
 
@@ -377,49 +427,136 @@ def estimate_surface_poses(
         status=np.full(n, SurfaceStatus.NOT_MATCHED, dtype=np.int8),
     )
 
-    for start in range(0, n, chunk):
-        idx = np.arange(start, min(start + chunk, n))
-        idx = idx[ok_in[idx]]
-        if idx.size == 0:
-            continue
+    limits = _Limits(min_points=max(min_points, _N_TERMS + 2), min_fill_ratio=min_fill_ratio, max_rms_m=max_rms_m,
+                     max_outlier_ratio=max_outlier_ratio)
+    robust = np.flatnonzero(ok_in)
+    if fast_fit and robust.size:
+        z_cam = camera.world_to_camera(P0[robust])[:, 2]
+        y_ref = 1.0 / float(np.median(z_cam))
+        moments = BlockMoments(depth, y_ref)
+        fit, n_valid, n_window, eligible = _fast_fits(moments, camera, uv[robust], z_cam, window_m)
+        rms_m = fit.rms_w * z_cam**2
+        noise_m = _frame_noise_m(moments)
+        gate_m = max(fast_fit_noise_ratio * noise_m, fast_fit_floor_m) if np.isfinite(noise_m) else fast_fit_floor_m
+        few = (n_valid < limits.min_points) | (n_valid < min_fill_ratio * np.maximum(n_window, 1))
+        # The plain fit stands where the window is as smooth as the frame's noise says it can be;
+        # elsewhere (a step, an edge, flying pixels, a rough patch) the robust path decides.
+        take = eligible & (few | ((rms_m <= gate_m) & (rms_m <= max_rms_m)))
+        k = np.flatnonzero(take)
+        _store_poses(out, robust[k], fit.take(k), camera, target_xy[robust[k]], P0[robust[k], 2], z_cam[k],
+                     n_valid[k], n_valid[k], n_window[k], limits)
+        robust = robust[~take]
+    for start in range(0, robust.size, chunk):
+        idx = robust[start:start + chunk]
         p_stud = P0[idx]
         z_cam = camera.world_to_camera(p_stud)[:, 2]
         win = _window_blocks(camera, depth, uv[idx], z_cam, window_m, int(max_samples_per_side))
         scale = 0.5 * window_m / np.maximum(z_cam, 1e-6)
         floor_w = outlier_floor_m / np.maximum(z_cam, 1e-6) ** 2  # 1 mm of depth, in 1/z
         fit = _fit_inverse_depth(win, camera, scale, robust_passes, outlier_k, floor_w)
-        z_w = _vertical_line_hit(fit, camera, target_xy[idx], p_stud[:, 2])
-        pos = np.column_stack([target_xy[idx], z_w])
-        X = camera.world_to_camera(pos)
-        nrm_c, sigma_rad = fit.normal_at(X[:, 0] / X[:, 2], X[:, 1] / X[:, 2])
-        nrm = nrm_c @ camera.R_wc.T
-        sigma = np.degrees(sigma_rad)
-        rms_m = fit.rms_w * z_cam**2  # d(1/z) = dz / z^2
-
-        n_in = fit.inliers.sum(axis=(1, 2))
-        n_valid = win.good.sum(axis=(1, 2))
-        fill = n_valid / np.maximum(win.n_window, 1)
-        outl = 1.0 - n_in / np.maximum(n_valid, 1)
-        status = np.full(idx.size, SurfaceStatus.OK, dtype=np.int8)
-        few = (n_in < max(min_points, _N_TERMS + 2)) | (fill < min_fill_ratio)
-        finite = np.all(np.isfinite(pos), axis=1) & np.all(np.isfinite(nrm), axis=1)
-        bad = ~few & ((rms_m > max_rms_m) | (outl > max_outlier_ratio) | ~finite)
-        status[bad] = SurfaceStatus.BAD_FIT
-        status[few] = SurfaceStatus.TOO_FEW_POINTS
-        have = ~few & finite
-
-        j = idx[have]
-        out["position_w"][j] = pos[have]
-        out["normal_w"][j] = nrm[have]
-        out["quat_xyzw"][j] = quaternion_from_normal(nrm[have])
-        out["inclination_deg"][j] = inclination_deg(nrm[have])
-        out["normal_sigma_deg"][j] = sigma[have]
-        out["fit_rms_m"][j] = rms_m[have]
-        out["outlier_ratio"][j] = outl[have]
-        out["n_points"][idx] = n_in
-        out["fill_ratio"][idx] = fill
-        out["status"][idx] = status
+        _store_poses(out, idx, fit, camera, target_xy[idx], p_stud[:, 2], z_cam, fit.inliers.sum(axis=(1, 2)),
+                     win.good.sum(axis=(1, 2)), win.n_window, limits)
     return SurfacePoses(**out)
+
+
+@dataclass(frozen=True)
+class _Limits:
+    """What a fit must meet to be OK (see :func:`estimate_surface_poses`)."""
+
+    min_points: int
+    min_fill_ratio: float
+    max_rms_m: float
+    max_outlier_ratio: float
+
+
+def _store_poses(out: dict, idx: np.ndarray, fit: _InverseDepthFit, camera: CameraModel, target_xy: np.ndarray,
+                 z0_w: np.ndarray, z_cam: np.ndarray, n_in: np.ndarray, n_valid: np.ndarray, n_window: np.ndarray,
+                 limits: _Limits) -> None:
+    """Weld point, normal, its uncertainty and the status of studs ``idx`` from their fits, into ``out``."""
+    if idx.size == 0:
+        return
+    z_w = _vertical_line_hit(fit, camera, target_xy, z0_w)
+    pos = np.column_stack([target_xy, z_w])
+    X = camera.world_to_camera(pos)
+    nrm_c, sigma_rad = fit.normal_at(X[:, 0] / X[:, 2], X[:, 1] / X[:, 2])
+    nrm = nrm_c @ camera.R_wc.T
+    sigma = np.degrees(sigma_rad)
+    rms_m = fit.rms_w * z_cam**2  # d(1/z) = dz / z^2
+
+    fill = n_valid / np.maximum(n_window, 1)
+    outl = 1.0 - n_in / np.maximum(n_valid, 1)
+    status = np.full(idx.size, SurfaceStatus.OK, dtype=np.int8)
+    few = (n_in < limits.min_points) | (fill < limits.min_fill_ratio)
+    finite = np.all(np.isfinite(pos), axis=1) & np.all(np.isfinite(nrm), axis=1)
+    bad = ~few & ((rms_m > limits.max_rms_m) | (outl > limits.max_outlier_ratio) | ~finite)
+    status[bad] = SurfaceStatus.BAD_FIT
+    status[few] = SurfaceStatus.TOO_FEW_POINTS
+    have = ~few & finite
+
+    j = idx[have]
+    out["position_w"][j] = pos[have]
+    out["normal_w"][j] = nrm[have]
+    out["quat_xyzw"][j] = quaternion_from_normal(nrm[have])
+    out["inclination_deg"][j] = inclination_deg(nrm[have])
+    out["normal_sigma_deg"][j] = sigma[have]
+    out["fit_rms_m"][j] = rms_m[have]
+    out["outlier_ratio"][j] = outl[have]
+    out["n_points"][idx] = n_in
+    out["fill_ratio"][idx] = fill
+    out["status"][idx] = status
+
+
+def _fast_fits(moments: BlockMoments, camera: CameraModel, uv: np.ndarray, z_cam: np.ndarray, window_m: float):
+    """Plain least-squares quadric fits of 1/z over block-aligned windows, from moment sums
+    (:mod:`stud_planner.window_moments`): the fit :func:`_fit_inverse_depth` makes before any
+    robust pass, on every valid pixel of a window of whole blocks around each stud.
+
+    Returns (fit, n_valid (n,), n_window (n,), eligible (n,) bool); a window under two blocks a
+    side, or one the image border cuts to nothing, is not eligible (the pixel path takes it).
+    """
+    b = BLOCK_PX
+    half = 0.5 * window_m * camera.fx / np.maximum(z_cam, 1e-6)
+    c0, c1 = np.rint((uv[:, 0] - half) / b), np.rint((uv[:, 0] + half + 1.0) / b)
+    r0, r1 = np.rint((uv[:, 1] - half) / b), np.rint((uv[:, 1] + half + 1.0) / b)
+    eligible = (c1 - c0 >= 2) & (r1 - r0 >= 2)
+    c0, c1 = np.clip(c0, 0, moments.n_cols), np.clip(c1, 0, moments.n_cols)
+    r0, r1 = np.clip(r0, 0, moments.n_rows), np.clip(r1, 0, moments.n_rows)
+    eligible &= (c1 > c0) & (r1 > r0)
+    c0, c1, r0, r1 = (np.where(eligible, a, 0).astype(np.int64) for a in (c0, c1, r0, r1))
+    c1, r1 = np.maximum(c1, c0 + 1), np.maximum(r1, r0 + 1)
+    sums = moments.window_sums(r0, r1, c0, c1)
+    scale = 0.5 * window_m / np.maximum(z_cam, 1e-6)
+    ca, cb = 1.0 / (camera.fx * scale), 1.0 / (camera.fy * scale)  # window units per pixel
+    beta, A_inv, rhs = _solve_normal_equations(sums.mw, sums.my, ca, cb)
+    n_valid = np.rint(sums.mw[:, 0, 0]).astype(np.int64)
+    var = np.maximum(sums.yy - np.einsum("ni,ni->n", beta, rhs), 0.0) / np.maximum(n_valid - len(_TERMS), 1)
+    beta[:, 0] += moments.y_ref  # the sums are of 1/z - y_ref
+    fit = _InverseDepthFit(x0=(sums.centre_uv[:, 0] - camera.cx) / camera.fx,
+                           y0=(sums.centre_uv[:, 1] - camera.cy) / camera.fy, scale=scale, beta=beta,
+                           cov=var[:, None, None] * A_inv, inliers=None, rms_w=np.sqrt(var))
+    return fit, n_valid, sums.n_window, eligible
+
+
+def _frame_noise_m(moments: BlockMoments, stride: int = 4) -> float:
+    """The frame's depth noise (m, 1-sigma): the median RMS of plane fits of 1/z to every
+    ``stride``-th block in both directions that is three-quarters full (curvature is nil over a
+    block; a block on an edge is an outlier the median ignores). NaN if no block qualifies."""
+    r, c = (a.ravel() for a in np.meshgrid(np.arange(0, moments.n_rows, stride),
+                                           np.arange(0, moments.n_cols, stride), indexing="ij"))
+    s = moments.window_sums(r, r + 1, c, c + 1, use_table=False)
+    n = s.mw[:, 0, 0]
+    use = n >= 0.75 * BLOCK_PX**2
+    if not use.any():
+        return float("nan")
+    mw, my, yy, n = s.mw[use], s.my[use], s.yy[use], n[use]
+    A = np.stack([np.stack([mw[:, 0, 0], mw[:, 1, 0], mw[:, 0, 1]], -1),
+                  np.stack([mw[:, 1, 0], mw[:, 2, 0], mw[:, 1, 1]], -1),
+                  np.stack([mw[:, 0, 1], mw[:, 1, 1], mw[:, 0, 2]], -1)], 1)
+    rhs = np.stack([my[:, 0, 0], my[:, 1, 0], my[:, 0, 1]], -1)
+    beta = np.linalg.solve(A, rhs[:, :, None])[:, :, 0]
+    var_w = np.maximum(yy - np.einsum("ni,ni->n", beta, rhs), 0.0) / (n - 3)
+    z = 1.0 / (moments.y_ref + my[:, 0, 0] / n)
+    return float(np.median(np.sqrt(var_w) * z * z))
 
 
 def estimate_surface_poses_for_matches(matches, depth_m: np.ndarray, camera: CameraModel, **kwargs) -> SurfacePoses:
