@@ -35,7 +35,7 @@ import numpy as np
 from stud_perception.camera_model import CameraModel
 from stud_perception.rotations import frame_from_normal
 from stud_perception.rotations import matrix_to_quaternion as quaternion_from_matrix
-from stud_planner.window_moments import BLOCK_PX, BlockMoments
+from stud_planner.window_moments import BLOCK_PX, BlockMoments, _powers
 
 #: Paper: M16x150 shear stud, tool-top offset along the normal.
 M16X150_TOP_OFFSET_M = 0.013
@@ -250,8 +250,10 @@ def _solve_normal_equations(Mw: np.ndarray, My: np.ndarray, ca: np.ndarray, cb: 
     """beta (n, 6) and A^-1 (n, 6, 6) of the quadric fit from the grid moments, with a = ca g_u,
     b = cb g_v: A_ij = ca^(p_i+p_j) cb^(q_i+q_j) Mw[p_i+p_j, q_i+q_j], rhs_i = ca^p_i cb^q_i My[p_i, q_i]."""
     P, Q = _TP[:, None] + _TP[None, :], _TQ[:, None] + _TQ[None, :]
-    A = Mw[:, P, Q] * ca[:, None, None] ** P * cb[:, None, None] ** Q
-    rhs = My[:, _TP, _TQ] * ca[:, None] ** _TP * cb[:, None] ** _TQ
+    pa, pb = _powers(ca, 4), _powers(cb, 4)
+    Mw = Mw * pa[:, :, None] * pb[:, None, :]
+    A = Mw[:, P, Q]
+    rhs = My[:, _TP, _TQ] * pa[:, _TP] * pb[:, _TQ]
     # A tiny ridge keeps windows with too few or collinear points solvable; their covariance is
     # then huge, which is what the uncertainty should say.
     A += 1e-9 * np.eye(len(_TERMS))
@@ -367,8 +369,10 @@ def _vertical_line_hit(fit: _InverseDepthFit, camera: CameraModel, xy_w: np.ndar
         F = fit.residual_f(xt, yt, X[:, 2])
         g = np.einsum("nij,nj->ni", fit.gradient_map(xt, yt), fit.beta)  # dF/dX
         with np.errstate(invalid="ignore", divide="ignore"):
-            dz = F / (g @ dX)
-        z -= np.where(np.isfinite(dz), dz, 0.0)
+            dz = np.where(np.isfinite(F / (g @ dX)), F / (g @ dX), 0.0)
+        z -= dz
+        if not np.any(np.abs(dz) > 1e-12):  # converged (quadratically, from the matched height)
+            break
     return z
 
 

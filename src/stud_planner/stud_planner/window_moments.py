@@ -33,6 +33,9 @@ COORD_SCALE_PX = 64.0
 W_TERMS = tuple((p, q) for d in range(5) for p in range(d, -1, -1) for q in (d - p,))
 Y_TERMS = tuple((p, q) for d in range(3) for p in range(d, -1, -1) for q in (d - p,))
 N_CHANNELS = len(W_TERMS) + len(Y_TERMS) + 1
+#: Up to this fraction of blocks with a hole, their validity sums are taken pixel by pixel and
+#: the whole blocks' in closed form; beyond it, one product over the whole image is cheaper.
+_HOLED_BLOCKS_PIXELWISE = 0.3
 
 
 @dataclass(frozen=True)
@@ -103,14 +106,14 @@ class BlockMoments:
         self._sat: np.ndarray | None = None
 
     # -- block sums ----------------------------------------------------------------------------
-    def _inverse_depth(self, pix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(valid, y') of pixels (any layout): y' = 1/z - y_ref (float64, 0 where no depth)."""
+    def _inverse_depth(self, pix: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(valid, y', y' as float32) of pixels (any layout): y' = 1/z - y_ref, 0 where no depth."""
         z = np.fmin(pix, np.float32(np.inf))  # NaN -> inf (and a contiguous copy): 1/z is then 0
         y = np.divide(np.float32(1.0), z, out=z)
         valid = (y > 0) & (y < np.inf)  # no depth: NaN, 0 or negative
         y -= np.float32(self.y_ref)
         y *= valid
-        return valid, y.astype(np.float64)
+        return valid, y.astype(np.float64), y
 
     def _validity_sums(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """(len(W_TERMS), k) validity channels of blocks (rows, cols) (k,), pixel by pixel: two
@@ -131,36 +134,41 @@ class BlockMoments:
     def all_blocks(self) -> np.ndarray:
         """(N_CHANNELS, n_rows, n_cols) sums of every block.
 
-        The inverse-depth channels in two products batched over block columns and rows (a
-        column's coordinate powers are shared down it, a row's along it). The validity channels
-        of a block whose pixels all have depth are those of the full block, an outer product of
-        its column and row power sums; only the blocks with a hole are summed pixel by pixel.
+        Products batched over block columns and then block rows (a column's coordinate powers
+        are shared down it, a row's along it). The validity channels of a block whose pixels all
+        have depth are those of the full block, an outer product of its column and row power
+        sums, so while most blocks are whole only those with a hole are summed pixel by pixel.
         """
         b, nr, nc = BLOCK_PX, self.n_rows, self.n_cols
-        valid, y = self._inverse_depth(self._depth.reshape(nr * b, nc, b).transpose(1, 0, 2))  # (nc, H, b)
-        ty = np.matmul(y, self._gx[:, :, :3])  # (nc, H, 3[p])
-        ty = ty.reshape(nc, nr, b, 3).transpose(1, 0, 3, 2).reshape(nr, nc * 3, b)
-        my = np.matmul(ty, self._gy[:, :, :3]).reshape(nr, nc, 9)  # [p * 3 + q]
+        valid, y, y32 = self._inverse_depth(self._depth.reshape(nr * b, nc, b).transpose(1, 0, 2))  # (nc, H, b)
         out = np.empty((N_CHANNELS, nr, nc))
         nw = len(W_TERMS)
-        out[nw:-1] = my.transpose(2, 0, 1)[_Y_INDEX]
-        yb = y.reshape(nc * nr, b * b)
-        out[-1] = np.einsum("kj,kj->k", yb, yb).reshape(nc, nr).T
-        su, sv = self._gx.sum(axis=1), self._gy.sum(axis=1)  # (nc, 5[p]), (nr, 5[q])
-        for k, (p, q) in enumerate(W_TERMS):
-            np.multiply(sv[:, None, q], su[None, :, p], out=out[k])
         all_valid = np.uint64(0x0101010101010101)  # eight True bytes
         holed = (valid.view(np.uint64).reshape(nc, nr, b * b // 8) != all_valid).any(axis=2).T  # (nr, nc)
         r, c = np.nonzero(holed)
-        if r.size:
-            out[:nw, r, c] = self._validity_sums(r, c)
+        products = [(y, 3, _Y_INDEX, out[nw:-1])]
+        if r.size <= _HOLED_BLOCKS_PIXELWISE * holed.size:
+            su, sv = self._gx.sum(axis=1), self._gy.sum(axis=1)  # (nc, 5[p]), (nr, 5[q])
+            for k, (p, q) in enumerate(W_TERMS):
+                np.multiply(sv[:, None, q], su[None, :, p], out=out[k])
+            if r.size:
+                out[:nw, r, c] = self._validity_sums(r, c)
+        else:
+            products.append((valid.astype(np.float64), 5, _W_INDEX, out[:nw]))
+        for data, order, index, dest in products:
+            t = np.matmul(data, self._gx[:, :, :order])  # (nc, H, order[p])
+            t = t.reshape(nc, nr, b, order).transpose(1, 0, 3, 2).reshape(nr, nc * order, b)
+            m = np.matmul(t, self._gy[:, :, :order]).reshape(nr, nc, order * order)  # [p * order + q]
+            dest[...] = m.transpose(2, 0, 1)[index]
+        yb = y32.reshape(nc * nr, b * b)  # 64 terms of one sign: float32 sums lose nothing that matters
+        out[-1] = np.einsum("kj,kj->k", yb, yb).reshape(nc, nr).T
         return out
 
     def blocks(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """(N_CHANNELS, k) sums of blocks (rows, cols) (k,), in the frame-wide coordinate."""
         b, k = BLOCK_PX, rows.size
         pix = self._depth.reshape(self.n_rows, b, self.n_cols, b)[rows, :, cols, :]  # (k, b, b)
-        _, y = self._inverse_depth(pix)
+        _, y, _ = self._inverse_depth(pix)
         gx, gy = self._gx[cols, :, :3], self._gy[rows, :, :3]
         my = np.matmul(np.swapaxes(gy, 1, 2), np.matmul(y, gx))  # (k, 3[q], 3[p])
         out = np.empty((N_CHANNELS, k))
@@ -184,7 +192,7 @@ class BlockMoments:
             kr, kc = (row1[j[0]] - row0[j[0]]) * b, (col1[j[0]] - col0[j[0]]) * b
             # Whole windows as views of the image, copied row by row: (k, kr, kc).
             pix = np.lib.stride_tricks.sliding_window_view(self._depth, (kr, kc))[row0[j] * b, col0[j] * b]
-            valid, y = self._inverse_depth(pix)
+            valid, y, _ = self._inverse_depth(pix)
             gu = _powers(np.arange(kc) - (kc - 1) / 2.0, 4)
             gv = _powers(np.arange(kr) - (kr - 1) / 2.0, 4)
             k = j.size
