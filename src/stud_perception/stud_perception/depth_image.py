@@ -114,12 +114,22 @@ def _window_samples(depth_m: np.ndarray, ui: np.ndarray, vi: np.ndarray, window:
     half = window // 2
     offs = np.arange(-half, half + 1)
     dv, du = np.meshgrid(offs, offs, indexing="ij")
-    # The window is separable: gather rows x columns (row-major, as du, dv are raveled).
-    cols = ui[:, None] + offs[None, :]
-    rows = vi[:, None] + offs[None, :]
-    inside = ((rows >= 0) & (rows < h))[:, :, None] & ((cols >= 0) & (cols < w))[:, None, :]
-    vals = depth_m[np.clip(rows, 0, h - 1)[:, :, None], np.clip(cols, 0, w - 1)[:, None, :]].astype(np.float64)
-    vals[~inside] = np.nan
+    vals = np.empty((ui.size, window, window))
+    interior = (ui >= half) & (ui < w - half) & (vi >= half) & (vi < h - half)
+    if window <= min(h, w):
+        # Whole windows as views of the image, copied row by row (row-major, as du, dv are raveled).
+        k = np.flatnonzero(interior)
+        vals[k] = np.lib.stride_tricks.sliding_window_view(depth_m, (window, window))[vi[k] - half, ui[k] - half]
+    else:
+        interior[:] = False
+    k = np.flatnonzero(~interior)
+    if k.size:  # windows the image border cuts: gather rows x columns, NaN outside
+        cols = ui[k, None] + offs[None, :]
+        rows = vi[k, None] + offs[None, :]
+        inside = ((rows >= 0) & (rows < h))[:, :, None] & ((cols >= 0) & (cols < w))[:, None, :]
+        edge = depth_m[np.clip(rows, 0, h - 1)[:, :, None], np.clip(cols, 0, w - 1)[:, None, :]].astype(np.float64)
+        edge[~inside] = np.nan
+        vals[k] = edge
     return vals.reshape(ui.size, -1), du.ravel().astype(np.float64), dv.ravel().astype(np.float64)
 
 

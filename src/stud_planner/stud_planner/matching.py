@@ -253,10 +253,15 @@ class _PixelFills:
         lin = v * W + u
         new = np.unique(lin[~self._known[lin]])
         if new.size:
+            self._known[new] = True
+            z = self._depth_m.reshape(-1)[new]
+            direct = z > 0  # NaN compares False
+            self._value[new[direct]], self._rule[new[direct]] = z[direct], FillRule.DIRECT  # spread 0
+            new = new[~direct]
+        if new.size:
             f = fill_depth_at(self._depth_m, new % W, new // W, window=self._window, max_window=self._max_window,
                               fallback="plane")
             self._value[new], self._rule[new], self._spread[new] = f.depth_m, f.rule, f.spread_m
-            self._known[new] = True
         return self._value[lin], self._rule[lin], self._spread[lin]
 
 

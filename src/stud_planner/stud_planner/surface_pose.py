@@ -152,6 +152,15 @@ class _InverseDepthFit:
         w_y = np.stack([zero, zero, one, zero, a, 2 * b], axis=-1) / s[:, None]
         return np.stack([w_x, w_y, w - w_x * xt[:, None] - w_y * yt[:, None]], axis=1)
 
+    def gradient(self, xt: np.ndarray, yt: np.ndarray) -> np.ndarray:
+        """(n, 3) g = :meth:`gradient_map` @ beta, evaluated directly."""
+        s, B = self.scale, self.beta
+        a, b = (xt - self.x0) / s, (yt - self.y0) / s
+        w = B[:, 0] + B[:, 1] * a + B[:, 2] * b + B[:, 3] * a * a + B[:, 4] * a * b + B[:, 5] * b * b
+        w_x = (B[:, 1] + 2 * B[:, 3] * a + B[:, 4] * b) / s
+        w_y = (B[:, 2] + B[:, 4] * a + 2 * B[:, 5] * b) / s
+        return np.column_stack([w_x, w_y, w - w_x * xt - w_y * yt])
+
     def residual_f(self, xt: np.ndarray, yt: np.ndarray, z: np.ndarray) -> np.ndarray:
         """F = z w(x~, y~) - 1 at optical-frame points given as (x~, y~, z)."""
         s = self.scale
@@ -164,7 +173,7 @@ class _InverseDepthFit:
         """Unit normals (n, 3) in the optical frame, toward the camera, at (x~, y~), and the
         1-sigma (rad) of their direction about the least certain axis."""
         L = self.gradient_map(xt, yt)
-        g = np.einsum("nij,nj->ni", L, self.beta)
+        g = self.gradient(xt, yt)
         norm = np.linalg.norm(g, axis=1, keepdims=True)
         n = g / norm
         n = np.where((n[:, 2:3] > 0), -n, n)  # the camera looks along +z: toward it is -z
@@ -367,7 +376,7 @@ def _vertical_line_hit(fit: _InverseDepthFit, camera: CameraModel, xy_w: np.ndar
         X = (P - camera.t_wc) @ R_cw.T
         xt, yt = X[:, 0] / X[:, 2], X[:, 1] / X[:, 2]
         F = fit.residual_f(xt, yt, X[:, 2])
-        g = np.einsum("nij,nj->ni", fit.gradient_map(xt, yt), fit.beta)  # dF/dX
+        g = fit.gradient(xt, yt)  # dF/dX
         with np.errstate(invalid="ignore", divide="ignore"):
             dz = np.where(np.isfinite(F / (g @ dX)), F / (g @ dX), 0.0)
         z -= dz
