@@ -235,34 +235,41 @@ class _PixelFills:
 
     A stud whose look-ups touch a hole revisits the same few pixels on every iteration of the
     batch matcher; filling each once (vectorised over the pixels first seen in a call) keeps the
-    cost of holes to the pixels the studs' samples touch. The stores are ``np.zeros``, so only the
-    memory pages of pixels actually asked for are ever written.
+    cost of holes to the pixels the studs' samples touch. The pixels met so far are kept sorted by
+    their linear index (a few per stud that touches a hole), looked up by bisection.
     """
 
     def __init__(self, depth_m: np.ndarray, window_px: int, max_window_px: int) -> None:
         self._depth_m, self._window, self._max_window = depth_m, window_px, max_window_px
-        size = depth_m.size
-        self._known = np.zeros(size, dtype=bool)
-        self._value = np.zeros(size)
-        self._rule = np.zeros(size, dtype=np.int8)
-        self._spread = np.zeros(size)
+        self._keys = np.zeros(0, dtype=np.int64)
+        self._value = np.zeros(0)
+        self._rule = np.zeros(0, dtype=np.int8)
+        self._spread = np.zeros(0)
 
     def __call__(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(depth_m, FillRule int8, spread_m) at in-image integer pixels (u, v), any shape."""
         W = self._depth_m.shape[1]
         lin = v * W + u
-        new = np.unique(lin[~self._known[lin]])
+        pos = np.minimum(np.searchsorted(self._keys, lin), max(self._keys.size - 1, 0))
+        known = (self._keys[pos] == lin) if self._keys.size else np.zeros(lin.shape, dtype=bool)
+        new = np.unique(lin[~known])
         if new.size:
-            self._known[new] = True
-            z = self._depth_m.reshape(-1)[new]
-            direct = z > 0  # NaN compares False
-            self._value[new[direct]], self._rule[new[direct]] = z[direct], FillRule.DIRECT  # spread 0
-            new = new[~direct]
-        if new.size:
-            f = fill_depth_at(self._depth_m, new % W, new // W, window=self._window, max_window=self._max_window,
-                              fallback="plane")
-            self._value[new], self._rule[new], self._spread[new] = f.depth_m, f.rule, f.spread_m
-        return self._value[lin], self._rule[lin], self._spread[lin]
+            value = self._depth_m.reshape(-1)[new].astype(np.float64)
+            rule = np.full(new.size, FillRule.DIRECT, dtype=np.int8)
+            spread = np.zeros(new.size)
+            hole = np.flatnonzero(~(value > 0))  # NaN compares False
+            if hole.size:
+                f = fill_depth_at(self._depth_m, new[hole] % W, new[hole] // W, window=self._window,
+                                  max_window=self._max_window, fallback="plane")
+                value[hole], rule[hole], spread[hole] = f.depth_m, f.rule, f.spread_m
+            keys = np.concatenate([self._keys, new])
+            order = np.argsort(keys, kind="stable")
+            self._keys = keys[order]
+            self._value = np.concatenate([self._value, value])[order]
+            self._rule = np.concatenate([self._rule, rule])[order]
+            self._spread = np.concatenate([self._spread, spread])[order]
+            pos = np.searchsorted(self._keys, lin)
+        return self._value[pos], self._rule[pos], self._spread[pos]
 
 
 def _depth_at_subpixel(

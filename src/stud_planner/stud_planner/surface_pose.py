@@ -550,7 +550,7 @@ def _fast_fits(moments: BlockMoments, camera: CameraModel, uv: np.ndarray, z_cam
     return fit, n_valid, sums.n_window, eligible
 
 
-def _frame_noise_m(moments: BlockMoments, stride: int = 4) -> float:
+def _frame_noise_m(moments: BlockMoments, stride: int = 8) -> float:
     """The frame's depth noise (m, 1-sigma): the median RMS of plane fits of 1/z to every
     ``stride``-th block in both directions that is three-quarters full (curvature is nil over a
     block; a block on an edge is an outlier the median ignores). NaN if no block qualifies."""
