@@ -254,7 +254,8 @@ class _PixelFills:
         known = (self._keys[pos] == lin) if self._keys.size else np.zeros(lin.shape, dtype=bool)
         new = np.unique(lin[~known])
         if new.size:
-            value = self._depth_m.reshape(-1)[new].astype(np.float64)
+            flat = self._depth_m.reshape(-1)
+            value = flat[new].astype(np.float64)
             rule = np.full(new.size, FillRule.DIRECT, dtype=np.int8)
             spread = np.zeros(new.size)
             hole = np.flatnonzero(~(value > 0))  # NaN compares False

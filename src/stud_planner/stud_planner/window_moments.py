@@ -64,8 +64,6 @@ def _powers(x: np.ndarray, order: int) -> np.ndarray:
     return out
 
 
-_W_INDEX = np.array([p * 5 + q for p, q in W_TERMS])
-_Y_INDEX = np.array([p * 3 + q for p, q in Y_TERMS])
 
 
 def _shift(ch: dict, x0: np.ndarray, y0: np.ndarray, terms, order: int) -> dict:
@@ -106,14 +104,26 @@ class BlockMoments:
         self._sat: np.ndarray | None = None
 
     # -- block sums ----------------------------------------------------------------------------
-    def _inverse_depth(self, pix: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(valid, y', y' as float32) of pixels (any layout): y' = 1/z - y_ref, 0 where no depth."""
+    def _inverse_depth(self, pix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(valid, y') of pixels (any layout): y' = 1/z - y_ref (float32), 0 where no depth."""
         z = np.fmin(pix, np.float32(np.inf))  # NaN -> inf (and a contiguous copy): 1/z is then 0
         y = np.divide(np.float32(1.0), z, out=z)
         valid = (y > 0) & (y < np.inf)  # no depth: NaN, 0 or negative
         y -= np.float32(self.y_ref)
         y *= valid
-        return valid, y.astype(np.float64), y
+        return valid, y
+
+    def _to_frame(self, t: np.ndarray, xc: np.ndarray, order: int) -> np.ndarray:
+        """Sums over block columns in block-local offsets (px), t[..., r, c] = sum data c_j^r, to
+        the frame-wide coordinate: sum data X^p = sum_r C(p, r) xc^(p - r) t_r / scale^r, with
+        xc (n_cols,) the columns' centres."""
+        s = 1.0 / COORD_SCALE_PX
+        pw = _powers(xc, order - 1)
+        out = np.zeros(t.shape)
+        for p in range(order):
+            for r in range(p + 1):
+                out[..., p, :] += (comb(p, r) * s**r) * pw[:, p - r] * t[..., r, :]
+        return out
 
     def _validity_sums(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """(len(W_TERMS), k) validity channels of blocks (rows, cols) (k,), pixel by pixel: two
@@ -134,19 +144,23 @@ class BlockMoments:
     def all_blocks(self) -> np.ndarray:
         """(N_CHANNELS, n_rows, n_cols) sums of every block.
 
-        Products batched over block columns and then block rows (a column's coordinate powers
-        are shared down it, a row's along it). The validity channels of a block whose pixels all
-        have depth are those of the full block, an outer product of its column and row power
-        sums, so while most blocks are whole only those with a hole are summed pixel by pixel.
+        Over each block's columns one product in block-local offsets, shared by all blocks
+        (float32: small exact offsets, no cancellation), shifted to the frame-wide coordinate in
+        float64; over its rows one product per block row with the rows' frame-wide powers. The
+        validity channels of a block whose pixels all have depth are those of the full block, an
+        outer product of its column and row power sums, so while most blocks are whole only those
+        with a hole are summed pixel by pixel.
         """
         b, nr, nc = BLOCK_PX, self.n_rows, self.n_cols
-        valid, y, y32 = self._inverse_depth(self._depth.reshape(nr * b, nc, b).transpose(1, 0, 2))  # (nc, H, b)
+        H = nr * b
+        valid, y = self._inverse_depth(self._depth)  # (H, W), image layout
         out = np.empty((N_CHANNELS, nr, nc))
         nw = len(W_TERMS)
-        all_valid = np.uint64(0x0101010101010101)  # eight True bytes
-        holed = (valid.view(np.uint64).reshape(nc, nr, b * b // 8) != all_valid).any(axis=2).T  # (nr, nc)
+        xc = (np.arange(nc) * b + (b - 1) / 2.0 - self.origin[0]) / COORD_SCALE_PX
+        words = valid.view(np.uint64).reshape(nr, b, nc, b // 8)  # eight validity bytes a word
+        holed = (words != np.uint64(0x0101010101010101)).any(axis=(1, 3))  # (nr, nc)
         r, c = np.nonzero(holed)
-        products = [(y, 3, _Y_INDEX, out[nw:-1])]
+        products = [(y, 3, Y_TERMS, out[nw:-1])]
         if r.size <= _HOLED_BLOCKS_PIXELWISE * holed.size:
             su, sv = self._gx.sum(axis=1), self._gy.sum(axis=1)  # (nc, 5[p]), (nr, 5[q])
             for k, (p, q) in enumerate(W_TERMS):
@@ -154,58 +168,48 @@ class BlockMoments:
             if r.size:
                 out[:nw, r, c] = self._validity_sums(r, c)
         else:
-            products.append((valid.astype(np.float64), 5, _W_INDEX, out[:nw]))
-        for data, order, index, dest in products:
-            t = np.matmul(data, self._gx[:, :, :order])  # (nc, H, order[p])
-            t = t.reshape(nc, nr, b, order).transpose(1, 0, 3, 2).reshape(nr, nc * order, b)
-            m = np.matmul(t, self._gy[:, :, :order]).reshape(nr, nc, order * order)  # [p * order + q]
-            dest[...] = m.transpose(2, 0, 1)[index]
-        yb = y32.reshape(nc * nr, b * b)  # 64 terms of one sign: float32 sums lose nothing that matters
-        out[-1] = np.einsum("kj,kj->k", yb, yb).reshape(nc, nr).T
-        return out
-
-    def blocks(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        """(N_CHANNELS, k) sums of blocks (rows, cols) (k,), in the frame-wide coordinate."""
-        b, k = BLOCK_PX, rows.size
-        pix = self._depth.reshape(self.n_rows, b, self.n_cols, b)[rows, :, cols, :]  # (k, b, b)
-        _, y, _ = self._inverse_depth(pix)
-        gx, gy = self._gx[cols, :, :3], self._gy[rows, :, :3]
-        my = np.matmul(np.swapaxes(gy, 1, 2), np.matmul(y, gx))  # (k, 3[q], 3[p])
-        out = np.empty((N_CHANNELS, k))
-        nw = len(W_TERMS)
-        out[:nw] = self._validity_sums(rows, cols)
-        out[nw:-1] = np.swapaxes(my, 1, 2).reshape(k, 9)[:, _Y_INDEX].T
-        yb = y.reshape(k, -1)
-        out[-1] = np.einsum("kj,kj->k", yb, yb)
+            products.append((valid.astype(np.float32), 5, W_TERMS, out[:nw]))
+        for data, order, terms, dest in products:
+            G = self._local[:, :order].T.astype(np.float32)  # (order, b)
+            t = np.matmul(G, np.swapaxes(data.reshape(H, nc, b), 1, 2))  # (H, order[r], nc): over block columns
+            t = self._to_frame(t, xc, order).reshape(nr, b, order * nc)
+            m = np.matmul(np.swapaxes(self._gy[:, :, :order], 1, 2), t).reshape(nr, order, order, nc)  # [a, q, p, c]
+            for k, (p, q) in enumerate(terms):
+                dest[k] = m[:, q, p]
+        y *= y  # 64 terms of one sign a block: float32 sums lose nothing that matters
+        out[-1] = (y.reshape(H * nc, b) @ np.ones(b, dtype=np.float32)).reshape(nr, b, nc).sum(axis=1)
         return out
 
     # -- window sums ---------------------------------------------------------------------------
     def _direct_window_sums(self, row0: np.ndarray, row1: np.ndarray, col0: np.ndarray,
                             col1: np.ndarray) -> WindowSums:
         """The windows' sums from their own pixels, in window-local coordinates (few windows: no
-        table to build). Windows of one size share their coordinate powers: two products each."""
+        table to build). Every window is cut from the image as a box of the largest window's size
+        (a view copied row by row), its own pixels picked by row and column masks."""
         b, n = BLOCK_PX, row0.size
-        mw, my, yy = np.zeros((n, 5, 5)), np.zeros((n, 3, 3)), np.zeros(n)
-        size = (row1 - row0) * (self.n_cols + 1) + (col1 - col0)
-        for key in np.unique(size):
-            j = np.flatnonzero(size == key)
-            kr, kc = (row1[j[0]] - row0[j[0]]) * b, (col1[j[0]] - col0[j[0]]) * b
-            # Whole windows as views of the image, copied row by row: (k, kr, kc).
-            pix = np.lib.stride_tricks.sliding_window_view(self._depth, (kr, kc))[row0[j] * b, col0[j] * b]
-            valid, y, _ = self._inverse_depth(pix)
-            gu = _powers(np.arange(kc) - (kc - 1) / 2.0, 4)
-            gv = _powers(np.arange(kr) - (kr - 1) / 2.0, 4)
-            k = j.size
-            w = valid.astype(np.float64)
-            mw[j] = ((w.reshape(-1, kc) @ gu).reshape(k, kr, 5).transpose(0, 2, 1).reshape(-1, kr)
-                     @ gv).reshape(k, 5, 5)
-            my[j] = ((y.reshape(-1, kc) @ gu[:, :3]).reshape(k, kr, 3).transpose(0, 2, 1).reshape(-1, kr)
-                     @ gv[:, :3]).reshape(k, 3, 3)
-            yf = y.reshape(k, -1)
-            yy[j] = np.einsum("kj,kj->k", yf, yf)
+        kr, kc = int((row1 - row0).max()) * b, int((col1 - col0).max()) * b
+        top = np.minimum(row0 * b, self._depth.shape[0] - kr)  # the box stays inside the image
+        left = np.minimum(col0 * b, self._depth.shape[1] - kc)
+        pix = np.lib.stride_tricks.sliding_window_view(self._depth, (kr, kc))[top, left]  # (n, kr, kc)
+        valid, y = self._inverse_depth(pix)
+        y = y.astype(np.float64)
+        rows = top[:, None] + np.arange(kr)  # image row / column of each box row / column
+        cols = left[:, None] + np.arange(kc)
+        centre = self._centres(row0, row1, col0, col1)
+        in_rows = (rows >= row0[:, None] * b) & (rows < row1[:, None] * b)
+        in_cols = (cols >= col0[:, None] * b) & (cols < col1[:, None] * b)
+        gv = _powers(rows - centre[:, 1:2], 4) * in_rows[:, :, None]  # (n, kr, 5), 0 outside the window
+        gu = _powers(cols - centre[:, 0:1], 4) * in_cols[:, :, None]
+        w = valid.astype(np.float64)
+        mw = np.matmul(np.swapaxes(np.matmul(w, gu), 1, 2), gv)  # (n, 5[p], 5[q])
+        my = np.matmul(np.swapaxes(np.matmul(y, gu[:, :, :3]), 1, 2), gv[:, :, :3])
+        y *= in_rows[:, :, None]
+        y *= in_cols[:, None, :]
+        yf = y.reshape(n, -1)
+        yy = np.einsum("kj,kj->k", yf, yf)
         mw[:, np.add.outer(np.arange(5), np.arange(5)) > 4] = 0.0
         my[:, np.add.outer(np.arange(3), np.arange(3)) > 2] = 0.0
-        return WindowSums(mw=mw, my=my, yy=yy, centre_uv=self._centres(row0, row1, col0, col1),
+        return WindowSums(mw=mw, my=my, yy=yy, centre_uv=centre,
                           n_window=self._pixels_in_image(row0, row1, col0, col1))
 
     def _centres(self, row0, row1, col0, col1) -> np.ndarray:
