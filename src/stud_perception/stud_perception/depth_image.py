@@ -152,10 +152,11 @@ def _plane_fit(vals, du, dv, frac_u, frac_v, min_points: int, min_spread_px: flo
     in (u, v): the fit is then exact on planar patches at any tilt, and nearly so on the gently
     curved parts this project welds on. Returns (depth (N,), ok (N,), n (N,), rms_m (N,)).
     """
-    valid = np.isfinite(vals) & (vals > 0)
+    valid = vals > 0  # NaN compares False
     n = valid.sum(axis=1)
     wgt = valid.astype(np.float64)
-    inv = np.where(valid, 1.0 / np.where(valid, vals, 1.0), 0.0)
+    inv = np.zeros(vals.shape)
+    np.divide(1.0, vals, out=inv, where=valid)
     # Normal equations of [1, du, dv] . p = 1/z, batched over queries.
     A = np.stack([np.ones_like(du), du, dv], axis=1)                       # (k, 3)
     # As matrix products (BLAS): sum_k wgt_nk A_ki A_kj and sum_k wgt_nk inv_nk A_ki.
@@ -166,9 +167,10 @@ def _plane_fit(vals, du, dv, frac_u, frac_v, min_points: int, min_spread_px: flo
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_uv = AtA[:, 0, 1:] / n[:, None]
         cov = AtA[:, 1:, 1:] / n[:, None, None] - mean_uv[:, :, None] * mean_uv[:, None, :]
-    cov = np.nan_to_num(cov)
-    min_eig = np.linalg.eigvalsh(cov)[:, 0]
-    ok = (n >= min_points) & (min_eig >= min_spread_px**2)
+    a, b, d = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
+    with np.errstate(invalid="ignore"):  # smallest eigenvalue of the symmetric 2x2, closed form
+        min_eig = 0.5 * (a + d) - np.sqrt(0.25 * (a - d) ** 2 + b * b)
+    ok = (n >= min_points) & (min_eig >= min_spread_px**2)  # NaN (no samples) is not ok
     depth = np.full(vals.shape[0], np.nan)
     rms = np.full(vals.shape[0], np.nan)
     if ok.any():
@@ -176,7 +178,8 @@ def _plane_fit(vals, du, dv, frac_u, frac_v, min_points: int, min_spread_px: flo
         inv_at = p[:, 0] + p[:, 1] * frac_u[ok] + p[:, 2] * frac_v[ok]
         with np.errstate(divide="ignore", invalid="ignore"):
             z_fit = 1.0 / (p[:, 0][:, None] + p[:, 1][:, None] * du + p[:, 2][:, None] * dv)
-            res = np.where(valid[ok], vals[ok] - z_fit, 0.0)
+            res = vals[ok] - z_fit
+        res[~valid[ok]] = 0.0
         good = inv_at > 0  # an extrapolated plane may pass behind the camera: not a depth
         idx = np.flatnonzero(ok)
         depth[idx[good]] = 1.0 / inv_at[good]
