@@ -456,8 +456,8 @@ def estimate_surface_poses(
         # elsewhere (a step, an edge, flying pixels, a rough patch) the robust path decides.
         take = eligible & (few | ((rms_m <= gate_m) & (rms_m <= max_rms_m)))
         k = np.flatnonzero(take)
-        _store_poses(out, robust[k], fit.take(k), camera, target_xy[robust[k]], P0[robust[k], 2], z_cam[k],
-                     n_valid[k], n_valid[k], n_window[k], limits)
+        _store_poses(out, robust[k], fit if k.size == take.size else fit.take(k), camera, target_xy[robust[k]],
+                     P0[robust[k], 2], z_cam[k], n_valid[k], n_valid[k], n_window[k], limits)
         robust = robust[~take]
     for start in range(0, robust.size, chunk):
         idx = robust[start:start + chunk]

@@ -192,21 +192,20 @@ class BlockMoments:
         left = np.minimum(col0 * b, self._depth.shape[1] - kc)
         pix = np.lib.stride_tricks.sliding_window_view(self._depth, (kr, kc))[top, left]  # (n, kr, kc)
         valid, y = self._inverse_depth(pix)
-        y = y.astype(np.float64)
         rows = top[:, None] + np.arange(kr)  # image row / column of each box row / column
         cols = left[:, None] + np.arange(kc)
         centre = self._centres(row0, row1, col0, col1)
         in_rows = (rows >= row0[:, None] * b) & (rows < row1[:, None] * b)
         in_cols = (cols >= col0[:, None] * b) & (cols < col1[:, None] * b)
-        gv = _powers(rows - centre[:, 1:2], 4) * in_rows[:, :, None]  # (n, kr, 5), 0 outside the window
-        gu = _powers(cols - centre[:, 0:1], 4) * in_cols[:, :, None]
-        w = valid.astype(np.float64)
-        mw = np.matmul(np.swapaxes(np.matmul(w, gu), 1, 2), gv)  # (n, 5[p], 5[q])
-        my = np.matmul(np.swapaxes(np.matmul(y, gu[:, :, :3]), 1, 2), gv[:, :, :3])
+        # float32 products: offsets from the window's own centre, so no sum cancels another.
+        gv = (_powers(rows - centre[:, 1:2], 4) * in_rows[:, :, None]).astype(np.float32)  # (n, kr, 5), 0 outside
+        gu = (_powers(cols - centre[:, 0:1], 4) * in_cols[:, :, None]).astype(np.float32)
+        mw = np.matmul(np.swapaxes(np.matmul(valid.astype(np.float32), gu), 1, 2), gv).astype(np.float64)
+        my = np.matmul(np.swapaxes(np.matmul(y, gu[:, :, :3]), 1, 2), gv[:, :, :3]).astype(np.float64)
         y *= in_rows[:, :, None]
         y *= in_cols[:, None, :]
-        yf = y.reshape(n, -1)
-        yy = np.einsum("kj,kj->k", yf, yf)
+        yf = y.reshape(n, -1, kc)  # float32 sums of one row each, then float64 over the rows
+        yy = np.einsum("krj,krj->kr", yf, yf).astype(np.float64).sum(axis=1)
         mw[:, np.add.outer(np.arange(5), np.arange(5)) > 4] = 0.0
         my[:, np.add.outer(np.arange(3), np.arange(3)) > 2] = 0.0
         return WindowSums(mw=mw, my=my, yy=yy, centre_uv=centre,
