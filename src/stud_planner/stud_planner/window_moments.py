@@ -69,11 +69,23 @@ def _powers(x: np.ndarray, order: int) -> np.ndarray:
 def _shift(ch: dict, x0: np.ndarray, y0: np.ndarray, terms, order: int) -> dict:
     """Moments about (x0, y0) from moments about the origin: sum (x - x0)^p (y - y0)^q, for the
     (p, q) in ``terms``; ``ch`` maps (p, q) -> (n,) arrays. Binomial expansion, u then v."""
-    px, py = _powers(-x0, order), _powers(-y0, order)
+    px, py = [np.ones_like(x0)], [np.ones_like(y0)]  # powers of -x0, -y0, each contiguous
+    for _ in range(order):
+        px.append(px[-1] * -x0)
+        py.append(py[-1] * -y0)
     half = {}
     for p, q in terms:  # sum (x - x0)^p y^q
-        half[p, q] = sum(comb(p, r) * px[:, p - r] * ch[r, q] for r in range(p + 1))
-    return {(p, q): sum(comb(q, s) * py[:, q - s] * half[p, s] for s in range(q + 1)) for p, q in terms}
+        acc = ch[p, q].copy()
+        for r in range(p):
+            acc += comb(p, r) * px[p - r] * ch[r, q]
+        half[p, q] = acc
+    out = {}
+    for p, q in terms:
+        acc = half[p, q].copy()
+        for s in range(q):
+            acc += comb(q, s) * py[q - s] * half[p, s]
+        out[p, q] = acc
+    return out
 
 
 class BlockMoments:
@@ -101,7 +113,7 @@ class BlockMoments:
         self._gx = _powers((np.arange(self.n_cols * b) - self.origin[0]) * s, 4).reshape(self.n_cols, b, 5)
         self._gy = _powers((np.arange(self.n_rows * b) - self.origin[1]) * s, 4).reshape(self.n_rows, b, 5)
         self._local = _powers(np.arange(b) - (b - 1) / 2.0, 4)  # (b, 5): in-block offsets, px
-        self._sat: np.ndarray | None = None
+        self._sat: tuple | None = None  # (block ranges, table)
 
     # -- block sums ----------------------------------------------------------------------------
     def _inverse_depth(self, pix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -141,8 +153,9 @@ class BlockMoments:
         shifted = _shift(local, -xc, -yc, W_TERMS, 4)
         return np.stack([shifted[t] for t in W_TERMS])
 
-    def all_blocks(self) -> np.ndarray:
-        """(N_CHANNELS, n_rows, n_cols) sums of every block.
+    def all_blocks(self, rows: tuple[int, int] | None = None, cols: tuple[int, int] | None = None) -> np.ndarray:
+        """(N_CHANNELS, rows, cols) sums of every block in the block ranges ``rows``, ``cols``
+        ([first, last), default all).
 
         Over each block's columns one product in block-local offsets, shared by all blocks
         (float32: small exact offsets, no cancellation), shifted to the frame-wide coordinate in
@@ -151,29 +164,33 @@ class BlockMoments:
         outer product of its column and row power sums, so while most blocks are whole only those
         with a hole are summed pixel by pixel.
         """
-        b, nr, nc = BLOCK_PX, self.n_rows, self.n_cols
+        b = BLOCK_PX
+        r_lo, r_hi = rows or (0, self.n_rows)
+        c_lo, c_hi = cols or (0, self.n_cols)
+        nr, nc = r_hi - r_lo, c_hi - c_lo
         H = nr * b
-        valid, y = self._inverse_depth(self._depth)  # (H, W), image layout
+        valid, y = self._inverse_depth(self._depth[r_lo * b:r_hi * b, c_lo * b:c_hi * b])  # image layout
         out = np.empty((N_CHANNELS, nr, nc))
         nw = len(W_TERMS)
-        xc = (np.arange(nc) * b + (b - 1) / 2.0 - self.origin[0]) / COORD_SCALE_PX
+        xc = (np.arange(c_lo, c_hi) * b + (b - 1) / 2.0 - self.origin[0]) / COORD_SCALE_PX
+        gy = self._gy[r_lo:r_hi]
         words = valid.view(np.uint64).reshape(nr, b, nc, b // 8)  # eight validity bytes a word
         holed = (words != np.uint64(0x0101010101010101)).any(axis=(1, 3))  # (nr, nc)
         r, c = np.nonzero(holed)
         products = [(y, 3, Y_TERMS, out[nw:-1])]
         if r.size <= _HOLED_BLOCKS_PIXELWISE * holed.size:
-            su, sv = self._gx.sum(axis=1), self._gy.sum(axis=1)  # (nc, 5[p]), (nr, 5[q])
+            su, sv = self._gx[c_lo:c_hi].sum(axis=1), gy.sum(axis=1)  # (nc, 5[p]), (nr, 5[q])
             for k, (p, q) in enumerate(W_TERMS):
                 np.multiply(sv[:, None, q], su[None, :, p], out=out[k])
             if r.size:
-                out[:nw, r, c] = self._validity_sums(r, c)
+                out[:nw, r, c] = self._validity_sums(r + r_lo, c + c_lo)
         else:
             products.append((valid.astype(np.float32), 5, W_TERMS, out[:nw]))
         for data, order, terms, dest in products:
             G = self._local[:, :order].T.astype(np.float32)  # (order, b)
             t = np.matmul(G, np.swapaxes(data.reshape(H, nc, b), 1, 2))  # (H, order[r], nc): over block columns
             t = self._to_frame(t, xc, order).reshape(nr, b, order * nc)
-            m = np.matmul(np.swapaxes(self._gy[:, :, :order], 1, 2), t).reshape(nr, order, order, nc)  # [a, q, p, c]
+            m = np.matmul(np.swapaxes(gy[:, :, :order], 1, 2), t).reshape(nr, order, order, nc)  # [a, q, p, c]
             for k, (p, q) in enumerate(terms):
                 dest[k] = m[:, q, p]
         y *= y  # 64 terms of one sign a block: float32 sums lose nothing that matters
@@ -221,16 +238,21 @@ class BlockMoments:
         cols_in = np.clip(np.minimum(col1 * b, self.width) - col0 * b, 0, None)
         return rows_in * cols_in
 
-    def summed_area_table(self) -> np.ndarray:
-        """(N_CHANNELS, n_rows + 1, n_cols + 1) cumulative block sums, built once."""
-        if self._sat is None:
-            sat = np.zeros((N_CHANNELS, self.n_rows + 1, self.n_cols + 1))
-            sat[:, 1:, 1:] = self.all_blocks()
+    def summed_area_table(self, rows: tuple[int, int] | None = None,
+                          cols: tuple[int, int] | None = None) -> np.ndarray:
+        """(N_CHANNELS, rows + 1, cols + 1) cumulative sums of the blocks in the block ranges
+        ``rows``, ``cols`` ([first, last), default all): entry [:, i, j] sums the blocks
+        [first, first + i) x [first, first + j). Kept for the next call with the same ranges."""
+        key = (rows or (0, self.n_rows), cols or (0, self.n_cols))
+        if self._sat is None or self._sat[0] != key:
+            (r_lo, r_hi), (c_lo, c_hi) = key
+            sat = np.zeros((N_CHANNELS, r_hi - r_lo + 1, c_hi - c_lo + 1))
+            sat[:, 1:, 1:] = self.all_blocks(*key)
             np.cumsum(sat, axis=2, out=sat)
-            for i in range(2, self.n_rows + 1):  # row by row: faster than np.cumsum on a middle axis
+            for i in range(2, sat.shape[1]):  # row by row: faster than np.cumsum on a middle axis
                 sat[:, i] += sat[:, i - 1]
-            self._sat = sat
-        return self._sat
+            self._sat = (key, sat)
+        return self._sat[1]
 
     def window_sums(self, row0: np.ndarray, row1: np.ndarray, col0: np.ndarray, col1: np.ndarray,
                     use_table: bool | None = None) -> WindowSums:
@@ -247,8 +269,11 @@ class BlockMoments:
         if n == 0:
             cht = np.zeros((N_CHANNELS, 0))
         elif use_table:
-            S = self.summed_area_table()
-            cht = S[:, row1, col1] - S[:, row0, col1] - S[:, row1, col0] + S[:, row0, col0]
+            # A table of just the blocks the windows cover (a part seldom fills the frame).
+            r_lo, c_lo = int(row0.min()), int(col0.min())
+            S = self.summed_area_table((r_lo, int(row1.max())), (c_lo, int(col1.max())))
+            a0, a1, b0, b1 = row0 - r_lo, row1 - r_lo, col0 - c_lo, col1 - c_lo
+            cht = S[:, a1, b1] - S[:, a0, b1] - S[:, a1, b0] + S[:, a0, b0]
         else:
             return self._direct_window_sums(row0, row1, col0, col1)
         centre = self._centres(row0, row1, col0, col1)
