@@ -58,16 +58,31 @@ def _src_from_argv() -> Path:
     return REPO / "src"
 
 
-for _pkg in ("stud_perception", "stud_planner"):
-    sys.path.insert(0, str(_src_from_argv() / _pkg))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import bench_matchers  # noqa: E402, F401  (BfsOracle; puts this checkout's src/ on the path, so --src goes first)
+
+for _pkg in ("stud_perception", "stud_planner"):
+    _p = str(_src_from_argv() / _pkg)
+    if _p in sys.path:
+        sys.path.remove(_p)
+    sys.path.insert(0, _p)
+for _mod in [m for m in sys.modules if m.split(".")[0] in ("stud_perception", "stud_planner")]:
+    del sys.modules[_mod]  # imported by bench_matchers from this checkout: import them again from --src
 
 import numpy as np  # noqa: E402
 
-from bench_matchers import BfsOracle, bfs_seconds_per_pixel  # noqa: E402
+from bench_matchers import BfsOracle  # noqa: E402
 from stud_perception.scene import Cylinder, demo_dome_scene, grid_stud_scene, render, view_camera  # noqa: E402
-from stud_planner.matching import match_batch, match_fpm  # noqa: E402
+from stud_planner.matching import match_batch, match_bfs, match_fpm  # noqa: E402
 from stud_planner.view_planning import PlannerConfig, plan_view  # noqa: E402
+
+
+def bfs_seconds_per_pixel(xy, depth_m, camera, pixels: int) -> float:
+    """Per-pixel cost of the real BFS loop (of the benchmarked src/), timed on a capped scan."""
+    match_bfs(xy, depth_m, camera, max_pixels=pixels)  # warm-up
+    t0 = time.perf_counter()
+    r = match_bfs(xy, depth_m, camera, max_pixels=pixels)
+    return (time.perf_counter() - t0) / r.total_iterations
 
 OURS = "ours: match+normal+sigma+status"
 SCENES = {
@@ -251,6 +266,10 @@ def fmt_time(t: float, est: bool) -> str:
     if not np.isfinite(t):
         return "-"
     pre = "~" if est else ""
+    if t >= 2 * 86400:
+        return f"{pre}{t / 86400:.0f} days"
+    if t >= 2 * 3600:
+        return f"{pre}{t / 3600:.0f} h"
     if t >= 60:
         return f"{pre}{t / 60:.0f} min"
     if t >= 1:
@@ -311,7 +330,7 @@ def main() -> int:
     except (AttributeError, OSError):
         pinned = "not pinned"
     print(f"Full weld poses, one frame, one core ({pinned}, BLAS threads 1), best of {args.repeat}; "
-          f"src: {args.src or REPO / 'src'}")
+          f"src: {Path(sys.modules[plan_view.__module__].__file__).parents[2]}")
     for name in args.scenes:
         print_tables(name, run_scene(name, args.sizes, args.repeat, args.fpm_max))
     print("\n~: estimated (FPM: per-stud time of the timed run x N; BFS: exact iteration count x timed per-pixel cost)")

@@ -550,10 +550,34 @@ def _fast_fits(moments: BlockMoments, camera: CameraModel, uv: np.ndarray, z_cam
     return fit, n_valid, sums.n_window, eligible
 
 
-def _frame_noise_m(moments: BlockMoments, stride: int = 8) -> float:
+def _frame_noise_m(moments: BlockMoments, stride: int = 4) -> float:
     """The frame's depth noise (m, 1-sigma): the median RMS of plane fits of 1/z to every
-    ``stride``-th block in both directions that is three-quarters full (curvature is nil over a
-    block; a block on an edge is an outlier the median ignores). NaN if no block qualifies."""
+    ``stride``-th block in both directions that has depth in every pixel (curvature is nil over
+    a block; a block on an edge is an outlier the median ignores). With all pixels present the
+    design is the same for every block, so the residuals are one product with the projector off
+    the plane's span. NaN if no such block."""
+    b = BLOCK_PX
+    depth = moments.depth_blocks[::stride, :, ::stride, :]  # a view: (rows, b, cols, b)
+    z = np.ascontiguousarray(depth.transpose(0, 2, 1, 3)).reshape(-1, b * b).astype(np.float64)
+    z = z[np.all(z > 0, axis=1)]  # NaN compares False
+    if z.shape[0] < _MIN_NOISE_BLOCKS:  # speckled depth: few whole blocks, take three-quarter-full ones
+        return _frame_noise_from_sums(moments, stride)
+    g = np.arange(b) - (b - 1) / 2.0
+    X = np.column_stack([np.ones(b * b), np.tile(g, b), np.repeat(g, b)])  # 1, u, v of the pixels
+    off_plane = np.eye(b * b) - X @ np.linalg.solve(X.T @ X, X.T)
+    y = 1.0 / z
+    r = y @ off_plane
+    var_w = np.einsum("kj,kj->k", r, r) / (b * b - 3)
+    z_mean = 1.0 / y.mean(axis=1)
+    return float(np.median(np.sqrt(var_w) * z_mean * z_mean))
+
+
+#: Whole blocks the noise estimate wants before it settles for partly holed ones.
+_MIN_NOISE_BLOCKS = 30
+
+
+def _frame_noise_from_sums(moments: BlockMoments, stride: int) -> float:
+    """:func:`_frame_noise_m` over the blocks that are three-quarters full, from their sums."""
     r, c = (a.ravel() for a in np.meshgrid(np.arange(0, moments.n_rows, stride),
                                            np.arange(0, moments.n_cols, stride), indexing="ij"))
     s = moments.window_sums(r, r + 1, c, c + 1, use_table=False)

@@ -106,6 +106,8 @@ class BlockMoments:
             depth = padded
         self.height, self.width = H, W
         self._depth = depth
+        #: The depth image as blocks, a view: (n_rows, BLOCK_PX, n_cols, BLOCK_PX).
+        self.depth_blocks = depth.reshape(self.n_rows, b, self.n_cols, b)
         self.y_ref = float(y_ref_per_m)
         self.origin = np.array([W / 2.0, H / 2.0])
         s = 1.0 / COORD_SCALE_PX
