@@ -23,7 +23,7 @@ Methods (what each figure includes):
 - ``peer A``: two re-projections of the stud's vertical line at the image's median height, a 7x7
   mean of valid depths each (matching only);
 - ``peer B (SAT)``: peer A + normals from summed-area tables of the 3D point moments (a PCA plane
-  over a fixed 41x41 px window, one pass over the frame);
+  over a fixed 41x41 px window; ten full-resolution tables by OpenCV's ``cv2.integral``);
 - ``peer C (KD-tree)``: a scipy KD-tree over the back-projected cloud (every 2nd pixel, the build
   is part of the figure) + PCA normals of the 10 mm neighbourhood of the nearest point to each
   stud's vertical line (``pip install -r bench/requirements.txt``);
@@ -69,6 +69,7 @@ for _pkg in ("stud_perception", "stud_planner"):
 for _mod in [m for m in sys.modules if m.split(".")[0] in ("stud_perception", "stud_planner")]:
     del sys.modules[_mod]  # imported by bench_matchers from this checkout: import them again from --src
 
+import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from bench_matchers import BfsOracle  # noqa: E402
@@ -147,9 +148,9 @@ class _SatNormals:
         self.shift = P[ok].mean(axis=0)
         P = P - self.shift
         w = ok.astype(float)
-        feats = [w] + [w * P[..., i] for i in range(3)] + [w * P[..., i] * P[..., j] for i in range(3)
-                                                           for j in range(i, 3)]
-        self.sat = [np.pad(f.cumsum(0).cumsum(1), ((1, 0), (1, 0))) for f in feats]
+        comps = [w * P[..., i] for i in range(3)]
+        feats = [w] + comps + [comps[i] * P[..., j] for i in range(3) for j in range(i, 3)]
+        self.sat = [cv2.integral(f, sdepth=cv2.CV_64F) for f in feats]  # (H + 1, W + 1), OpenCV's C loop
         self.half, self.H, self.W = half, H, W
 
     def normals(self, u, v, cam_pos):
