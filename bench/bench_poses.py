@@ -234,8 +234,8 @@ def run_scene(name: str, sizes: list[int], repeat: int, fpm_max: int) -> list[tu
         t, out = best_of(lambda: match_batch(xy, depth, cam), rep)
         res["ours match only"] = (t, float("nan"), float(out.ok[vis].mean()), False)
         t, out = best_of(lambda: peer_a(xy, depth, cam), rep)
-        res["peer A: 2 re-projections + 7x7 (match only)"] = (t, float("nan"), float(np.isfinite(out[0][vis, 2]).mean()),
-                                                              False)
+        matched = float(np.isfinite(out[0][vis, 2]).mean())
+        res["peer A: 2 re-projections + 7x7 (match only)"] = (t, float("nan"), matched, False)
 
         def b():
             P, u, v = peer_a(xy, depth, cam)
@@ -246,7 +246,7 @@ def run_scene(name: str, sizes: list[int], repeat: int, fpm_max: int) -> list[tu
             t, out = best_of(lambda: peer_c(xy, depth, cam), 1)
             res["peer C (KD-tree, scipy) + PCA normals"] = (t, *_angle_max(out[1], truth, vis), False)
         except ImportError:
-            res["peer C (KD-tree): scipy missing, pip install -r bench/requirements.txt"] = (float("nan"),) * 3 + (False,)
+            res["peer C (KD-tree): scipy missing, pip install -r bench/requirements.txt"] = (math.nan,) * 3 + (False,)
         if n <= fpm_max:
             t, out = best_of(lambda: match_fpm(xy, depth, cam), 1)
             fpm_per_stud = t / n

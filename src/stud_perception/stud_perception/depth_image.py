@@ -364,7 +364,8 @@ def sample_depth_bilinear(depth_m: np.ndarray, u, v, max_step_m: float = 0.005) 
             bad = (used & ~(np.isfinite(z) & (z > 0))).any(axis=1)
         zu = np.where(used & ~bad[:, None], z, np.nan)
         with np.errstate(invalid="ignore"):
-            step = np.nanmax(np.where(bad[:, None], 0.0, zu), axis=1) - np.nanmin(np.where(bad[:, None], 0.0, zu), axis=1)
+            zb = np.where(bad[:, None], 0.0, zu)
+            step = np.nanmax(zb, axis=1) - np.nanmin(zb, axis=1)
         jump = ~bad & (step > max_step_m)
         good = ~bad & ~jump
         val = (np.where(used, z, 0.0) * wt).sum(axis=1)

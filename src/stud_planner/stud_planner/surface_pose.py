@@ -23,7 +23,11 @@ can refuse to weld on a normal it cannot trust.
 Frames and units: `world` (z up), metres; normals are unit vectors oriented away from the
 surface, toward the camera; quaternions are (x, y, z, w) of a frame whose z-axis is the normal
 and whose x-axis is world X projected onto the tangent plane (world Y when the normal is along X).
-Vectorised over studs (in chunks, to bound memory).
+The fit needs only sums over the window's valid pixels, so most windows take them from
+summed-area tables of per-block moments (one pass over the frame, then constant work per stud:
+:mod:`stud_planner.window_moments`); the robust pixel path is kept for the windows whose plain
+fit is rougher than the frame's noise. Vectorised over studs (the pixel path in chunks, to bound
+memory).
 """
 from __future__ import annotations
 
@@ -35,7 +39,7 @@ import numpy as np
 from stud_perception.camera_model import CameraModel
 from stud_perception.rotations import frame_from_normal
 from stud_perception.rotations import matrix_to_quaternion as quaternion_from_matrix
-from stud_planner.window_moments import BLOCK_PX, BlockMoments, _powers
+from stud_planner.window_moments import BLOCK_PX, BlockMoments, powers_of
 
 #: Paper: M16x150 shear stud, tool-top offset along the normal.
 M16X150_TOP_OFFSET_M = 0.013
@@ -259,7 +263,7 @@ def _solve_normal_equations(Mw: np.ndarray, My: np.ndarray, ca: np.ndarray, cb: 
     """beta (n, 6) and A^-1 (n, 6, 6) of the quadric fit from the grid moments, with a = ca g_u,
     b = cb g_v: A_ij = ca^(p_i+p_j) cb^(q_i+q_j) Mw[p_i+p_j, q_i+q_j], rhs_i = ca^p_i cb^q_i My[p_i, q_i]."""
     P, Q = _TP[:, None] + _TP[None, :], _TQ[:, None] + _TQ[None, :]
-    pa, pb = _powers(ca, 4), _powers(cb, 4)
+    pa, pb = powers_of(ca, 4), powers_of(cb, 4)
     Mw = Mw * pa[:, :, None] * pb[:, None, :]
     A = Mw[:, P, Q]
     rhs = My[:, _TP, _TQ] * pa[:, _TP] * pb[:, _TQ]
@@ -415,9 +419,16 @@ def estimate_surface_poses(
     where the weld point and the normal are taken (else at the match's XY, which the matcher's
     tolerance allows to be a millimetre off -- a third of a degree of normal on a 150 mm dome).
 
-    Every valid sample of the window (:func:`_window_blocks`) enters a robust quadric fit of
-    1/z over normalised image coordinates (:func:`_fit_inverse_depth`: exact for planes, the
-    quadratic terms take the curvature). The weld point is where the stud's vertical line meets
+    Every valid sample of the window enters a quadric fit of 1/z over normalised image
+    coordinates (exact for planes, the quadratic terms take the curvature). With ``fast_fit``
+    (default) the plain least-squares fit of a window of whole 8x8-pixel blocks comes from moment
+    sums (:mod:`stud_planner.window_moments`: summed-area tables for many studs, the window's own
+    pixels for few), and it stands where its RMS is at most ``fast_fit_noise_ratio`` times the
+    frame's noise (the median RMS of plane fits to sample blocks; at least ``fast_fit_floor_m``)
+    and within ``max_rms_m``. Every other window -- a step, an edge, flying pixels, a window under
+    two blocks a side -- and every window with ``fast_fit=False`` takes the robust pixel path
+    (:func:`_window_blocks`, :func:`_fit_inverse_depth`: outliers beyond a MAD-scaled threshold
+    dropped, up to ``robust_passes`` times). The weld point is where the stud's vertical line meets
     the fitted surface (the fit averages the depth noise out of the height), the normal is the
     surface's there (Eq. 1's camera: ``R_wc`` takes it to `world`). ``normal_sigma_deg`` is the
     1-sigma uncertainty of the normal's direction about its least certain axis, from the fit's

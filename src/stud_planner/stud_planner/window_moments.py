@@ -55,7 +55,7 @@ class WindowSums:
     n_window: np.ndarray
 
 
-def _powers(x: np.ndarray, order: int) -> np.ndarray:
+def powers_of(x: np.ndarray, order: int) -> np.ndarray:
     """x[..., None] ** (0..order), (..., order + 1)."""
     out = np.empty(np.shape(x) + (order + 1,))
     out[..., 0] = 1.0
@@ -112,9 +112,9 @@ class BlockMoments:
         self.origin = np.array([W / 2.0, H / 2.0])
         s = 1.0 / COORD_SCALE_PX
         # Frame-wide coordinate powers of every column and row, grouped by block: (blocks, b, 5).
-        self._gx = _powers((np.arange(self.n_cols * b) - self.origin[0]) * s, 4).reshape(self.n_cols, b, 5)
-        self._gy = _powers((np.arange(self.n_rows * b) - self.origin[1]) * s, 4).reshape(self.n_rows, b, 5)
-        self._local = _powers(np.arange(b) - (b - 1) / 2.0, 4)  # (b, 5): in-block offsets, px
+        self._gx = powers_of((np.arange(self.n_cols * b) - self.origin[0]) * s, 4).reshape(self.n_cols, b, 5)
+        self._gy = powers_of((np.arange(self.n_rows * b) - self.origin[1]) * s, 4).reshape(self.n_rows, b, 5)
+        self._local = powers_of(np.arange(b) - (b - 1) / 2.0, 4)  # (b, 5): in-block offsets, px
         self._sat: tuple | None = None  # (block ranges, table)
 
     # -- block sums ----------------------------------------------------------------------------
@@ -132,7 +132,7 @@ class BlockMoments:
         the frame-wide coordinate: sum data X^p = sum_r C(p, r) xc^(p - r) t_r / scale^r, with
         xc (n_cols,) the columns' centres."""
         s = 1.0 / COORD_SCALE_PX
-        pw = _powers(xc, order - 1)
+        pw = powers_of(xc, order - 1)
         out = np.zeros(t.shape)
         for p in range(order):
             for r in range(p + 1):
@@ -217,8 +217,8 @@ class BlockMoments:
         in_rows = (rows >= row0[:, None] * b) & (rows < row1[:, None] * b)
         in_cols = (cols >= col0[:, None] * b) & (cols < col1[:, None] * b)
         # float32 products: offsets from the window's own centre, so no sum cancels another.
-        gv = (_powers(rows - centre[:, 1:2], 4) * in_rows[:, :, None]).astype(np.float32)  # (n, kr, 5), 0 outside
-        gu = (_powers(cols - centre[:, 0:1], 4) * in_cols[:, :, None]).astype(np.float32)
+        gv = (powers_of(rows - centre[:, 1:2], 4) * in_rows[:, :, None]).astype(np.float32)  # (n, kr, 5), 0 outside
+        gu = (powers_of(cols - centre[:, 0:1], 4) * in_cols[:, :, None]).astype(np.float32)
         mw = np.matmul(np.swapaxes(np.matmul(valid.astype(np.float32), gu), 1, 2), gv).astype(np.float64)
         my = np.matmul(np.swapaxes(np.matmul(y, gu[:, :, :3]), 1, 2), gv[:, :, :3]).astype(np.float64)
         y *= in_rows[:, :, None]
@@ -295,4 +295,4 @@ class BlockMoments:
                           n_window=self._pixels_in_image(row0, row1, col0, col1))
 
 
-__all__ = ["BLOCK_PX", "COORD_SCALE_PX", "BlockMoments", "WindowSums"]
+__all__ = ["BLOCK_PX", "COORD_SCALE_PX", "BlockMoments", "WindowSums", "powers_of"]
