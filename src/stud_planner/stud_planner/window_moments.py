@@ -3,10 +3,11 @@
 The least-squares quadric fit of 1/z over a window (:mod:`stud_planner.surface_pose`) needs only sums
 over the window's valid pixels: of u^p v^q (p + q <= 4), of y u^p v^q (p + q <= 2, y = 1/z) and of
 y^2. Those sums are additive over any partition of the window, so the image is cut into square
-blocks of :data:`BLOCK_PX` pixels, each block's sums are computed once (a few BLAS products per
-frame), and a window made of whole blocks gets its sums either by adding its blocks (few windows)
-or from summed-area tables of the block sums (many windows: four look-ups per channel). Both give
-the same numbers up to rounding; which one runs is a matter of cost only.
+blocks of :data:`BLOCK_PX` pixels and a window is made of whole blocks. Many windows get their sums
+from summed-area tables of the block sums (each block's sums computed once, a few BLAS products
+over the part of the frame the windows cover; then four look-ups per channel a window); few
+windows from their own pixels (no table to build). Both give the same numbers up to rounding
+(normals agree to 1e-4 deg, sigmas to 0.2 %); which one runs is a matter of cost only.
 
 Coordinates: sums are accumulated in a frame-wide scaled coordinate (X, Y) = ((u, v) - image
 centre) / :data:`COORD_SCALE_PX` (moments of order 4 of pixel coordinates would lose digits to
@@ -260,7 +261,7 @@ class BlockMoments:
                     use_table: bool | None = None) -> WindowSums:
         """Sums over windows of blocks [row0, row1) x [col0, col1) (n,) each (0 <= row0 < row1 <= n_rows).
 
-        ``use_table``: from the summed-area table (True) or by adding the windows' blocks (False);
+        ``use_table``: from the summed-area table (True) or from the windows' own pixels (False);
         by default whichever touches fewer blocks.
         """
         row0, row1, col0, col1 = (np.asarray(a, dtype=np.int64) for a in (row0, row1, col0, col1))
