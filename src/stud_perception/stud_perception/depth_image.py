@@ -334,11 +334,12 @@ def sample_depth_bilinear(depth_m: np.ndarray, u, v, max_step_m: float = 0.005) 
     idx = np.flatnonzero(inside)
     if idx.size == 0:
         return DepthSample(depth_m=out.reshape(shape), status=status.reshape(shape))
+    ui, vi = (uf, vf) if idx.size == uf.size else (uf[idx], vf[idx])  # usually all in the image
     # Clamp the base pixel so a query on the last row/column still has a 2x2 cell.
-    u0 = np.minimum(uf[idx].astype(np.int64), max(w - 2, 0))  # in-image, so truncation is floor
-    v0 = np.minimum(vf[idx].astype(np.int64), max(h - 2, 0))
-    fu = uf[idx] - u0
-    fv = vf[idx] - v0
+    u0 = np.minimum(ui.astype(np.int64), max(w - 2, 0))  # in-image, so truncation is floor
+    v0 = np.minimum(vi.astype(np.int64), max(h - 2, 0))
+    fu = ui - u0
+    fv = vi - v0
     du = np.minimum(u0 + 1, w - 1) - u0
     dv = (np.minimum(v0 + 1, h - 1) - v0) * w
     flat = depth_m.reshape(-1)
@@ -353,8 +354,12 @@ def sample_depth_bilinear(depth_m: np.ndarray, u, v, max_step_m: float = 0.005) 
         easy = (lo > 0) & (hi - lo <= max_step_m)
     top = z00 + fu * (z01 - z00)
     bottom = z10 + fu * (z11 - z10)
-    out[idx[easy]] = (top + fv * (bottom - top))[easy]
+    val = top + fv * (bottom - top)
     hard = np.flatnonzero(~easy)
+    if hard.size == 0 and idx.size == uf.size:
+        out = val
+    else:
+        out[idx[easy]] = val[easy]
     if hard.size:
         z = np.stack([z00[hard], z01[hard], z10[hard], z11[hard]], axis=1)
         fu, fv = fu[hard], fv[hard]

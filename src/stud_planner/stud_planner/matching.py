@@ -623,6 +623,7 @@ def match_batch(
         return MatchResults(**out)
 
     fills = _PixelFills(depth, hole_window_px, hole_max_window_px)
+    lookup = [0]  # look-ups so far; a stud takes part in every one from the first until it settles
 
     def evaluate(idx: np.ndarray, z: np.ndarray):
         P = np.column_stack([xy[idx], z])
@@ -634,14 +635,14 @@ def match_batch(
         Q = camera.pixel_to_world(u, v, d)  # Eq. 1 at the sub-pixel
         g = Q[:, 2] - z
         res = np.hypot(Q[:, 0] - xy[idx, 0], Q[:, 1] - xy[idx, 1])
-        out["iterations"][idx] += 1
+        lookup[0] += 1
+        out["iterations"][idx] = lookup[0]
         got = np.isfinite(d)
         # Keep the latest sample that had depth; it is what the result reports.
-        j = idx[got]
-        out["pixel_uv"][j] = np.column_stack([u[got], v[got]])
-        out["point_w"][j] = Q[got]
-        out["xy_residual_m"][j] = res[got]
-        out["hole_rule"][j] = rule[got]
+        kept = (idx, u, v, Q, res, rule) if got.all() else (idx[got], u[got], v[got], Q[got], res[got], rule[got])
+        j = kept[0]
+        out["pixel_uv"][j, 0], out["pixel_uv"][j, 1] = kept[1], kept[2]
+        out["point_w"][j], out["xy_residual_m"][j], out["hole_rule"][j] = kept[3:]
         return g, res, step, got
 
     idx = active
