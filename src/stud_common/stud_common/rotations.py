@@ -33,21 +33,27 @@ def matrix_to_quaternion(R: np.ndarray) -> np.ndarray:
     cand = np.stack([tr, m00, m11, m22], axis=-1)
     k = np.argmax(cand, axis=-1)
     q = np.empty(R.shape[:-2] + (4,))
+    # Each branch only where it is chosen (most rotations take the first: w largest).
+    branches = (
+        lambda r, s: ((r[:, 2, 1] - r[:, 1, 2]) / s, (r[:, 0, 2] - r[:, 2, 0]) / s, (r[:, 1, 0] - r[:, 0, 1]) / s,
+                      0.25 * s),
+        lambda r, s: (0.25 * s, (r[:, 0, 1] + r[:, 1, 0]) / s, (r[:, 0, 2] + r[:, 2, 0]) / s,
+                      (r[:, 2, 1] - r[:, 1, 2]) / s),
+        lambda r, s: ((r[:, 0, 1] + r[:, 1, 0]) / s, 0.25 * s, (r[:, 1, 2] + r[:, 2, 1]) / s,
+                      (r[:, 0, 2] - r[:, 2, 0]) / s),
+        lambda r, s: ((r[:, 0, 2] + r[:, 2, 0]) / s, (r[:, 1, 2] + r[:, 2, 1]) / s, 0.25 * s,
+                      (r[:, 1, 0] - r[:, 0, 1]) / s),
+    )
+    signs = ((1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1))  # of m00, m11, m22 under the root
+    Rf, kf, qf = R.reshape(-1, 3, 3), k.reshape(-1), q.reshape(-1, 4)
     with np.errstate(invalid="ignore", divide="ignore"):
-        # w largest
-        s = np.sqrt(np.maximum(1.0 + tr, 0.0)) * 2
-        qw = np.stack([(R[..., 2, 1] - R[..., 1, 2]) / s, (R[..., 0, 2] - R[..., 2, 0]) / s,
-                       (R[..., 1, 0] - R[..., 0, 1]) / s, 0.25 * s], axis=-1)
-        s = np.sqrt(np.maximum(1.0 + m00 - m11 - m22, 0.0)) * 2
-        qx = np.stack([0.25 * s, (R[..., 0, 1] + R[..., 1, 0]) / s, (R[..., 0, 2] + R[..., 2, 0]) / s,
-                       (R[..., 2, 1] - R[..., 1, 2]) / s], axis=-1)
-        s = np.sqrt(np.maximum(1.0 - m00 + m11 - m22, 0.0)) * 2
-        qy = np.stack([(R[..., 0, 1] + R[..., 1, 0]) / s, 0.25 * s, (R[..., 1, 2] + R[..., 2, 1]) / s,
-                       (R[..., 0, 2] - R[..., 2, 0]) / s], axis=-1)
-        s = np.sqrt(np.maximum(1.0 - m00 - m11 + m22, 0.0)) * 2
-        qz = np.stack([(R[..., 0, 2] + R[..., 2, 0]) / s, (R[..., 1, 2] + R[..., 2, 1]) / s, 0.25 * s,
-                       (R[..., 1, 0] - R[..., 0, 1]) / s], axis=-1)
-    q = np.choose(k[..., None], [qw, qx, qy, qz])
+        for b, (branch, (a0, a1, a2)) in enumerate(zip(branches, signs)):
+            rows = np.flatnonzero(kf == b)
+            if rows.size == 0:
+                continue
+            r = Rf[rows]
+            s = np.sqrt(np.maximum(1.0 + a0 * r[:, 0, 0] + a1 * r[:, 1, 1] + a2 * r[:, 2, 2], 0.0)) * 2
+            qf[rows] = np.stack(branch(r, s), axis=-1)
     q = np.where(q[..., 3:4] < 0, -q, q)
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 

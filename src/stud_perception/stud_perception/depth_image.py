@@ -114,14 +114,23 @@ def _window_samples(depth_m: np.ndarray, ui: np.ndarray, vi: np.ndarray, window:
     half = window // 2
     offs = np.arange(-half, half + 1)
     dv, du = np.meshgrid(offs, offs, indexing="ij")
-    du = du.ravel()
-    dv = dv.ravel()
-    cols = ui[:, None] + du[None, :]
-    rows = vi[:, None] + dv[None, :]
-    inside = (cols >= 0) & (cols < w) & (rows >= 0) & (rows < h)
-    vals = depth_m[np.clip(rows, 0, h - 1), np.clip(cols, 0, w - 1)].astype(np.float64)
-    vals[~inside] = np.nan
-    return vals, du.astype(np.float64), dv.astype(np.float64)
+    vals = np.empty((ui.size, window, window))
+    interior = (ui >= half) & (ui < w - half) & (vi >= half) & (vi < h - half)
+    if window <= min(h, w):
+        # Whole windows as views of the image, copied row by row (row-major, as du, dv are raveled).
+        k = np.flatnonzero(interior)
+        vals[k] = np.lib.stride_tricks.sliding_window_view(depth_m, (window, window))[vi[k] - half, ui[k] - half]
+    else:
+        interior[:] = False
+    k = np.flatnonzero(~interior)
+    if k.size:  # windows the image border cuts: gather rows x columns, NaN outside
+        cols = ui[k, None] + offs[None, :]
+        rows = vi[k, None] + offs[None, :]
+        inside = ((rows >= 0) & (rows < h))[:, :, None] & ((cols >= 0) & (cols < w))[:, None, :]
+        edge = depth_m[np.clip(rows, 0, h - 1)[:, :, None], np.clip(cols, 0, w - 1)[:, None, :]].astype(np.float64)
+        edge[~inside] = np.nan
+        vals[k] = edge
+    return vals.reshape(ui.size, -1), du.ravel().astype(np.float64), dv.ravel().astype(np.float64)
 
 
 def _mean_of_valid(vals: np.ndarray):
@@ -130,7 +139,9 @@ def _mean_of_valid(vals: np.ndarray):
     filled = np.where(valid, vals, 0.0)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = filled.sum(axis=1) / n
-        var = np.where(valid, (vals - mean[:, None]) ** 2, 0.0).sum(axis=1) / n
+        # One pass for the spread: sum of squares about the mean (depths are ~0.1-10 m and their
+        # spreads >= 1e-6 m, far inside float64's range of exact cancellation).
+        var = np.maximum(np.einsum("nk,nk->n", filled, filled) / n - mean * mean, 0.0)
     return mean, n, np.sqrt(var)
 
 
@@ -141,22 +152,25 @@ def _plane_fit(vals, du, dv, frac_u, frac_v, min_points: int, min_spread_px: flo
     in (u, v): the fit is then exact on planar patches at any tilt, and nearly so on the gently
     curved parts this project welds on. Returns (depth (N,), ok (N,), n (N,), rms_m (N,)).
     """
-    valid = np.isfinite(vals) & (vals > 0)
+    valid = vals > 0  # NaN compares False
     n = valid.sum(axis=1)
     wgt = valid.astype(np.float64)
-    inv = np.where(valid, 1.0 / np.where(valid, vals, 1.0), 0.0)
+    inv = np.zeros(vals.shape)
+    np.divide(1.0, vals, out=inv, where=valid)
     # Normal equations of [1, du, dv] . p = 1/z, batched over queries.
     A = np.stack([np.ones_like(du), du, dv], axis=1)                       # (k, 3)
-    AtA = np.einsum("nk,ki,kj->nij", wgt, A, A)                            # (N, 3, 3)
-    Atb = np.einsum("nk,ki->ni", wgt * inv, A)                             # (N, 3)
+    # As matrix products (BLAS): sum_k wgt_nk A_ki A_kj and sum_k wgt_nk inv_nk A_ki.
+    AtA = (wgt @ (A[:, :, None] * A[:, None, :]).reshape(-1, 9)).reshape(-1, 3, 3)  # (N, 3, 3)
+    Atb = inv @ A                                                          # (N, 3); inv is 0 where invalid
     # Refuse fits whose samples do not spread in both image directions (a line of samples
     # cannot fix a plane): smallest eigenvalue of the (du, dv) scatter, in pixels^2.
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_uv = AtA[:, 0, 1:] / n[:, None]
         cov = AtA[:, 1:, 1:] / n[:, None, None] - mean_uv[:, :, None] * mean_uv[:, None, :]
-    cov = np.nan_to_num(cov)
-    min_eig = np.linalg.eigvalsh(cov)[:, 0]
-    ok = (n >= min_points) & (min_eig >= min_spread_px**2)
+    a, b, d = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
+    with np.errstate(invalid="ignore"):  # smallest eigenvalue of the symmetric 2x2, closed form
+        min_eig = 0.5 * (a + d) - np.sqrt(0.25 * (a - d) ** 2 + b * b)
+    ok = (n >= min_points) & (min_eig >= min_spread_px**2)  # NaN (no samples) is not ok
     depth = np.full(vals.shape[0], np.nan)
     rms = np.full(vals.shape[0], np.nan)
     if ok.any():
@@ -164,7 +178,8 @@ def _plane_fit(vals, du, dv, frac_u, frac_v, min_points: int, min_spread_px: flo
         inv_at = p[:, 0] + p[:, 1] * frac_u[ok] + p[:, 2] * frac_v[ok]
         with np.errstate(divide="ignore", invalid="ignore"):
             z_fit = 1.0 / (p[:, 0][:, None] + p[:, 1][:, None] * du + p[:, 2][:, None] * dv)
-            res = np.where(valid[ok], vals[ok] - z_fit, 0.0)
+            res = vals[ok] - z_fit
+        res[~valid[ok]] = 0.0
         good = inv_at > 0  # an extrapolated plane may pass behind the camera: not a depth
         idx = np.flatnonzero(ok)
         depth[idx[good]] = 1.0 / inv_at[good]
@@ -259,7 +274,9 @@ def fill_depth_at(
             if pending.size == 0:
                 break
             vals, du, dv = _window_samples(depth_m, ui[pending], vi[pending], size)
-            mean, n, std = _mean_of_valid(vals)
+            last = k == len(sizes) - 1
+            if k == 0 or fallback == "grow" or last:  # the plane rule uses the mean only at the end
+                mean, n, std = _mean_of_valid(vals)
             fit_ok = np.zeros(pending.size, dtype=bool)
             if k == 0:
                 take_mean, rule = n >= min_valid, FillRule.MEAN_WINDOW
@@ -271,9 +288,10 @@ def fill_depth_at(
                 z_fit, fit_ok, n_fit, rms = _plane_fit(vals, du, dv, frac_u, frac_v, min_plane_points, 1.0)
                 store(pending[fit_ok], z_fit[fit_ok], FillRule.PLANE_FIT, n_fit[fit_ok], size, rms[fit_ok])
                 # A plane needs more samples than a mean: only the largest window falls back to the mean.
-                take_mean = ~fit_ok & (n >= min_valid) & (k == len(sizes) - 1)
+                take_mean = (~fit_ok & (n >= min_valid)) if last else np.zeros_like(fit_ok)
                 rule = FillRule.GROWN_WINDOW
-            store(pending[take_mean], mean[take_mean], rule, n[take_mean], size, std[take_mean])
+            if take_mean.any():
+                store(pending[take_mean], mean[take_mean], rule, n[take_mean], size, std[take_mean])
             pending = pending[~(fit_ok | take_mean)]
 
     return FilledDepth(
@@ -314,30 +332,50 @@ def sample_depth_bilinear(depth_m: np.ndarray, u, v, max_step_m: float = 0.005) 
         inside = np.isfinite(uf) & np.isfinite(vf) & (uf >= 0) & (uf <= w - 1) & (vf >= 0) & (vf <= h - 1)
     status[~inside] = SampleStatus.OUT_OF_IMAGE
     idx = np.flatnonzero(inside)
-    if idx.size:
-        # Clamp the base pixel so a query on the last row/column still has a 2x2 cell.
-        u0 = np.minimum(np.floor(uf[idx]).astype(np.int64), max(w - 2, 0))
-        v0 = np.minimum(np.floor(vf[idx]).astype(np.int64), max(h - 2, 0))
-        fu = uf[idx] - u0
-        fv = vf[idx] - v0
-        u1 = np.minimum(u0 + 1, w - 1)
-        v1 = np.minimum(v0 + 1, h - 1)
-        z = np.stack(
-            [depth_m[v0, u0], depth_m[v0, u1], depth_m[v1, u0], depth_m[v1, u1]], axis=1
-        ).astype(np.float64)
+    if idx.size == 0:
+        return DepthSample(depth_m=out.reshape(shape), status=status.reshape(shape))
+    ui, vi = (uf, vf) if idx.size == uf.size else (uf[idx], vf[idx])  # usually all in the image
+    # Clamp the base pixel so a query on the last row/column still has a 2x2 cell.
+    u0 = np.minimum(ui.astype(np.int64), max(w - 2, 0))  # in-image, so truncation is floor
+    v0 = np.minimum(vi.astype(np.int64), max(h - 2, 0))
+    fu = ui - u0
+    fv = vi - v0
+    du = np.minimum(u0 + 1, w - 1) - u0
+    dv = (np.minimum(v0 + 1, h - 1) - v0) * w
+    flat = depth_m.reshape(-1)
+    i00 = v0 * w + u0
+    z00, z01, z10, z11 = (flat[i].astype(np.float64) for i in (i00, i00 + du, i00 + dv, i00 + dv + du))
+    # Fast path: all four corners have depth and lie within the step threshold. NaN fails every
+    # comparison, so a missing corner falls to the exact path below, which also handles corners
+    # of zero weight (a query on a pixel's row or column may ignore a hole beside it).
+    lo = np.minimum(np.minimum(z00, z01), np.minimum(z10, z11))
+    hi = np.maximum(np.maximum(z00, z01), np.maximum(z10, z11))
+    with np.errstate(invalid="ignore"):
+        easy = (lo > 0) & (hi - lo <= max_step_m)
+    top = z00 + fu * (z01 - z00)
+    bottom = z10 + fu * (z11 - z10)
+    val = top + fv * (bottom - top)
+    hard = np.flatnonzero(~easy)
+    if hard.size == 0 and idx.size == uf.size:
+        out = val
+    else:
+        out[idx[easy]] = val[easy]
+    if hard.size:
+        z = np.stack([z00[hard], z01[hard], z10[hard], z11[hard]], axis=1)
+        fu, fv = fu[hard], fv[hard]
         wt = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], axis=1)
         used = wt > 0
         with np.errstate(invalid="ignore"):
             bad = (used & ~(np.isfinite(z) & (z > 0))).any(axis=1)
-        zu = np.where(used, z, np.nan)
+        zu = np.where(used & ~bad[:, None], z, np.nan)
         with np.errstate(invalid="ignore"):
-            step = np.nanmax(np.where(bad[:, None], 0.0, zu), axis=1) - np.nanmin(
-                np.where(bad[:, None], 0.0, zu), axis=1
-            )
+            zb = np.where(bad[:, None], 0.0, zu)
+            step = np.nanmax(zb, axis=1) - np.nanmin(zb, axis=1)
         jump = ~bad & (step > max_step_m)
         good = ~bad & ~jump
         val = (np.where(used, z, 0.0) * wt).sum(axis=1)
-        out[idx[good]] = val[good]
-        status[idx[bad]] = SampleStatus.INVALID_DEPTH
-        status[idx[jump]] = SampleStatus.DISCONTINUITY
+        j = idx[hard]
+        out[j[good]] = val[good]
+        status[j[bad]] = SampleStatus.INVALID_DEPTH
+        status[j[jump]] = SampleStatus.DISCONTINUITY
     return DepthSample(depth_m=out.reshape(shape), status=status.reshape(shape))

@@ -230,8 +230,52 @@ def _depth_at_pixel(depth_m: np.ndarray, u: int, v: int, window_px: int, fallbac
     return float(f.depth_m), FillRule(int(f.rule))
 
 
+class _PixelFills:
+    """:func:`fill_depth_at` of integer pixels of one depth image, each pixel computed once.
+
+    A stud whose look-ups touch a hole revisits the same few pixels on every iteration of the
+    batch matcher; filling each once (vectorised over the pixels first seen in a call) keeps the
+    cost of holes to the pixels the studs' samples touch. The pixels met so far are kept sorted by
+    their linear index (a few per stud that touches a hole), looked up by bisection.
+    """
+
+    def __init__(self, depth_m: np.ndarray, window_px: int, max_window_px: int) -> None:
+        self._depth_m, self._window, self._max_window = depth_m, window_px, max_window_px
+        self._keys = np.zeros(0, dtype=np.int64)
+        self._value = np.zeros(0)
+        self._rule = np.zeros(0, dtype=np.int8)
+        self._spread = np.zeros(0)
+
+    def __call__(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(depth_m, FillRule int8, spread_m) at in-image integer pixels (u, v), any shape."""
+        W = self._depth_m.shape[1]
+        lin = v * W + u
+        pos = np.minimum(np.searchsorted(self._keys, lin), max(self._keys.size - 1, 0))
+        known = (self._keys[pos] == lin) if self._keys.size else np.zeros(lin.shape, dtype=bool)
+        new = np.unique(lin[~known])
+        if new.size:
+            flat = self._depth_m.reshape(-1)
+            value = flat[new].astype(np.float64)
+            rule = np.full(new.size, FillRule.DIRECT, dtype=np.int8)
+            spread = np.zeros(new.size)
+            hole = np.flatnonzero(~(value > 0))  # NaN compares False
+            if hole.size:
+                f = fill_depth_at(self._depth_m, new[hole] % W, new[hole] // W, window=self._window,
+                                  max_window=self._max_window, fallback="plane")
+                value[hole], rule[hole], spread[hole] = f.depth_m, f.rule, f.spread_m
+            keys = np.concatenate([self._keys, new])
+            order = np.argsort(keys, kind="stable")
+            self._keys = keys[order]
+            self._value = np.concatenate([self._value, value])[order]
+            self._rule = np.concatenate([self._rule, rule])[order]
+            self._spread = np.concatenate([self._spread, spread])[order]
+            pos = np.searchsorted(self._keys, lin)
+        return self._value[pos], self._rule[pos], self._spread[pos]
+
+
 def _depth_at_subpixel(
-    depth_m: np.ndarray, u: np.ndarray, v: np.ndarray, window_px: int, max_window_px: int, discontinuity_m: float
+    depth_m: np.ndarray, u: np.ndarray, v: np.ndarray, window_px: int, max_window_px: int, discontinuity_m: float,
+    fills: _PixelFills | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Bilinear depth at sub-pixel (u, v) (n,), in-image, with holes filled and steps respected.
 
@@ -259,11 +303,11 @@ def _depth_at_subpixel(
     cu = np.stack([u0, u0 + 1, u0, u0 + 1], axis=1)
     cv = np.stack([v0, v0, v0 + 1, v0 + 1], axis=1)
     w = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], axis=1)
-    f = fill_depth_at(depth_m, cu, cv, window=window_px, max_window=max_window_px, fallback="plane")
-    d = np.array(f.depth_m, dtype=np.float64)
-    crule = np.array(f.rule, dtype=np.int8)
+    if fills is None:
+        fills = _PixelFills(depth_m, window_px, max_window_px)
+    d, crule, spread = fills(cu, cv)
     with np.errstate(invalid="ignore"):
-        straddle = (crule != FillRule.DIRECT) & (crule != FillRule.NONE) & ~(f.spread_m <= 0.5 * discontinuity_m)
+        straddle = (crule != FillRule.DIRECT) & (crule != FillRule.NONE) & ~(spread <= 0.5 * discontinuity_m)
     d[straddle] = np.nan
     # Reference: the heaviest corner that has a depth.
     ref = np.argmax(np.where(np.isfinite(d), w + 1.0, w), axis=1)
@@ -578,24 +622,27 @@ def match_batch(
     if active.size == 0:
         return MatchResults(**out)
 
+    fills = _PixelFills(depth, hole_window_px, hole_max_window_px)
+    lookup = [0]  # look-ups so far; a stud takes part in every one from the first until it settles
+
     def evaluate(idx: np.ndarray, z: np.ndarray):
         P = np.column_stack([xy[idx], z])
         u, v, _ = camera.world_to_pixel(P)
         # z is inside the in-view interval, so u, v are in the image up to rounding.
         u = np.clip(u, 0.0, camera.width - 1.0)
         v = np.clip(v, 0.0, camera.height - 1.0)
-        d, rule, step = _depth_at_subpixel(depth, u, v, hole_window_px, hole_max_window_px, discontinuity_m)
+        d, rule, step = _depth_at_subpixel(depth, u, v, hole_window_px, hole_max_window_px, discontinuity_m, fills)
         Q = camera.pixel_to_world(u, v, d)  # Eq. 1 at the sub-pixel
         g = Q[:, 2] - z
         res = np.hypot(Q[:, 0] - xy[idx, 0], Q[:, 1] - xy[idx, 1])
-        out["iterations"][idx] += 1
+        lookup[0] += 1
+        out["iterations"][idx] = lookup[0]
         got = np.isfinite(d)
         # Keep the latest sample that had depth; it is what the result reports.
-        j = idx[got]
-        out["pixel_uv"][j] = np.column_stack([u[got], v[got]])
-        out["point_w"][j] = Q[got]
-        out["xy_residual_m"][j] = res[got]
-        out["hole_rule"][j] = rule[got]
+        kept = (idx, u, v, Q, res, rule) if got.all() else (idx[got], u[got], v[got], Q[got], res[got], rule[got])
+        j = kept[0]
+        out["pixel_uv"][j, 0], out["pixel_uv"][j, 1] = kept[1], kept[2]
+        out["point_w"][j], out["xy_residual_m"][j], out["hole_rule"][j] = kept[3:]
         return g, res, step, got
 
     idx = active
