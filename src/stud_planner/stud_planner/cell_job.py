@@ -30,12 +30,11 @@ from typing import Protocol
 
 import numpy as np
 
-from stud_common.vocabulary import CellState
+from stud_common.vocabulary import VIEW_DEPENDENT, CellState
 from stud_perception.registration import local_to_world
 from stud_common.strict_json import write_json
 from stud_planner import qa_report
 from stud_planner.inspection import InspectionLimits
-from stud_planner.view_planning import STATUS_TEXT, VIEW_DEPENDENT_STATUSES
 from stud_planner.station_planning import footprint_m, plan_stations, reshoot_station
 
 #: Job states (CellStatus state_text): stud_common.vocabulary's, by name.
@@ -136,7 +135,7 @@ class CellPorts(Protocol):
 
 
 #: Status texts another view may cure: such studs are shot again before the job gives up on them.
-RESHOOT_STATUS_TEXTS = frozenset(STATUS_TEXT[s] for s in VIEW_DEPENDENT_STATUSES)
+RESHOOT_STATUS_TEXTS = frozenset(s.text for s in VIEW_DEPENDENT)
 
 
 @dataclass

@@ -19,7 +19,7 @@ import os
 from dataclasses import dataclass
 from typing import Iterable
 
-from stud_common.vocabulary import ArmMode, CellState
+from stud_common.vocabulary import ArmMode, CellState, TargetStatus
 from stud_planner.rework import NEEDS_DECISION
 
 #: Weld states of a stud, as sent in the rows' ``weld`` field.
@@ -29,7 +29,7 @@ _FINAL = (WELD_WELDED, WELD_SKIPPED, WELD_FAILED)
 _ACTIVE_PHASES = ("approach", "descend", "weld", "dwell")
 #: The driver reports "retract" only after the weld is confirmed and journalled as welded.
 _WELDED_PHASE = "retract"
-STATUS_OUT_OF_VIEW = "out_of_view"
+STATUS_OUT_OF_VIEW = TargetStatus.OUT_OF_VIEW.text
 STATUS_NOT_SEEN = "not_seen"  # in the drawing, in no view yet
 
 

@@ -31,6 +31,7 @@ import numpy as np
 
 from stud_perception.camera_model import CameraModel
 from stud_perception.depth_image import FillRule, SampleStatus, fill_depth_at, sample_depth_bilinear
+from stud_common.vocabulary import TargetStatus
 
 
 #: Margin (m) added around the heights the depth image shows (:func:`observed_z_range`).
@@ -67,13 +68,13 @@ def observed_z_range(depth_m: np.ndarray, camera: CameraModel, stride: int = 16,
 
 
 class MatchStatus(IntEnum):
-    """Per-stud outcome. Values equal the STATUS_* constants of stud_welding_msgs/WeldTarget."""
+    """Per-stud outcome of the matching: the matcher's subset of stud_common.vocabulary.TargetStatus."""
 
-    OK = 0
-    OUT_OF_VIEW = 1
-    NO_DEPTH = 2
-    NOT_CONVERGED = 3
-    DEPTH_DISCONTINUITY = 7
+    OK = TargetStatus.OK
+    OUT_OF_VIEW = TargetStatus.OUT_OF_VIEW
+    NO_DEPTH = TargetStatus.NO_DEPTH
+    NOT_CONVERGED = TargetStatus.NOT_CONVERGED
+    DEPTH_DISCONTINUITY = TargetStatus.DEPTH_DISCONTINUITY
 
 
 class MatchingError(ValueError):

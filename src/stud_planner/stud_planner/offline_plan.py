@@ -395,7 +395,8 @@ class _BestTargets:
     def entries(self, ids: list[str], xy_m: np.ndarray) -> list[dict]:
         """The report's ``targets``, one per stud in drawing order (INTERFACES.md)."""
         xy_mm = (np.asarray(xy_m, dtype=np.float64).reshape(-1, 2) * 1e3).tolist()
-        out = [{"stud_id": sid, "drawing_xy_mm": xy, "status": "out_of_view"} for sid, xy in zip(ids, xy_mm)]
+        out = [{"stud_id": sid, "drawing_xy_mm": xy, "status": STATUS_TEXT[STATUS_OUT_OF_VIEW]}
+               for sid, xy in zip(ids, xy_mm)]
         seen = np.flatnonzero(self.rank != self.NONE)
         names = [STATUS_TEXT[s] for s in self.status[seen].tolist()]
         pos, nrm, pix = (_nullable(a[seen]) for a in (self.position, self.normal, self.pixel))

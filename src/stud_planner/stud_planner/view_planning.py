@@ -27,30 +27,18 @@ import numpy as np
 
 from stud_perception.camera_model import CameraModel
 from stud_perception.registration import local_to_world
+from stud_common.vocabulary import VIEW_DEPENDENT, TargetStatus
 from stud_planner.gun_clearance import Clearance, GunModel, gun_clearance
 from stud_planner.matching import MatchResults, MatchStatus, match_batch, match_bfs, match_fpm, observed_z_range
 from stud_planner.surface_pose import (SurfacePoses, SurfaceStatus, estimate_surface_poses_for_matches,
                                       offset_along_normal)
 
-STATUS_OK = 0
-STATUS_OUT_OF_VIEW = 1
-STATUS_NO_DEPTH = 2
-STATUS_NOT_CONVERGED = 3
-STATUS_NORMAL_UNCERTAIN = 4
-STATUS_UNREACHABLE = 5
-STATUS_NO_NORMAL = 6
-STATUS_DEPTH_DISCONTINUITY = 7
-STATUS_GUN_BLOCKED = 8
-STATUS_TEXT = {
-    STATUS_OK: "ok", STATUS_OUT_OF_VIEW: "out_of_view", STATUS_NO_DEPTH: "no_depth",
-    STATUS_NOT_CONVERGED: "not_converged", STATUS_NORMAL_UNCERTAIN: "normal_uncertain",
-    STATUS_UNREACHABLE: "unreachable", STATUS_NO_NORMAL: "no_normal",
-    STATUS_DEPTH_DISCONTINUITY: "depth_discontinuity", STATUS_GUN_BLOCKED: "gun_blocked",
-}
-#: Statuses another view of the same stud may cure (a new shot, another station): the cell
-#: shoots such studs again before giving up on them.
-VIEW_DEPENDENT_STATUSES = frozenset({STATUS_OUT_OF_VIEW, STATUS_NO_DEPTH, STATUS_NOT_CONVERGED, STATUS_NO_NORMAL,
-                                     STATUS_NORMAL_UNCERTAIN, STATUS_DEPTH_DISCONTINUITY})
+# The target statuses are stud_common.vocabulary.TargetStatus (the WeldTarget.STATUS_* values); the
+# names below are the arrays' spelling of them.
+(STATUS_OK, STATUS_OUT_OF_VIEW, STATUS_NO_DEPTH, STATUS_NOT_CONVERGED, STATUS_NORMAL_UNCERTAIN, STATUS_UNREACHABLE,
+ STATUS_NO_NORMAL, STATUS_DEPTH_DISCONTINUITY, STATUS_GUN_BLOCKED) = (int(s) for s in TargetStatus)
+STATUS_TEXT = {int(s): s.text for s in TargetStatus}
+VIEW_DEPENDENT_STATUSES = frozenset(int(s) for s in VIEW_DEPENDENT)
 ALGORITHMS = ("batch", "fpm", "bfs")
 
 
