@@ -34,7 +34,7 @@ from stud_welding_msgs.action import WeldJob
 from stud_welding_msgs.msg import CellStatus
 
 from rm65_driver.journal import read_records
-from stud_planner.cycle_time import CycleEvent, format_split, motion_from_journal, split_cycle
+from stud_planner.cell.cycle_time import CycleEvent, format_split, motion_from_journal, split_cycle
 
 TARGET_S_PER_STUD = 2.0
 

@@ -53,8 +53,8 @@ import numpy as np  # noqa: E402
 from stud_perception import scene as scn  # noqa: E402
 from stud_perception.camera_model import CameraModel  # noqa: E402
 from stud_perception.depth_image import fill_depth_at  # noqa: E402
-from stud_planner.matching import MatchResults, match_batch, match_bfs, match_fpm  # noqa: E402
-from stud_planner.surface_pose import estimate_surface_poses_for_matches  # noqa: E402
+from stud_planner.matching.matchers import MatchResults, match_batch, match_bfs, match_fpm  # noqa: E402
+from stud_planner.matching.surface_pose import estimate_surface_poses_for_matches  # noqa: E402
 
 TOL_M = 0.001
 DEPTH_NOISE_M = 0.0005

@@ -74,8 +74,8 @@ import numpy as np  # noqa: E402
 
 from bench_matchers import BfsOracle  # noqa: E402
 from stud_perception.scene import Cylinder, demo_dome_scene, grid_stud_scene, render, view_camera  # noqa: E402
-from stud_planner.matching import match_batch, match_bfs, match_fpm  # noqa: E402
-from stud_planner.view_planning import PlannerConfig, plan_view  # noqa: E402
+from stud_planner.matching.matchers import match_batch, match_bfs, match_fpm  # noqa: E402
+from stud_planner.matching.view_targets import PlannerConfig, plan_view  # noqa: E402
 
 
 def bfs_seconds_per_pixel(xy, depth_m, camera, pixels: int) -> float:

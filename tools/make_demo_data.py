@@ -38,10 +38,10 @@ from stud_common.rotations import rpy_to_matrix  # noqa: E402
 from stud_perception.scene import (Cylinder, Dome, MarkingBoard, Pose2D, SceneSpec, scene_from_dict,  # noqa: E402
                                    scene_to_dict, surface_height, surface_normal)
 from stud_common.strict_json import write_json  # noqa: E402
-from stud_planner.cell_job import JobConfig  # noqa: E402
+from stud_planner.cell.job import JobConfig  # noqa: E402
 from stud_planner.drawing import read_layout  # noqa: E402
 from stud_planner.drawing.dxf_writer import write_layout_dxf  # noqa: E402
-from stud_planner.station_planning import footprint_m, plan_stations  # noqa: E402
+from stud_planner.cell.stations import footprint_m, plan_stations  # noqa: E402
 
 DATA = REPO / "src" / "stud_planner" / "data"
 CONFIG = REPO / "src" / "stud_perception" / "config"

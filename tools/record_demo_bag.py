@@ -28,10 +28,10 @@ from stud_perception.camera_model import nadir_rotation  # noqa: E402
 from stud_perception.camera_node import shot_messages  # noqa: E402
 from stud_perception.scene import load_scene, render, view_camera  # noqa: E402
 from stud_common.strict_json import write_json  # noqa: E402
-from stud_planner.cell_job import JobConfig  # noqa: E402
+from stud_planner.cell.job import JobConfig  # noqa: E402
 from stud_planner.drawing import read_layout  # noqa: E402
 from stud_planner.msg_convert import layout_to_msg  # noqa: E402
-from stud_planner.station_planning import footprint_m, plan_stations  # noqa: E402
+from stud_planner.cell.stations import footprint_m, plan_stations  # noqa: E402
 
 DRAWING = REPO / "src" / "stud_planner" / "data" / "dome_demo.dxf"
 SCENE = REPO / "src" / "stud_perception" / "config" / "dome_scene.json"

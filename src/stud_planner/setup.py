@@ -9,7 +9,7 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test", "tests"]),
-    package_data={PACKAGE: ["hmi_static/*"]},  # the HMI page (stud_planner/hmi_static/)
+    package_data={f"{PACKAGE}.hmi": ["static/*"]},  # the HMI page (stud_planner/hmi/static/)
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
@@ -24,16 +24,16 @@ setup(
     entry_points={
         "console_scripts": [
             "selfcheck = stud_planner.selfcheck:main",
-            "drawing = stud_planner.drawing_node:main",
-            "drawing_inspect = stud_planner.drawing_inspect:main",
-            "matcher = stud_planner.matcher_node:main",
-            "hmi = stud_planner.hmi_node:main",
-            "cell_sequencer = stud_planner.cell_sequencer:main",
+            "drawing = stud_planner.drawing.node:main",
+            "drawing_inspect = stud_planner.drawing.inspect_cli:main",
+            "matcher = stud_planner.matching.node:main",
+            "hmi = stud_planner.hmi.node:main",
+            "cell_sequencer = stud_planner.cell.sequencer_node:main",
             "plan = stud_planner.offline_plan:main",
             "demo = stud_planner.demo:main",
-            "cell = stud_planner.cell_launch:main",
-            "hand_eye_calibrator = stud_planner.hand_eye_calibrator:main",
-            "inspector = stud_planner.inspection_node:main",
+            "cell = stud_planner.cell.launch:main",
+            "hand_eye_calibrator = stud_planner.cell.hand_eye_calibrator:main",
+            "inspector = stud_planner.cell.inspector_node:main",
         ],
     },
 )

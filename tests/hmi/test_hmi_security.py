@@ -7,8 +7,8 @@ import json
 
 import pytest
 
-from stud_planner import hmi_server
-from stud_planner.hmi_server import HmiServer, json_depth
+from stud_planner.hmi import server as hmi_server
+from stud_planner.hmi.server import HmiServer, json_depth
 from ws_client import HandshakeRefused, WsClient
 
 

@@ -14,8 +14,8 @@ import urllib.request
 
 import pytest
 
-from stud_planner import hmi_server
-from stud_planner.hmi_server import HmiServer, to_json
+from stud_planner.hmi import server as hmi_server
+from stud_planner.hmi.server import HmiServer, to_json
 from ws_client import HandshakeRefused, WsClient
 
 

@@ -8,8 +8,8 @@ import pytest
 import yaml
 
 from rosproc import REPO
-from stud_planner import cell_launch
-from stud_planner.cell_launch import CellConfigError, load_config, plan_cell, write_params_file
+from stud_planner.cell import launch as cell_launch
+from stud_planner.cell.launch import CellConfigError, load_config, plan_cell, write_params_file
 
 CELL_YAML = REPO / "src" / "stud_planner" / "config" / "cell.yaml"
 

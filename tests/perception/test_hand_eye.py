@@ -27,7 +27,7 @@ from stud_perception.hand_eye import (BoardShot, HandEyeError, board_points_m, c
 from stud_perception.markers import MarkDetectorConfig, detect_marks
 from stud_common.rotations import rpy_to_matrix
 from stud_perception.scene import load_scene, render, view_camera
-from stud_planner.hand_eye_views import plan_calibration_views, plan_check_views
+from stud_planner.cell.hand_eye_views import plan_calibration_views, plan_check_views
 
 CI = os.environ.get("CI") == "true"  # derandomised in CI: the same cases every run
 REPO = Path(__file__).resolve().parents[2]
@@ -180,7 +180,7 @@ def _calibrate(views, **limits):
 
 
 def _views(tilts_azimuths_yaws):
-    from stud_planner.hand_eye_views import _view
+    from stud_planner.cell.hand_eye_views import _view
 
     return [_view(i, TARGET_W, 0.3, t, a, y) for i, (t, a, y) in enumerate(tilts_azimuths_yaws)]
 

@@ -10,7 +10,7 @@ from stud_perception.markers import MarkDetectorConfig
 from stud_perception.rectify import Rectifier, RectifyError, has_distortion, rectifier_for
 from stud_perception.scene import demo_camera, demo_dome_scene, distort_view, render
 from stud_perception.view_registration import register_view
-from stud_planner.view_planning import PlannerConfig, plan_view
+from stud_planner.matching.view_targets import PlannerConfig, plan_view
 
 # A wide-angle RGB lens's barrel distortion: about 50 px at the corners of the 1280x960 image.
 PLUMB_BOB = (-0.2, 0.08, 0.001, -0.0008, 0.0)

@@ -10,7 +10,7 @@ from pathlib import Path
 import ezdxf
 import pytest
 
-from stud_planner import drawing_inspect
+from stud_planner.drawing import inspect_cli as drawing_inspect
 from stud_planner.drawing import DrawingError, StudLayout, read_circles, read_layout
 
 REPO = Path(__file__).resolve().parents[2]

@@ -15,8 +15,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from stud_perception.scene import Cylinder, Dome, Plate, Pose2D, SceneSpec, Trough, render, view_camera
-from stud_planner.surface_pose import estimate_surface_poses, tangent_basis
-from stud_planner.view_planning import STATUS_OK, PlannerConfig, plan_view
+from stud_planner.matching.surface_pose import estimate_surface_poses, tangent_basis
+from stud_planner.matching.view_targets import STATUS_OK, PlannerConfig, plan_view
 
 POSE = Pose2D(-0.36, -0.26, 0.0)  # the marking board well clear of the part
 

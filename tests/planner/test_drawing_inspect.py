@@ -1,4 +1,4 @@
-"""stud_planner.drawing_inspect: summary, --json, --png, and one-line errors with exit code 2."""
+"""stud_planner.drawing.inspect_cli: summary, --json, --png, and one-line errors with exit code 2."""
 from __future__ import annotations
 
 import json
@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stud_planner import drawing_inspect
-from stud_planner.drawing_inspect import main
+from stud_planner.drawing import inspect_cli as drawing_inspect
+from stud_planner.drawing.inspect_cli import main
 from stud_planner.drawing.dxf_writer import write_layout_dxf
 
 REPO = Path(__file__).resolve().parents[2]
@@ -137,7 +137,7 @@ def test_corpus_files_fail_cleanly(capsys, name, require_shared_data):
 def _run_module(*args: str) -> subprocess.CompletedProcess:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(REPO / "src" / "stud_planner"), env.get("PYTHONPATH", "")])
-    return subprocess.run([sys.executable, "-m", "stud_planner.drawing_inspect", *args], env=env,
+    return subprocess.run([sys.executable, "-m", "stud_planner.drawing.inspect_cli", *args], env=env,
                           capture_output=True, text=True, timeout=60)
 
 

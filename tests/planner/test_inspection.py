@@ -20,8 +20,8 @@ from stud_common.rotations import frame_from_normal
 from stud_perception.scene import (Cylinder, Plate, Pose2D, SceneSpec, load_scene, render, surface_height,
                                    surface_normal, view_camera)
 from stud_perception.welded_studs import StudCylinder, WeldDefect, parse_weld_defects, welded_stud
-from stud_planner.inspection import InspectionLimits, Verdict, inspect_studs
-from stud_planner.view_planning import plan_view
+from stud_planner.cell.inspection import InspectionLimits, Verdict, inspect_studs
+from stud_planner.matching.view_targets import plan_view
 
 CONFIG = Path(__file__).resolve().parents[2] / "src" / "stud_perception" / "config"
 LENGTH_M = 0.05  # short studs: the RM-65 holds its camera low, and a 150 mm stud would reach into it

@@ -14,17 +14,9 @@ from hypothesis import strategies as st
 
 from stud_perception.camera_model import CameraModel
 from stud_perception.depth_image import FillRule, sample_depth_bilinear
-from stud_planner.matching import (
-    MatchingError,
-    MatchResult,
-    MatchResults,
-    MatchStatus,
-    line_in_view_z_interval,
-    match_batch,
-    match_bfs,
-    match_fpm,
-    xy_jacobian_at_height,
-)
+from stud_planner.matching.matchers import (MatchingError, MatchResult, MatchResults, MatchStatus,
+                                            line_in_view_z_interval, match_batch, match_bfs, match_fpm,
+                                            xy_jacobian_at_height)
 
 TOL_M = 0.001
 
@@ -234,7 +226,7 @@ def test_the_paper_7x7_window_decides_between_mean_and_plane_fit(scenes, cam_ful
     assert np.all(np.abs(r.pixel_uv - np.array(pixels)) < 0.5)  # the windows were centred on those pixels
     assert np.abs(r.point_w[:, 2] - truth[:, 2]).max() < 3e-4
     # ... and the planner's default configuration is that rule too (the matcher node and plan use it)
-    from stud_planner.view_planning import PlannerConfig, plan_view
+    from stud_planner.matching.view_targets import PlannerConfig, plan_view
 
     planned = plan_view([f"S{k}" for k in range(len(xy))], xy, np.eye(3), depth, cam_full, PlannerConfig())
     assert [FillRule(x) for x in planned.matches.hole_rule] == [rule] * len(xy)

@@ -17,7 +17,7 @@ from stud_common import ros_io  # noqa: E402
 from stud_perception.camera_node import shot_messages  # noqa: E402
 from stud_perception.scene import distort_view, load_scene, render, view_camera  # noqa: E402
 from stud_planner.offline_plan import PlanError, main, plan, read_views  # noqa: E402
-from stud_planner.view_planning import PlannerConfig  # noqa: E402
+from stud_planner.matching.view_targets import PlannerConfig  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
 BAG = REPO / "bags" / "dome_demo"

@@ -7,7 +7,7 @@ import json
 import cv2
 import numpy as np
 
-from stud_planner.qa_report import CSV_FIELDS, empty_row, write_qa_report
+from stud_planner.cell.qa_report import CSV_FIELDS, empty_row, write_qa_report
 
 
 def test_the_three_files_carry_the_same_rows(tmp_path):

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stud_planner.surface_pose import estimate_surface_poses
-from stud_planner.window_moments import BLOCK_PX, BlockMoments
+from stud_planner.matching.surface_pose import estimate_surface_poses
+from stud_planner.matching.window_moments import BLOCK_PX, BlockMoments
 
 
 def brute_force_sums(depth, y_ref, r0, r1, c0, c1):

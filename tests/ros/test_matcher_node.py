@@ -91,8 +91,8 @@ def test_poses_hold_only_the_usable_targets_in_target_order_and_no_nan():
     """/weld_targets/poses: the k-th pose is the k-th OK target (RViz and Foxglove cannot draw NaN)."""
     from std_msgs.msg import Header
 
-    from stud_planner.matcher_node import MatcherNode
-    from stud_planner.view_planning import plan_view
+    from stud_planner.matching.node import MatcherNode
+    from stud_planner.matching.view_targets import plan_view
 
     scene = load_scene(DEMO_SCENE)
     cam = view_camera((0, 0, 0), 1.0)

@@ -12,8 +12,8 @@ from rclpy.serialization import deserialize_message, serialize_message
 from stud_welding_msgs.msg import WeldTargetArray
 
 from stud_perception.scene import demo_camera, demo_dome_scene, render
-from stud_planner.target_cdr import weld_target_array_cdr
-from stud_planner.view_planning import STATUS_OUT_OF_VIEW, plan_view
+from stud_planner.matching.target_cdr import weld_target_array_cdr
+from stud_planner.matching.view_targets import STATUS_OUT_OF_VIEW, plan_view
 
 
 @pytest.fixture(scope="module")

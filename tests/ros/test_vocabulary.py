@@ -4,8 +4,8 @@ from __future__ import annotations
 from stud_welding_msgs.msg import ArmState, CellStatus, WeldTarget
 
 from stud_common.vocabulary import VIEW_DEPENDENT, ArmMode, CellState, TargetStatus
-from stud_planner.matching import MatchStatus
-from stud_planner.view_planning import STATUS_TEXT
+from stud_planner.matching.matchers import MatchStatus
+from stud_planner.matching.view_targets import STATUS_TEXT
 
 
 def _constants(msg, prefix: str) -> dict:

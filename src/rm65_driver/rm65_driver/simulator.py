@@ -1004,7 +1004,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     signal.signal(signal.SIGINT, lambda *_: done.set())
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     print(f"RM65 simulator on {args.host}:{sim.port} (Ctrl-C to stop)", flush=True)
-    done.wait()
+    while not done.wait(0.5):  # wake up now and then: a signal's handler runs in this (main) thread
+        pass
     sim.stop()
     return 0
 

@@ -31,9 +31,9 @@ from stud_common.strict_json import write_json
 from stud_perception.markers import MarkDetectorConfig
 from stud_perception.view_registration import config_for_layout, register_view
 from stud_planner.drawing import DrawingError, read_layout
-from stud_planner.gun_clearance import GunModel
-from stud_planner.view_planning import (ALGORITHMS, STATUS_OK, STATUS_OUT_OF_VIEW, STATUS_TEXT, PlannerConfig,
-                                        draw_targets_overlay, plan_view)
+from stud_planner.matching.gun_clearance import GunModel
+from stud_planner.matching.view_targets import (ALGORITHMS, STATUS_OK, STATUS_OUT_OF_VIEW, STATUS_TEXT, PlannerConfig,
+                                                draw_targets_overlay, plan_view)
 
 DEFAULT_TOPICS = {"color": "/camera/color/image_raw", "depth": "/camera/depth/image_raw",
                   "info": "/camera/color/camera_info", "pose": "/camera/pose"}

@@ -1,6 +1,6 @@
 """The matcher's weld targets as RViz/Foxglove markers: an arrow along each normal and the stud id.
 
-Colours say the state, one palette with the overlay (:data:`stud_planner.view_planning.STATUS_BGR`):
+Colours say the state, one palette with the overlay (:data:`stud_planner.matching.view_targets.STATUS_BGR`):
 green ``ok`` (planned, to be welded), and a colour per refusal (``no_depth``, ``inclination_exceeded``,
 ``no_normal``, ...). The matcher cannot know what was welded: :data:`WELDED_RGBA` is the colour a later
 node (one that follows the weld job) gives a stud once it is welded, re-publishing the same
@@ -16,7 +16,7 @@ from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from stud_planner.view_planning import STATUS_BGR, STATUS_OK, STATUS_OUT_OF_VIEW, STATUS_TEXT, ViewTargets
+from stud_planner.matching.view_targets import STATUS_BGR, STATUS_OK, STATUS_OUT_OF_VIEW, STATUS_TEXT, ViewTargets
 
 ARROW_NS, TEXT_NS = "weld_targets", "weld_target_ids"
 #: A welded stud (blue), for the node that recolours after the weld job.

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import Iterable
 
 from stud_common.vocabulary import ArmMode, CellState, TargetStatus
-from stud_planner.rework import NEEDS_DECISION
+from stud_planner.cell.rework import NEEDS_DECISION
 
 #: Weld states of a stud, as sent in the rows' ``weld`` field.
 WELD_NONE, WELD_ACTIVE, WELD_WELDED, WELD_SKIPPED, WELD_FAILED = "", "active", "welded", "skipped", "failed"
@@ -735,7 +735,7 @@ class CellView:
                 return "no stud_id given"
             if not isinstance(msg.get("note", ""), str):
                 return "note must be a string"
-            return None  # the inspector checks the decision and the verdict (one place: stud_planner.rework)
+            return None  # the inspector checks the decision and the verdict (one place: stud_planner.cell.rework)
         return f"unknown command {cmd!r}; expected one of {list(COMMANDS)}"
 
     def progress(self, now: float) -> dict:

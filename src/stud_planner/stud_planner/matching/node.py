@@ -12,7 +12,7 @@ estimate the surface pose, and publish
   WeldTargetArray with the same stamp; studs without a usable pose are left out (RViz and
   Foxglove cannot draw NaN),
 * ``/weld_targets/markers`` (MarkerArray: per in-view stud an arrow along its normal and its id as text,
-  coloured by status: stud_planner.target_markers),
+  coloured by status: stud_planner.matching.target_markers),
 * ``/weld_targets/overlay`` (the colour image with matched pixels and ids, the paper's Fig. 11), and the
   same as JPEG on ``/weld_targets/overlay/compressed`` (sensor_msgs/CompressedImage, for remote viewers;
   encoded only while it has a subscriber),
@@ -44,11 +44,11 @@ from visualization_msgs.msg import MarkerArray
 from stud_common import ros_io
 from stud_perception import image_io
 from stud_common.ros_io import Param
-from stud_planner.gun_clearance import GunModel
+from stud_planner.matching.gun_clearance import GunModel
 from stud_planner.msg_convert import layout_from_msg, registration_from_msg
-from stud_planner.target_cdr import weld_target_array_cdr
-from stud_planner.target_markers import target_markers
-from stud_planner.view_planning import ALGORITHMS, PlannerConfig, draw_targets_overlay, plan_view
+from stud_planner.matching.target_cdr import weld_target_array_cdr
+from stud_planner.matching.target_markers import target_markers
+from stud_planner.matching.view_targets import ALGORITHMS, PlannerConfig, draw_targets_overlay, plan_view
 
 PARAMS = [
     Param("algorithm", "batch", "matcher: 'batch' (ours), 'fpm' or 'bfs' (the paper's)", choices=ALGORITHMS),

@@ -3,7 +3,7 @@
 Reads the cell description (``config/cell.yaml``: which processes each mode runs, their parameters),
 merges the command line's overrides, writes one ROS 2 parameter file per node into the run's output
 folder (``--ros-args --params-file FILE``, types kept), and hands the processes to
-:mod:`stud_planner.launcher`, which prefixes and logs their output, respawns what should be respawned
+:mod:`stud_planner.cell.launcher`, which prefixes and logs their output, respawns what should be respawned
 and stops everything on Ctrl-C. The node list is data: a new node is a new section in the YAML;
 one marked ``optional`` is skipped with a note while it is not installed.
 
@@ -33,7 +33,7 @@ from typing import Any, Sequence
 
 import yaml
 
-from stud_planner.launcher import ChildSpec, LaunchError, Launcher
+from stud_planner.cell.launcher import ChildSpec, LaunchError, Launcher
 
 TOP_KEYS = {"launch", "vars", "nodes", "modes"}
 LAUNCH_KEYS = {"sigint_timeout_s": float, "sigterm_timeout_s": float, "report_lines": int}
@@ -66,7 +66,7 @@ def default_config_path() -> Path:
             pass
     except ImportError:
         pass
-    return Path(__file__).resolve().parents[1] / "config" / "cell.yaml"
+    return Path(__file__).resolve().parents[2] / "config" / "cell.yaml"  # the source tree
 
 
 def load_config(path: str | os.PathLike) -> dict:

@@ -25,7 +25,7 @@ surface, toward the camera; quaternions are (x, y, z, w) of a frame whose z-axis
 and whose x-axis is world X projected onto the tangent plane (world Y when the normal is along X).
 The fit needs only sums over the window's valid pixels, so most windows take them from
 summed-area tables of per-block moments (one pass over the frame, then constant work per stud:
-:mod:`stud_planner.window_moments`); the robust pixel path is kept for the windows whose plain
+:mod:`stud_planner.matching.window_moments`); the robust pixel path is kept for the windows whose plain
 fit is rougher than the frame's noise. Vectorised over studs (the pixel path in chunks, to bound
 memory).
 """
@@ -39,7 +39,7 @@ import numpy as np
 from stud_perception.camera_model import CameraModel
 from stud_common.rotations import frame_from_normal
 from stud_common.rotations import matrix_to_quaternion as quaternion_from_matrix
-from stud_planner.window_moments import BLOCK_PX, BlockMoments, powers_of
+from stud_planner.matching.window_moments import BLOCK_PX, BlockMoments, powers_of
 
 #: Paper: M16x150 shear stud, tool-top offset along the normal.
 M16X150_TOP_OFFSET_M = 0.013
@@ -422,7 +422,7 @@ def estimate_surface_poses(
     Every valid sample of the window enters a quadric fit of 1/z over normalised image
     coordinates (exact for planes, the quadratic terms take the curvature). With ``fast_fit``
     (default) the plain least-squares fit of a window of whole 8x8-pixel blocks comes from moment
-    sums (:mod:`stud_planner.window_moments`: summed-area tables for many studs, the window's own
+    sums (:mod:`stud_planner.matching.window_moments`: summed-area tables for many studs, the window's own
     pixels for few), and it stands where its RMS is at most ``fast_fit_noise_ratio`` times the
     frame's noise (the median RMS of plane fits to sample blocks; at least ``fast_fit_floor_m``)
     and within ``max_rms_m``. Every other window -- a step, an edge, flying pixels, a window under
@@ -532,7 +532,7 @@ def _store_poses(out: dict, idx: np.ndarray, fit: _InverseDepthFit, camera: Came
 
 def _fast_fits(moments: BlockMoments, camera: CameraModel, uv: np.ndarray, z_cam: np.ndarray, window_m: float):
     """Plain least-squares quadric fits of 1/z over block-aligned windows, from moment sums
-    (:mod:`stud_planner.window_moments`): the fit :func:`_fit_inverse_depth` makes before any
+    (:mod:`stud_planner.matching.window_moments`): the fit :func:`_fit_inverse_depth` makes before any
     robust pass, on every valid pixel of a window of whole blocks around each stud.
 
     Returns (fit, n_valid (n,), n_window (n,), eligible (n,) bool); a window under two blocks a
@@ -608,7 +608,7 @@ def _frame_noise_from_sums(moments: BlockMoments, stride: int) -> float:
 
 
 def estimate_surface_poses_for_matches(matches, depth_m: np.ndarray, camera: CameraModel, **kwargs) -> SurfacePoses:
-    """:func:`estimate_surface_poses` on the OK studs of a :class:`stud_planner.matching.MatchResults`
+    """:func:`estimate_surface_poses` on the OK studs of a :class:`stud_planner.matching.matchers.MatchResults`
     (pass ``target_xy_w``, the studs' world XY, to take the poses on their own vertical lines)."""
     return estimate_surface_poses(matches.point_w, matches.pixel_uv, depth_m, camera, valid=matches.ok, **kwargs)
 

@@ -28,10 +28,11 @@ import numpy as np
 from stud_perception.camera_model import CameraModel
 from stud_perception.registration import local_to_world
 from stud_common.vocabulary import VIEW_DEPENDENT, TargetStatus
-from stud_planner.gun_clearance import Clearance, GunModel, gun_clearance
-from stud_planner.matching import MatchResults, MatchStatus, match_batch, match_bfs, match_fpm, observed_z_range
-from stud_planner.surface_pose import (SurfacePoses, SurfaceStatus, estimate_surface_poses_for_matches,
-                                      offset_along_normal)
+from stud_planner.matching.gun_clearance import Clearance, GunModel, gun_clearance
+from stud_planner.matching.matchers import (MatchResults, MatchStatus, match_batch, match_bfs, match_fpm,
+                                            observed_z_range)
+from stud_planner.matching.surface_pose import (SurfacePoses, SurfaceStatus, estimate_surface_poses_for_matches,
+                                                offset_along_normal)
 
 # The target statuses are stud_common.vocabulary.TargetStatus (the WeldTarget.STATUS_* values); the
 # names below are the arrays' spelling of them.

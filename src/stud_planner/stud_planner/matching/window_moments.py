@@ -1,6 +1,6 @@
 """Moment sums of inverse depth over block-aligned windows: one pass over the frame, then O(1) per window.
 
-The least-squares quadric fit of 1/z over a window (:mod:`stud_planner.surface_pose`) needs only sums
+The least-squares quadric fit of 1/z over a window (:mod:`stud_planner.matching.surface_pose`) needs only sums
 over the window's valid pixels: of u^p v^q (p + q <= 4), of y u^p v^q (p + q <= 2, y = 1/z) and of
 y^2. Those sums are additive over any partition of the window, so the image is cut into square
 blocks of :data:`BLOCK_PX` pixels and a window is made of whole blocks. Many windows get their sums

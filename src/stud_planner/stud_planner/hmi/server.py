@@ -589,4 +589,4 @@ def _is_loopback(bind: str) -> bool:
 
 def default_static_dir() -> Path:
     """The page shipped with the package (installed as package data)."""
-    return Path(os.path.dirname(os.path.abspath(__file__))) / "hmi_static"
+    return Path(os.path.dirname(os.path.abspath(__file__))) / "static"

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stud_perception.camera_model import CameraModel
-from stud_planner.surface_pose import tangent_basis
+from stud_planner.matching.surface_pose import tangent_basis
 
 
 @dataclass(frozen=True)
@@ -113,7 +113,7 @@ def gun_clearance(points_w: np.ndarray, normals_w: np.ndarray, depth_m: np.ndarr
     coarse look does not find clear by more than ``sure_clear_m`` (a coarse grid can only
     overestimate the clearance, and only by its spacing: a few mm). Only the part of the cylinder
     below ``z_top_w``, the highest world z the view shows (e.g. from
-    :func:`stud_planner.matching.observed_z_range`), can meet the part, and only that part is
+    :func:`stud_planner.matching.matchers.observed_z_range`), can meet the part, and only that part is
     projected (the rest may reach behind the camera).
     """
     P = np.asarray(points_w, dtype=np.float64).reshape(-1, 3)
