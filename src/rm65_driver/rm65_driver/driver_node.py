@@ -43,12 +43,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import PoseStamped
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
@@ -664,29 +662,9 @@ class DriverNode(Node):
 
 
 def main(args=None) -> int:
-    """Init, spin on a multi-threaded executor (a weld job blocks one thread while stop services
-    stay responsive), shut down cleanly on Ctrl-C."""
-    rclpy.init(args=args)
-    node = executor = None
-    code = 0
-    try:
-        node = DriverNode()
-        executor = MultiThreadedExecutor(num_threads=4)
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    finally:
-        if node is not None:
-            node.shutdown()
-            if executor is not None:
-                ros_io.drain_executor(executor)  # no callback still running on a destroyed node
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.try_shutdown()
-    return code
+    """Spin on a multi-threaded executor (a weld job blocks one thread while stop services stay
+    responsive); Ctrl-C shuts the node down cleanly."""
+    return ros_io.spin_node(DriverNode, args, multithreaded=True)
 
 
 if __name__ == "__main__":

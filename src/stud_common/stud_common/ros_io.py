@@ -277,11 +277,15 @@ def keep_freed_memory(max_block_bytes: int = 32 << 20) -> bool:
                 and mallopt(M_TOP_PAD, 64 << 20))
 
 
-def spin_node(node_factory: Callable[[], Node], args: list[str] | None = None, multithreaded: bool = False) -> int:
+def spin_node(node_factory: Callable[[], Node], args: list[str] | None = None, multithreaded: bool = False,
+              until: Callable[[Node], int | None] | None = None) -> int:
     """`main()` body shared by our nodes: init, spin (``multithreaded`` for nodes whose service
-    callbacks wait on their own subscriptions), clean shutdown on Ctrl-C (no traceback)."""
+    callbacks wait on their own subscriptions), clean shutdown on Ctrl-C (no traceback).
+
+    ``until(node)``: the exit code once the node is done (None: not yet), checked every 0.1 s.
+    A node with a ``shutdown()`` method has it called before its callbacks are drained."""
     import rclpy
-    from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+    from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 
     keep_freed_memory()
     rclpy.init(args=args if args is not None else sys.argv)
@@ -294,7 +298,17 @@ def spin_node(node_factory: Callable[[], Node], args: list[str] | None = None, m
         # allocates messages -- does not walk a few hundred thousand objects (tens of ms).
         gc.freeze()
         executor = MultiThreadedExecutor(num_threads=4) if multithreaded else None
-        rclpy.spin(node, executor=executor)
+        if until is None:
+            rclpy.spin(node, executor=executor)
+        else:
+            executor = executor or SingleThreadedExecutor()
+            executor.add_node(node)
+            while rclpy.ok():
+                executor.spin_once(timeout_sec=0.1)
+                done = until(node)
+                if done is not None:
+                    code = done
+                    break
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except SystemExit as exc:
@@ -305,6 +319,8 @@ def spin_node(node_factory: Callable[[], Node], args: list[str] | None = None, m
         if rclpy.ok():
             raise
     finally:
+        if node is not None and callable(getattr(node, "shutdown", None)):
+            node.shutdown()
         if executor is not None:
             drain_executor(executor)
         if node is not None:

@@ -24,10 +24,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import PoseStamped
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import Trigger
@@ -331,30 +329,8 @@ class HandEyeCalibrator(Node):
 
 
 def main(args=None) -> int:
-    rclpy.init(args=args)
-    node = executor = None
-    code = 0
-    try:
-        node = HandEyeCalibrator()
-        executor = MultiThreadedExecutor(num_threads=4)
-        executor.add_node(node)
-        while rclpy.ok():
-            executor.spin_once(timeout_sec=0.1)
-            if node.exit_code is not None and node.p["exit_when_done"]:
-                code = node.exit_code
-                break
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    finally:
-        if node is not None:
-            node.shutdown()
-            if executor is not None:
-                ros_io.drain_executor(executor)  # no callback still running on a destroyed node
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    return ros_io.spin_node(HandEyeCalibrator, args, multithreaded=True,
+                            until=lambda node: node.exit_code if node.p["exit_when_done"] else None)
 
 
 if __name__ == "__main__":
