@@ -4,8 +4,10 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
+import pytest
 from hypothesis import settings
 
 TESTS = Path(__file__).resolve().parent
@@ -41,9 +43,63 @@ def test_a_missing_corpus_skips_with_its_reason_locally_and_fails_under_ci(tmp_p
 
 
 def test_the_code_passes_the_linter():
-    """ruff.toml's rules over src/, tests/, tools/ and bench/: no unused import or variable, no undefined
+    """pyproject.toml's ruff rules over src/, tests/, tools/ and bench/: no unused import or variable, no undefined
     or shadowed name. Run `ruff check` to see the findings, `ruff check --fix` fixes most."""
     ruff = Path(sys.executable).with_name("ruff")
     done = subprocess.run([str(ruff), "check", "--output-format", "concise", "src", "tests", "tools", "bench"],
                           cwd=TESTS.parent, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stdout + done.stderr
+
+
+def _package_testpaths() -> dict[str, list[Path]]:
+    """Each package's ``[tool:pytest] testpaths`` (src/<package>/setup.cfg), resolved."""
+    import configparser
+
+    found = {}
+    for cfg_file in sorted((TESTS.parent / "src").glob("*/setup.cfg")):
+        cfg = configparser.ConfigParser()
+        cfg.read(cfg_file)
+        if cfg.has_option("tool:pytest", "testpaths"):
+            found[cfg_file.parent.name] = [(cfg_file.parent / p).resolve()
+                                           for p in cfg.get("tool:pytest", "testpaths").split()]
+    return found
+
+
+def test_every_test_file_belongs_to_exactly_one_package():
+    """`colcon test` runs each package's testpaths: together they are the whole tests/ tree, once."""
+    owners: dict[Path, list[str]] = {}
+    for package, paths in _package_testpaths().items():
+        for path in paths:
+            assert path.exists(), f"src/{package}/setup.cfg: testpath {path} does not exist"
+            for test_file in ([path] if path.is_file() else path.rglob("test_*.py")):
+                owners.setdefault(test_file, []).append(package)
+    every = set(TESTS.rglob("test_*.py"))
+    assert every - set(owners) == set(), "test files no package's testpaths hold"
+    assert {f: p for f, p in owners.items() if len(p) > 1} == {}, "test files two packages hold"
+
+
+def test_colcon_test_collects_each_packages_tests():
+    """`colcon test` (collection only) over the built workspace finds every package's tests: the same
+    number pytest collects from the root for those paths."""
+    import re
+
+    if not (TESTS.parent / "ros2_ws" / "build").is_dir():
+        pytest.skip("the workspace is not built (bash tools/setup.sh)")
+    colcon = Path(sys.executable).with_name("colcon")
+    packages = _package_testpaths()
+    with tempfile.TemporaryDirectory() as results:
+        done = subprocess.run(
+            [str(colcon), "--log-base", f"{results}/log", "test", "--base-paths", "../src",
+             "--build-base", "build", "--install-base", "install", "--test-result-base", results,
+             "--packages-select", *packages, "--event-handlers", "console_direct+", "summary-",
+             "--pytest-args", "--collect-only", "-q", "-p", "no:cacheprovider"],
+            cwd=TESTS.parent / "ros2_ws", capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    by_colcon = sum(int(n) for n in re.findall(r"^(\d+) tests? collected", done.stdout, re.M))
+    assert len(re.findall(r"^\d+ tests? collected", done.stdout, re.M)) == len(packages), done.stdout[-3000:]
+    root = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q", "-p", "no:cacheprovider",
+                           *[str(p) for paths in packages.values() for p in paths]],
+                          cwd=TESTS.parent, capture_output=True, text=True, timeout=600)
+    by_root = re.search(r"^(\d+) tests? collected", root.stdout, re.M)
+    assert by_root, root.stdout[-3000:] + root.stderr[-3000:]
+    assert by_colcon == int(by_root.group(1)) > 0

@@ -16,6 +16,7 @@ setup(
         (f"share/{PACKAGE}/data", glob("data/*")),
     ],
     install_requires=["setuptools"],
+    extras_require={"test": ["pytest"]},  # colcon test runs pytest over the testpaths in setup.cfg
     zip_safe=False,
     maintainer="Stud welding maintainers",
     maintainer_email="maintainers@stud-welding.org",
