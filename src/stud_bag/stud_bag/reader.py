@@ -74,7 +74,7 @@ class BagReader:
         self.notes: list[str] = []
         self.default_topics: list[str] | None = None  # what iterating the reader itself yields
         self._tmpdir: tempfile.TemporaryDirectory | None = None
-        self._finalizer = None
+        self._finalizer: weakref.finalize | None = None
         if not self.path.exists():
             raise BagError(f"Bag path '{self.path}' does not exist (expected a rosbag2 bag directory or an .mcap file)")
         if self.path.is_dir():
@@ -276,7 +276,8 @@ class BagReader:
     def _compare_with_metadata(self, meta_topics: dict[str, TopicInfo]) -> None:
         md = self.metadata
         assert md is not None
-        diffs, lost = [], []
+        diffs: list[str] = []
+        lost: list[str] = []
         if self.message_count:
             if md.starting_time_ns != self.start_time_ns:
                 diffs.append(f"starting_time {md.starting_time_ns} ns vs {self.start_time_ns} ns")
@@ -338,12 +339,12 @@ class BagReader:
                         yield self._bag_message(channel.topic, types.get(channel.id, ""), msg, decompress)
             else:
                 for msg in self._linear_records(scan, collect=False):
-                    channel = scan.channels.get(msg.channel_id)
-                    if channel is None or (wanted is not None and channel.topic not in wanted):
+                    found = scan.channels.get(msg.channel_id)
+                    if found is None or (wanted is not None and found.topic not in wanted):
                         continue
                     if (start is not None and msg.log_time < start) or (end is not None and msg.log_time > end):
                         continue
-                    yield self._bag_message(channel.topic, types.get(channel.id, ""), msg, decompress)
+                    yield self._bag_message(found.topic, types.get(found.id, ""), msg, decompress)
         except READ_ERRORS as exc:
             raise BagError(f"'{scan.label}': corrupt MCAP data ({type(exc).__name__}: {exc})") from None
 

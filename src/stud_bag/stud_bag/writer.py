@@ -12,7 +12,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import zstandard
 from mcap.writer import CompressionType, Writer
@@ -80,7 +80,7 @@ class BagWriter:
         )
         self._topics: dict[str, _WriterTopic] = {}
         self._topic_counts: dict[str, int] = {}
-        self._file = None
+        self._file: BinaryIO | None = None
         self._mcap: Writer | None = None
         self._schema_ids: dict[str, int] = {}
         self._channel_ids: dict[str, int] = {}
@@ -167,11 +167,11 @@ class BagWriter:
     def _open_file(self) -> None:
         index = len(self.metadata.relative_file_paths)
         name = f"{self.path.name}_{index}.mcap"
-        self._file = open(self.path / name, "wb")
+        self._file = file = open(self.path / name, "wb")
         compression = CompressionType.ZSTD if self._preset in ("zstd_fast", "zstd_small") else CompressionType.NONE
         if self._mode != "none":  # the payload or the whole file is compressed already
             compression = CompressionType.NONE
-        self._mcap = Writer(self._file, chunk_size=(4 if self._preset == "zstd_small" else 1) * 1024 * 1024,
+        self._mcap = Writer(file, chunk_size=(4 if self._preset == "zstd_small" else 1) * 1024 * 1024,
                             compression=compression, use_chunking=self._preset != "fastwrite")
         self._mcap.start(profile="ros2", library=LIBRARY)
         self._schema_ids.clear()

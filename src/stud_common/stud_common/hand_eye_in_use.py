@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from stud_common.rotations import matrix_to_quaternion, matrix_to_rpy, quaternion_to_matrix, rpy_to_matrix, transform
+from stud_common.rotations import (float3, matrix_to_quaternion, matrix_to_rpy, quaternion_to_matrix, rpy_to_matrix,
+                                   transform)
 
 FORMAT = "stud_welding/hand_eye 1"
 FRAME = "weld_tool"
@@ -174,7 +175,7 @@ def load_hand_eye_file(path: str | Path, limits: HandEyeLimits = HandEyeLimits()
     spread = _vector(data, "poses.rotation_spread_deg", 3, path)
     reproj = data.get("residuals", {}).get("reprojection_rms_px")
     in_use = HandEyeInUse(
-        xyz_m=tuple(float(v) for v in xyz), rpy_deg=tuple(float(v) for v in np.degrees(matrix_to_rpy(R_q))),
+        xyz_m=float3(xyz), rpy_deg=float3(np.degrees(matrix_to_rpy(R_q))),
         source="file", path=str(path.resolve()), date=str(date), poses_used=used,
         rotation_spread_deg=tuple(float(v) for v in spread),
         reprojection_rms_px=float(reproj) if isinstance(reproj, (int, float)) else float("nan"), **figures)
@@ -211,4 +212,4 @@ def resolve_hand_eye(hand_eye_file: str, xyz_m, rpy_deg, limits: HandEyeLimits =
     The one place that decides (camera, shot and driver nodes all call it)."""
     if hand_eye_file:
         return load_hand_eye_file(hand_eye_file, limits)
-    return HandEyeInUse(xyz_m=tuple(float(v) for v in xyz_m), rpy_deg=tuple(float(v) for v in rpy_deg))
+    return HandEyeInUse(xyz_m=float3(xyz_m), rpy_deg=float3(rpy_deg))

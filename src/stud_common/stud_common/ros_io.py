@@ -13,7 +13,7 @@ import sys
 import time
 from collections import OrderedDict
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, TypeVar
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -277,19 +277,24 @@ def keep_freed_memory(max_block_bytes: int = 32 << 20) -> bool:
                 and mallopt(M_TOP_PAD, 64 << 20))
 
 
-def spin_node(node_factory: Callable[[], Node], args: list[str] | None = None, multithreaded: bool = False,
-              until: Callable[[Node], int | None] | None = None) -> int:
+AnyNode = TypeVar("AnyNode", bound=Node)
+
+
+def spin_node(node_factory: Callable[[], AnyNode], args: list[str] | None = None, multithreaded: bool = False,
+              until: Callable[[AnyNode], int | None] | None = None) -> int:
     """`main()` body shared by our nodes: init, spin (``multithreaded`` for nodes whose service
     callbacks wait on their own subscriptions), clean shutdown on Ctrl-C (no traceback).
 
     ``until(node)``: the exit code once the node is done (None: not yet), checked every 0.1 s.
     A node with a ``shutdown()`` method has it called before its callbacks are drained."""
     import rclpy
-    from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
+    from rclpy.executors import (Executor, ExternalShutdownException, MultiThreadedExecutor,
+                                   SingleThreadedExecutor)
 
     keep_freed_memory()
     rclpy.init(args=args if args is not None else sys.argv)
-    node = executor = None
+    node = None
+    executor: Executor | None = None
     code = 0
     try:
         node = node_factory()
@@ -319,8 +324,9 @@ def spin_node(node_factory: Callable[[], Node], args: list[str] | None = None, m
         if rclpy.ok():
             raise
     finally:
-        if node is not None and callable(getattr(node, "shutdown", None)):
-            node.shutdown()
+        shutdown = getattr(node, "shutdown", None)
+        if callable(shutdown):
+            shutdown()
         if executor is not None:
             drain_executor(executor)
         if node is not None:

@@ -10,6 +10,12 @@ import math
 import numpy as np
 
 
+def float3(values) -> tuple[float, float, float]:
+    """Three numbers (a vector, a triple of angles) as a tuple of plain floats."""
+    x, y, z = (float(v) for v in values)
+    return x, y, z
+
+
 def quaternion_to_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
     n = math.sqrt(x * x + y * y + z * z + w * w)
     if n < 1e-9:

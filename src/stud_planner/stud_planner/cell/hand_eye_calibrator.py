@@ -19,6 +19,7 @@ run (the log says why), 2 bad parameters or calibration file.
 """
 from __future__ import annotations
 
+import functools
 import threading
 import time
 from pathlib import Path
@@ -112,7 +113,7 @@ class HandEyeCalibrator(Node):
                                      slop_ns=int(self.p["sync_slop_s"] * 1e9))
         for name, topic, typ in (("color", "/camera/color/image_raw", Image), ("depth", "/camera/depth/image_raw", Image),
                                  ("info", "/camera/color/camera_info", CameraInfo), ("pose", "/camera/pose", PoseStamped)):
-            self.create_subscription(typ, topic, lambda m, n=name: self._add(n, m), ros_io.SENSOR_QOS,
+            self.create_subscription(typ, topic, functools.partial(self._add, name), ros_io.SENSOR_QOS,
                                      callback_group=cb)
         self.cli_move = self.create_client(MoveTo, "/arm/move_to", callback_group=cb)
         self.cli_shot = self.create_client(Trigger, "/camera/trigger", callback_group=cb)
@@ -181,6 +182,7 @@ class HandEyeCalibrator(Node):
 
     def _shoot(self, drawing_marks: np.ndarray, config: MarkDetectorConfig) -> tuple[BoardShot | None, str]:
         """One shot at the current pose: the board shot, or None and why not."""
+        assert self.arm_state is not None  # _move_and_settle waited for it
         tool_R, tool_t = ros_io.pose_to_rt(self.arm_state.tool_pose)
         t0 = self.get_clock().now().nanoseconds
         deadline = time.monotonic() + self.p["step_timeout_s"]
@@ -206,7 +208,8 @@ class HandEyeCalibrator(Node):
         return BoardShot(transform(tool_R, tool_t), marks_cam, det.marks_pixels_uv, camera.K), det.message
 
     def _shots(self, views: list[CalibrationView], wanted: int, drawing_marks, config) -> tuple[list, int, int]:
-        shots, refused, failed = [], 0, 0
+        shots: list[BoardShot] = []
+        refused = failed = 0
         for view in views:
             if len(shots) >= wanted or self._stop.is_set():
                 break

@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 
 from stud_perception.camera_model import CameraModel
-from stud_common.rotations import frame_from_normal
+from stud_common.rotations import float3, frame_from_normal
 
 
 class Verdict(str, enum.Enum):
@@ -97,6 +97,7 @@ class StudMeasurement:
     def measured_dict(self) -> dict | None:
         if self.position_m is None:
             return None
+        assert self.axis is not None and self.offset_mm is not None  # measured together with the position
         return {"position_m": list(self.position_m), "axis": list(self.axis), "lean_deg": self.lean_deg,
                 "offset_mm": list(self.offset_mm), "height_mm": self.height_mm}
 
@@ -284,7 +285,7 @@ def _judge_one(p, n, look: _Look, mine: np.ndarray, after, camera: CameraModel,
         return StudMeasurement(Verdict.MISSING, ("no stud stands at the weld point",))
     a, c, cap_pts = _top_cap(look.X[mine], look.h[mine], n, radius)
     # the cap must be seen nearly whole, or its centre (and so the base) is biased
-    dist = np.linalg.norm(camera.world_to_camera(c[None])[0])
+    dist = float(np.linalg.norm(camera.world_to_camera(c[None])[0]))
     view_cos = abs(float(a @ (camera.position_w - c))) / max(dist, 1e-9)
     expected = np.pi * (radius * camera.fx / max(float(camera.world_to_camera(c[None])[0, 2]), 1e-6)) ** 2 * view_cos
     expected *= 0.81  # the inner disc, 0.9 of the radius, is what the cap fit uses
@@ -306,7 +307,7 @@ def _judge_one(p, n, look: _Look, mine: np.ndarray, after, camera: CameraModel,
     if abs(height - lim.nominal_length_mm) > lim.height_tol_mm:
         reasons.append(f"height {height:.1f} mm, expected {lim.nominal_length_mm:g} +- {lim.height_tol_mm:g} mm")
     return StudMeasurement(Verdict.FAIL if reasons else Verdict.PASS, tuple(reasons),
-                           tuple(map(float, base)), tuple(map(float, a)), lean, (float(off[0]), float(off[1])),
+                           float3(base), float3(a), lean, (float(off[0]), float(off[1])),
                            height, len(cap_pts))
 
 
@@ -329,7 +330,7 @@ def inspect_studs(planned_w: np.ndarray, normals_w: np.ndarray, welded: np.ndarr
     usable = welded & np.all(np.isfinite(P), axis=1) & np.all(np.isfinite(N), axis=1)
     looks: dict[int, _Look | None] = {}
     best = np.full(after.shape, np.inf)
-    for i in np.flatnonzero(usable):
+    for i in map(int, np.flatnonzero(usable)):
         look = looks[i] = _look(P[i], N[i] / np.linalg.norm(N[i]), before, after, camera, limits)
         if look is not None:
             np.minimum.at(best, (look.v, look.u), look.score)
@@ -342,8 +343,7 @@ def inspect_studs(planned_w: np.ndarray, normals_w: np.ndarray, welded: np.ndarr
             out.append(StudMeasurement(Verdict.NOT_INSPECTED, ("no planned weld pose to compare with",)))
         elif looks[i] is None:
             out.append(StudMeasurement(Verdict.NOT_INSPECTED, ("its place is not in front of the camera",)))
-        else:
-            look = looks[i]
+        elif (look := looks[i]) is not None:
             mine = (look.score < 1.0) & (look.score <= best[look.v, look.u])
             out.append(_judge_one(P[i], N[i] / np.linalg.norm(N[i]), look, mine, after, camera, limits))
     return Inspection(tuple(out), _unexpected(before, after, taken, camera, limits, min_object_px), limits)
@@ -363,7 +363,7 @@ def _unexpected(before, after, taken, camera: CameraModel, lim: InspectionLimits
         Xb = camera.pixel_to_world(uu.astype(np.float64), vv.astype(np.float64), before[vv, uu])
         rise = X[:, 2] - Xb[:, 2]  # how far it stands above the part, along world z
         top = X[int(np.argmax(rise))]
-        found.append(UnexpectedObject(tuple(map(float, top)), float(rise.max() * 1e3), int(len(uu))))
+        found.append(UnexpectedObject(float3(top), float(rise.max() * 1e3), int(len(uu))))
     return tuple(found)
 
 
@@ -387,7 +387,7 @@ def draw_inspection_overlay(color_bgr: np.ndarray, ids: list[str], planned_w: np
         r = int(max(6, inspection.limits.stud_diameter_mm * 0.5e-3 * camera.fx / max(float(z), 1e-6)))
         cv2.circle(img, centre, r, colour, 2, cv2.LINE_AA)
         text = f"{sid} {m.verdict.value}"
-        if m.lean_deg is not None:
+        if m.lean_deg is not None and m.offset_mm is not None:
             text += f" {m.lean_deg:.1f}deg {np.hypot(*m.offset_mm):.1f}mm"
         cv2.putText(img, text, (centre[0] + r + 3, centre[1]), cv2.FONT_HERSHEY_SIMPLEX, 0.45 * scale, colour, 1,
                     cv2.LINE_AA)

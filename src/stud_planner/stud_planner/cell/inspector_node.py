@@ -14,6 +14,7 @@ deep history: a late HMI gets every decision). A decision never makes the cell w
 """
 from __future__ import annotations
 
+import functools
 import os
 import threading
 import time
@@ -121,7 +122,7 @@ class InspectorNode(Node):
         for name, topic, typ in (("depth", "/camera/depth/image_raw", Image), ("color", "/camera/color/image_raw", Image),
                                  ("info", "/camera/color/camera_info", CameraInfo),
                                  ("pose", "/camera/pose", PoseStamped)):
-            self.create_subscription(typ, topic, lambda m, n=name: self._on_input(n, m), ros_io.SENSOR_QOS,
+            self.create_subscription(typ, topic, functools.partial(self._on_input, name), ros_io.SENSOR_QOS,
                                      callback_group=cb)
         self.create_service(Inspect, "/inspection/inspect", self._on_inspect, callback_group=cb)
         self._verdicts: dict[str, str] = {}  # stud id -> its newest verdict (this session's inspections)

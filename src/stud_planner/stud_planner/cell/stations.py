@@ -110,7 +110,7 @@ def _fewest_stations(xy: np.ndarray, fov_m: tuple[float, float], camera_height_m
     inside = np.all(rel <= 1 + eps, axis=2)
     owner = np.where(inside.any(axis=1), np.argmin(np.where(inside, rel.max(axis=2), np.inf), axis=1), -1)
     order = _nearest_first(C)
-    stations = []
+    stations: list[Station] = []
     for k in order:
         members = tuple(int(i) for i in np.flatnonzero(owner == k))
         if not members:

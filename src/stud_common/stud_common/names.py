@@ -1,0 +1,58 @@
+"""Every topic, service and action name of the cell, in one place (the interface contract:
+docs/INTERFACES.md). Nodes use these absolute names; a deployment remaps them with
+``--ros-args -r /camera/pose:=/other``, so the constants never need editing.
+
+Frames are in :mod:`stud_common.frames`, message constants in :mod:`stud_common.vocabulary`.
+"""
+from __future__ import annotations
+
+# -- camera (the RGB-D sensor, real or simulated; depth registered to colour) ---------------------
+COLOR_IMAGE = "/camera/color/image_raw"
+DEPTH_IMAGE = "/camera/depth/image_raw"
+CAMERA_INFO = "/camera/color/camera_info"
+CAMERA_POSE = "/camera/pose"                       # optical frame in `world` at the images' stamp
+CAMERA_POSE_RECORDED = "/camera/pose_recorded"     # replay: the bag's pose, re-posed by pose_rebase
+CAMERA_TRIGGER = "/camera/trigger"                 # std_srvs/Trigger: one shot
+
+# -- drawing, registration, matching ---------------------------------------------------------------
+DRAWING_LAYOUT = "/drawing/layout"
+DRAWING_POSES = "/drawing/poses"
+DRAWING_LOAD = "/drawing/load"
+REGISTRATION_RESULT = "/registration/result"
+REGISTRATION_OVERLAY = "/registration/overlay"
+REGISTRATION_TRIGGER = "/registration/trigger"
+WELD_TARGETS = "/weld_targets"
+WELD_TARGET_POSES = "/weld_targets/poses"
+WELD_TARGET_MARKERS = "/weld_targets/markers"
+WELD_TARGET_OVERLAY = "/weld_targets/overlay"
+
+# -- arm (RM-65 driver) ----------------------------------------------------------------------------
+ARM_STATE = "/arm/state"
+ARM_WELDS = "/arm/welds"
+ARM_WELD_JOB = "/arm/weld_job"                     # action stud_welding_msgs/action/WeldJob
+ARM_MOVE_TO = "/arm/move_to"
+ARM_STOP = "/arm/stop"
+ARM_PAUSE = "/arm/pause"
+ARM_RESUME = "/arm/resume"
+ARM_ESTOP = "/arm/estop"
+ARM_RESOLVE_STUD = "/arm/resolve_stud"
+ARM_RESOLVE_JOURNAL = "/arm/resolve_journal"
+JOINT_STATES = "/joint_states"
+ROBOT_DESCRIPTION = "/robot_description"
+
+# -- cell, inspection, calibration -----------------------------------------------------------------
+CELL_STATUS = "/cell/status"
+CELL_START = "/cell/start"
+CELL_STOP = "/cell/stop"
+CELL_PAUSE = "/cell/pause"
+CELL_RESUME = "/cell/resume"
+INSPECTION_INSPECT = "/inspection/inspect"
+INSPECTION_RESULT = "/inspection/result"
+INSPECTION_RECORD_REWORK = "/inspection/record_rework"
+INSPECTION_REWORK = "/inspection/rework"
+CALIBRATION_HAND_EYE = "/calibration/hand_eye"
+
+# -- ROS-wide --------------------------------------------------------------------------------------
+DIAGNOSTICS = "/diagnostics"
+TF = "/tf"
+TF_STATIC = "/tf_static"
