@@ -13,6 +13,7 @@ import pytest
 
 from stud_planner.cell import job as cell_job
 from stud_planner.cell.job import CellJob, DriverLost, InspectionOutcome, InspectionUnavailable, JobAborted, JobConfig
+from stud_planner.cell.rework import append_record, make_record
 from stud_planner.cell.stations import footprint_m
 
 
@@ -166,6 +167,21 @@ def test_every_defect_is_reported_with_its_reason_and_a_failed_stud_is_never_wel
     assert qa["summary"]["pass"] == len(cell.studs) - 4 and qa["summary"]["fail"] == 3 and qa["summary"]["missing"] == 1
     assert all(cell.journal.count(sid) == 1 for sid in defects)
     assert sum(ids.count(sid) for ids in cell.weld_calls for sid in defects) == 4   # each sent once, never again
+
+
+def test_decisions_taken_during_the_job_are_in_its_qa_record_and_a_damaged_file_costs_only_them(tmp_path):
+    decisions = tmp_path / "qa" / "qa" / "rework_decisions.jsonl"   # the inspector's, beside its overlays
+    append_record(decisions, make_record("S0004", "rework", "cut off", "fail", stamp=10.0))
+    cell = FakeCell(grid(), verdict_of={"S0004": ("fail", ["lean 8.1 deg > 5 deg"])})
+    job, state, code, qa = run(cell, tmp_path, rework_file=str(decisions))
+    rows = {r["stud_id"]: r for r in qa["studs"]}
+    assert (rows["S0004"]["rework"], rows["S0004"]["rework_note"]) == ("rework", "cut off")
+    assert sum(r["rework"] is not None for r in qa["studs"]) == 1
+    with open(decisions, "a") as f:
+        f.write("not json\n")
+    job, state, code, qa = run(FakeCell(grid()), tmp_path, rework_file=str(decisions))
+    assert state == "done" and qa["summary"]["pass"] == len(grid())   # the record is written all the same
+    assert any("without the rework decisions" in line and "rework_decisions.jsonl:2" in line for line in job.ports.log)
 
 
 def test_a_job_stopped_early_still_writes_the_qa_record_and_the_rest_are_not_welded(tmp_path):

@@ -6,8 +6,9 @@ import json
 
 import cv2
 import numpy as np
+import pytest
 
-from stud_planner.cell.qa_report import CSV_FIELDS, empty_row, write_qa_report
+from stud_planner.cell.qa_report import CSV_FIELDS, apply_rework, empty_row, locked, write_qa_report
 
 
 def test_the_three_files_carry_the_same_rows(tmp_path):
@@ -39,3 +40,38 @@ def test_the_three_files_carry_the_same_rows(tmp_path):
     assert page.count("<tr class=") == 3 and "J7" in page and "grind off" in page
     assert page.count("data:image/png;base64,") == 1  # the overlay embedded, the missing file left out
     assert "5&deg;" in page or "5°" in page
+
+
+def _limits():
+    return {"max_lean_deg": 5.0, "position_tol_mm": 2.0, "nominal_length_mm": 50.0, "height_tol_mm": 2.0,
+            "stud_diameter_mm": 16.0}
+
+
+def test_a_decision_after_the_job_rewrites_the_rework_column_of_all_three_files(tmp_path):
+    rows = [empty_row("S0001", (10.0, 20.0)), empty_row("S0002", (30.0, 20.0))]
+    rows[1].update(verdict="fail", reasons=["lean 8.1 deg > 5 deg"])
+    overlay = tmp_path / "qa" / "inspection_station_01.png"
+    overlay.parent.mkdir()
+    cv2.imwrite(str(overlay), np.full((20, 30, 3), 128, np.uint8))
+    before = write_qa_report(tmp_path, {"id": "J7"}, _limits(), rows, [], [overlay],
+                             decisions={"S0001": {"decision": "accept", "note": ""}})
+    assert before["overlays"] == ["qa/inspection_station_01.png"]  # relative: the folder can be moved
+    assert [r["rework"] for r in before["studs"]] == ["accept", None]
+    with locked(tmp_path):
+        after = apply_rework(tmp_path, {"S0002": {"decision": "rework", "note": "cut off, re-weld by hand"}})
+    data = json.loads((tmp_path / "qa_report.json").read_text())
+    assert data == after and data["summary"] == before["summary"] and data["job"] == before["job"]
+    assert [(r["rework"], r["rework_note"]) for r in data["studs"]] == [("accept", None),
+                                                                         ("rework", "cut off, re-weld by hand")]
+    with open(tmp_path / "qa_report.csv") as f:
+        table = list(csv.DictReader(f))
+    assert [(r["rework"], r["rework_note"]) for r in table] == [("accept", ""), ("rework", "cut off, re-weld by hand")]
+    page = (tmp_path / "qa_report.html").read_text()
+    assert "rework: cut off, re-weld by hand" in page and page.count("data:image/png;base64,") == 1
+
+
+def test_no_record_yet_is_none_and_a_foreign_file_an_error_naming_it(tmp_path):
+    assert apply_rework(tmp_path, {"S0001": {"decision": "rework"}}) is None
+    (tmp_path / "qa_report.json").write_text('{"weld": 1}')
+    with pytest.raises(ValueError, match=r"qa_report.json: not a QA record"):
+        apply_rework(tmp_path, {"S0001": {"decision": "rework"}})

@@ -18,6 +18,7 @@ from stud_welding_msgs.srv import Inspect, RecordRework
 from rosproc import REPO, ros2_run, wait_for
 from stud_common import ros_io
 from stud_common.rotations import frame_from_normal, matrix_to_quaternion
+from stud_planner.cell.qa_report import empty_row, write_qa_report
 from stud_perception.scene import load_scene, scene_to_dict, surface_height, surface_normal
 
 DEMO_SCENE = REPO / "src" / "stud_perception" / "config" / "shell_scene.json"
@@ -45,7 +46,7 @@ def test_the_inspector_judges_the_studs_the_sim_camera_shows_welded(ros_node, pr
                           {"scene_file": str(scene_file), "camera_xyz_m": [float(centre[0]), float(centre[1]), 0.405],
                            "depth_noise_m": 0.0005}))
     procs.append(ros2_run("stud_planner", "inspector", tmp_path / "inspector.log",
-                          {"nominal_length_mm": 50.0, "overlay_dir": str(tmp_path / "qa")}))
+                          {"nominal_length_mm": 50.0, "overlay_dir": str(tmp_path / "qa"), "qa_dir": str(tmp_path)}))
     results = []
     ros_node.create_subscription(InspectionResult, "/inspection/result", results.append, ros_io.LATCHED_QOS)
     pub = ros_node.create_publisher(WeldRecord, "/arm/welds", WELDS_QOS)
@@ -114,7 +115,11 @@ def test_the_inspector_judges_the_studs_the_sim_camera_shows_welded(ros_node, pr
     assert res.station == 3 and res.nominal_length_mm == 50.0 and Path(res.overlay_file).exists()
     wait_for(lambda: results and results[-1].station == 3, 20, spin=ros_node.spin, what="/inspection/result")
 
-    # the operator's rework decision on a failed stud: recorded with its time, published, checked first
+    # the operator's rework decision on a failed stud: recorded with its time, published, checked first,
+    # and in the job's QA record (written by the cell at the job's end: here, by hand)
+    write_qa_report(tmp_path, {"id": "J1"}, {"max_lean_deg": 5.0, "position_tol_mm": 2.0, "nominal_length_mm": 50.0,
+                                             "height_tol_mm": 2.0, "stud_diameter_mm": 16.0},
+                    [{**empty_row(s.stud_id, (0.0, 0.0)), "verdict": s.verdict_text} for s in res.studs], [], [])
     decisions = []
     ros_node.create_subscription(ReworkDecision, "/inspection/rework", decisions.append, WELDS_QOS)
     record = ros_node.create_client(RecordRework, "/inspection/record_rework")
@@ -130,5 +135,10 @@ def test_the_inspector_judges_the_studs_the_sim_camera_shows_welded(ros_node, pr
     assert (rec["stud_id"], rec["decision"], rec["verdict"], rec["note"]) == (ids[0], "rework", "fail",
                                                                               "lean by gauge: 8 deg")
     assert rec["time"].endswith("+00:00") and rec["stamp"] > 0
+    assert "QA record updated" in reply.message
+    qa_rows = {r["stud_id"]: r for r in json.loads((tmp_path / "qa_report.json").read_text())["studs"]}
+    assert (qa_rows[ids[0]]["rework"], qa_rows[ids[0]]["rework_note"]) == ("rework", "lean by gauge: 8 deg")
+    assert all(r["rework"] is None for sid, r in qa_rows.items() if sid != ids[0])
+    assert "lean by gauge" in (tmp_path / "qa_report.html").read_text()
     wait_for(lambda: decisions, 20, spin=ros_node.spin, what="/inspection/rework")
     assert (decisions[-1].stud_id, decisions[-1].decision, decisions[-1].verdict) == (ids[0], "rework", "fail")

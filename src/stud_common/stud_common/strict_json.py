@@ -15,10 +15,11 @@ from __future__ import annotations
 import json
 import math
 import os
+import threading
 from pathlib import Path, PurePath
 from typing import Any
 
-__all__ = ["json_safe", "dumps", "dumps_document", "write_json"]
+__all__ = ["json_safe", "dumps", "dumps_document", "write_json", "write_text_atomic"]
 
 
 def json_safe(obj: Any) -> Any:
@@ -81,10 +82,15 @@ def write_json(path: str | os.PathLike, obj: Any) -> Path:
     """Write ``obj`` as strict JSON (:func:`dumps_document`) to ``path``, parent folders created,
     newline-terminated, through a temporary file renamed into place: a reader never sees half a
     document."""
+    return write_text_atomic(path, dumps_document(obj) + "\n")
+
+
+def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
+    """Write ``text`` to ``path`` (parent folders created) through a temporary file renamed into
+    place: a reader, or a process writing the same file, never sees half of it."""
     path = Path(path)
-    text = dumps_document(obj) + "\n"
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}.{threading.get_ident()}")
     try:
         tmp.write_text(text, encoding="utf-8")
         os.replace(tmp, path)

@@ -34,7 +34,7 @@ from stud_welding_msgs.srv import Inspect, RecordRework
 from stud_common import ros_io
 from stud_perception import image_io
 from stud_common.ros_io import Param
-from stud_planner.cell import rework
+from stud_planner.cell import qa_report, rework
 from stud_planner.cell.inspection import InspectionLimits, Verdict, draw_inspection_overlay, inspect_studs
 
 _LIMITS = InspectionLimits()
@@ -48,6 +48,8 @@ PARAMS = [
           "length (burn-off) [mm]", min=0.05, max=100.0),
     Param("stud_diameter_mm", _LIMITS.stud_diameter_mm, "stud diameter [mm]", min=1.0, max=100.0),
     Param("overlay_dir", "", "write each inspection's overlay PNG here (empty: none)"),
+    Param("qa_dir", "", "the folder of the job's QA record (the sequencer's qa_dir): each decision re-writes "
+          "its rework column (empty: decisions only go to rework_file and /inspection/rework)"),
     Param("rework_file", "", "append operator rework decisions here (JSON lines); empty: "
           f"<overlay_dir>/{rework.FILE_NAME}, or $ROS_HOME/stud_welding/{rework.FILE_NAME} without overlay_dir",
           read_only=True),
@@ -197,6 +199,22 @@ class InspectorNode(Node):
         resp.success, resp.message = True, summary
         return resp
 
+    def _update_qa_record(self) -> str:
+        """Every decision so far into the QA record's rework column; what happened, for the reply."""
+        if not self.p["qa_dir"]:
+            return ""
+        qa_dir = Path(self.p["qa_dir"])
+        try:
+            with qa_report.locked(qa_dir):
+                decisions = rework.latest_decisions(self.rework_file)
+                doc = qa_report.apply_rework(qa_dir, {s: r.for_qa_record() for s, r in decisions.items()})
+        except (rework.ReworkError, ValueError, OSError) as exc:
+            self.get_logger().error(f"QA record not updated with the decision: {exc}")
+            return f"; the QA record was NOT updated ({exc})"
+        if doc is None:
+            return f"; {qa_dir / qa_report.JSON_NAME} does not exist yet: the cell writes it with this decision"
+        return f"; QA record updated ({qa_dir / qa_report.JSON_NAME})"
+
     def _on_record_rework(self, req, resp):
         with self._cond:
             verdict = self._verdicts.get(req.stud_id.strip())
@@ -212,7 +230,8 @@ class InspectorNode(Node):
         msg.header.stamp = ros_io.ns_to_stamp(int(record.stamp * 1e9))
         self.pub_rework.publish(msg)
         resp.success = True
-        resp.message = f"{record.stud_id} ({record.verdict}): {record.decision} recorded in {self.rework_file}"
+        resp.message = (f"{record.stud_id} ({record.verdict}): {record.decision} recorded in {self.rework_file}"
+                        + self._update_qa_record())
         self.get_logger().info(f"operator: {resp.message}" + (f" -- {record.note}" if record.note else ""))
         return resp
 

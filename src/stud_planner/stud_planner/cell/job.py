@@ -33,7 +33,7 @@ import numpy as np
 from stud_common.vocabulary import VIEW_DEPENDENT, CellState
 from stud_perception.registration import local_to_world
 from stud_common.strict_json import write_json
-from stud_planner.cell import qa_report
+from stud_planner.cell import qa_report, rework
 from stud_planner.cell.inspection import InspectionLimits
 from stud_planner.cell.stations import footprint_m, plan_stations, reshoot_station
 
@@ -157,6 +157,7 @@ class JobConfig:
     inspect: bool = True
     report_file: str = ""
     qa_dir: str = ""
+    rework_file: str = ""   # the operator's rework decisions (cell.rework), merged into the QA record
     qa_limits: dict = field(default_factory=lambda: InspectionLimits().to_dict())  # the QA record's header
                                                     # (an inspection's own limits replace these)
     job_id: str = ""
@@ -449,6 +450,16 @@ class CellJob:
             rows.append(row)
         return rows
 
+    def _rework_decisions(self) -> dict[str, dict]:
+        """Decisions the operator took during the job (on studs already inspected), for the QA record."""
+        if not self.c.rework_file:
+            return {}
+        try:
+            return {sid: r.for_qa_record() for sid, r in rework.latest_decisions(self.c.rework_file).items()}
+        except rework.ReworkError as exc:
+            self.ports.warn(f"QA record written without the rework decisions: {exc}")
+            return {}
+
     def finish(self, state: str, message: str) -> int:
         """Write the weld report and the QA record (also after an early stop); the exit code: 0 only
         when the job is done and every stud welded."""
@@ -464,8 +475,10 @@ class CellJob:
         if c.qa_dir and self.qa:
             job = {"id": c.job_id, "part": c.part, "drawing": self.layout.source_file if self.layout else "",
                    "state": state, "message": message}
-            doc = qa_report.write_qa_report(Path(c.qa_dir), job, c.qa_limits, self.qa_rows(state == DONE),
-                                            self.unexpected, [Path(f) for f in self.overlays])
+            with qa_report.locked(Path(c.qa_dir)):
+                doc = qa_report.write_qa_report(Path(c.qa_dir), job, c.qa_limits, self.qa_rows(state == DONE),
+                                                self.unexpected, [Path(f) for f in self.overlays],
+                                                self._rework_decisions())
             counts = ", ".join(f"{k} {v}" for k, v in doc["summary"].items() if v)
             self.ports.info(f"QA record: {c.qa_dir}/qa_report.{{json,csv,html}} ({counts})")
         all_welded = bool(self.stud_report) and welded == len(self.stud_report)

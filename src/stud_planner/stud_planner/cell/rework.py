@@ -8,8 +8,9 @@ JSON line, appended with its time, in ``<output dir>/rework_decisions.jsonl``::
     {"time": "2025-05-01T10:12:03.120+00:00", "stamp": 1746094323.12, "stud_id": "S0004",
      "decision": "rework", "verdict": "fail", "note": "lean 8 deg, cut off and re-weld by hand"}
 
-The newest line of a stud is its decision. The inspector node serves ``/inspection/record_rework``
-with this module and publishes each record on ``/inspection/rework`` (docs/INSPECTION.md).
+The newest line of a stud is its decision (:func:`latest_decisions`). The inspector node serves
+``/inspection/record_rework`` with this module, publishes each record on ``/inspection/rework`` and
+fills the QA record's ``rework`` column (docs/INSPECTION.md).
 """
 from __future__ import annotations
 
@@ -47,10 +48,16 @@ class ReworkRecord:
     note: str
     stamp: float         # s since the epoch
 
+    @property
+    def time(self) -> str:
+        return datetime.fromtimestamp(self.stamp, timezone.utc).isoformat(timespec="milliseconds")
+
     def to_json(self) -> str:
-        doc = {"time": datetime.fromtimestamp(self.stamp, timezone.utc).isoformat(timespec="milliseconds"),
-               **asdict(self)}
-        return json.dumps(doc, ensure_ascii=False, allow_nan=False)
+        return json.dumps({"time": self.time, **asdict(self)}, ensure_ascii=False, allow_nan=False)
+
+    def for_qa_record(self) -> dict:
+        """What the QA record's row carries (qa_report's ``rework`` and ``rework_note``)."""
+        return {"decision": self.decision, "note": self.note, "time": self.time}
 
 
 def make_record(stud_id: str, decision: str, note: str, verdict: str | None, stamp: float) -> ReworkRecord:
@@ -82,3 +89,34 @@ def append_record(path: str | os.PathLike[str], record: ReworkRecord) -> Path:
         f.flush()
         os.fsync(f.fileno())
     return path
+
+
+def latest_decisions(path: str | os.PathLike[str]) -> dict[str, ReworkRecord]:
+    """The newest decision per stud id in the decisions file (none when it does not exist yet).
+
+    A last line without its newline is an append cut short (a power cut): it is skipped. Any other
+    line that is not a decision is a :class:`ReworkError` naming the file and the line."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        return {}
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ReworkError(f"{path}: cannot read the rework decisions ({exc})") from None
+    # split("\n")'s last piece is "" after a complete file, else an append cut short (never confirmed
+    # to the operator): not a decision
+    complete = text.split("\n")[:-1]
+    latest: dict[str, ReworkRecord] = {}
+    for number, line in enumerate(complete, start=1):
+        if not line.strip():
+            continue
+        try:
+            doc = json.loads(line)
+            record = ReworkRecord(str(doc["stud_id"]), ReworkDecision(doc["decision"]).value, str(doc["verdict"]),
+                                  str(doc.get("note", "")), float(doc["stamp"]))
+        except (ValueError, KeyError, TypeError) as exc:
+            raise ReworkError(f"{path}:{number}: not a rework decision ({type(exc).__name__}: {exc}); "
+                              "expected one JSON object with stud_id, decision, verdict, note, stamp") from None
+        latest[record.stud_id] = record
+    return latest
+

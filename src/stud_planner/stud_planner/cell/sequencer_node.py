@@ -88,6 +88,8 @@ PARAMS = [
     Param("inspect_timeout_s", 60.0, "longest wait for one station's inspection [s]", min=1.0, max=3600.0),
     Param("qa_dir", "", "write the QA record (qa_report.json, .csv, .html) into this folder at the end (empty: none)"),
     Param("part_name", "", "the part's name, for the QA record"),
+    Param("rework_file", "", "the inspector's rework decisions file (JSON lines): decisions taken during the job "
+          "go into the QA record's rework column (empty: none)"),
 ]
 
 STATE_TEXT = {int(s): s.text for s in CellState}  # CellStatus.STATE_* (tests: the same constants)
