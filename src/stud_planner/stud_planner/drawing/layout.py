@@ -12,7 +12,7 @@ import ezdxf.lldxf.const as dxfconst
 import numpy as np
 from stud_planner.drawing.circles import _LABEL_LETTERS, read_circles
 from stud_planner.drawing.dxf_file import _one_line
-from stud_planner.drawing.layout_types import CircleSet, DrawingError, Mark, Stud, StudLayout
+from stud_planner.drawing.layout_types import CircleSet, DrawingError, DrawingLayout, Mark, Stud
 from stud_planner.drawing.marks import _fmt_pats, _identify_marks, _layer_matcher
 from stud_planner.drawing.neighbours import _TooDense, close_pairs
 
@@ -35,7 +35,7 @@ def read_layout(
     collinear_tol_deg: float = 1.0,
     right_angle_ambiguity_deg: float = 2.0,
     include_hidden_layers: bool = False,
-) -> StudLayout:
+) -> DrawingLayout:
     """Read the stud layout of a DXF drawing (see the module docstring for every rule).
 
     Args:
@@ -115,7 +115,7 @@ def _build_layout(
     path: Path, cs: CircleSet, stud_layers, mark_layer, min_diameter_m, max_diameter_m, min_spacing_m,
     duplicate_tol_m, diameter_outlier_ratio, label_distance_factor, perpendicular_tol_deg,
     collinear_tol_deg, right_angle_ambiguity_deg,
-) -> StudLayout:
+) -> DrawingLayout:
     warns = list(cs.warnings)
     s = cs.metres_per_unit
     name = path.name
@@ -260,7 +260,7 @@ def _build_layout(
                      f"{_ids_list([ids[k] for k in outside])}")
 
     bbox = (float(xy[:, 0].min()), float(xy[:, 1].min()), float(xy[:, 0].max()), float(xy[:, 1].max()))
-    return StudLayout(
+    return DrawingLayout(
         source_file=str(path), dxf_version=cs.dxf_version,
         dxf_release=dxfconst.acad_release.get(cs.dxf_version, cs.dxf_version), read_mode=cs.read_mode,
         source_units=cs.source_units, insunits=cs.insunits, units_assumed=cs.units_assumed,
