@@ -234,7 +234,7 @@ class _Collector:
     def scan(self, entities: Iterable[Any], stack: tuple[str, ...], in_block: bool,
              plain: PlainCircles | None = None) -> _Content:
         """Circles and labels of ``entities`` (INSERTs expanded). ``plain``: the modelspace's CIRCLE
-        entities, read by :mod:`dxf_plain_circles` (``entities`` then holds no CIRCLE); they go
+        entities, read by :mod:`~stud_planner.drawing.plain_circles` (``entities`` then holds no CIRCLE); they go
         through the same rules as the circles read here."""
         buf = _ScanBuffer()
         for e in entities:
@@ -460,7 +460,7 @@ def collect_circles(
     """All circles of ``doc``'s modelspace with INSERTs expanded, in WCS (drawing units).
 
     Also reads the units and the O/A/B labels; see the module docstring for what is skipped.
-    ``plain``: the modelspace CIRCLE entities read by :mod:`dxf_plain_circles` and cut out of
+    ``plain``: the modelspace CIRCLE entities read by :mod:`~stud_planner.drawing.plain_circles` and cut out of
     ``doc`` (what :func:`read_circles` does for a large file); the result is the same.
     """
     path = Path(path)
@@ -505,7 +505,7 @@ def read_circles(path: str | Path, *, units_if_unitless: str = "mm", include_hid
     """Open ``path`` and return every usable circle (INSERTs expanded); no stud/mark logic.
 
     ``plain_circles``: read the modelspace's plain CIRCLE entities of an ASCII file with
-    :mod:`dxf_plain_circles` (arrays, ~20x faster than ezdxf's objects: a 250,000-stud drawing
+    :mod:`~stud_planner.drawing.plain_circles` (arrays, ~20x faster than ezdxf's objects: a 250,000-stud drawing
     in seconds) and the rest with ezdxf; False: everything with ezdxf. The result is the same."""
     path = Path(path)
     data, file_warns = _check_file(path)

@@ -6,7 +6,7 @@ with ``origin_wcs_m`` / ``rotation_deg`` (and ``mirror_frame``), converts to ``u
 draws the studs as circles, optionally as INSERTs of a block (rotated, scaled, mirrored,
 nested) or as circles with extrusion (0, 0, -1), as mirrored drawings contain them.
 
-:func:`stud_planner.dxf_layout.read_layout` on the written file gives back the input
+:func:`stud_planner.drawing.layout.read_layout` on the written file gives back the input
 (to float precision), which is what the round-trip tests check.
 """
 from __future__ import annotations

@@ -6,7 +6,7 @@ It is *not* a parser with rules of its own. It only takes over the CIRCLE entiti
 ENTITIES section whose every tag it can decode exactly as ezdxf would (``ascii_tags_loader`` +
 ``tag_compiler`` + ``Circle.load_dxf_attribs``), cuts them out of the text and lets ezdxf load
 the rest of the document -- header, tables, blocks, INSERTs, texts, objects -- as before.
-:func:`stud_planner.dxf_layout.read_circles` then treats these circles the way it treats the
+:func:`stud_planner.drawing.circles.read_circles` then treats these circles the way it treats the
 ones ezdxf loads (visibility, hidden layers, radius, coordinates; one code path), and the tests
 check that both ways give identical results on every file of the DXF corpus.
 
@@ -28,7 +28,7 @@ CIRCLE of the ENTITIES section is plain:
 Circles are returned in file order, the order ezdxf's modelspace iterates them in. Owners and
 paperspace flags are returned too: the ENTITIES section also holds the active paperspace, and
 ezdxf's rule decides (the owner ``*Model_Space`` or ``*Paper_Space``, else the flag), which
-:func:`dxf_layout.read_circles` applies once it knows those block records' handles.
+:func:`stud_planner.drawing.circles.read_circles` applies once it knows those block records' handles.
 """
 from __future__ import annotations
 
