@@ -4,11 +4,10 @@ Pure Python (ezdxf + numpy), no ROS: the drawing node converts :class:`DrawingLa
 ``stud_welding_msgs/StudLayout`` (field for field; lengths are already metres).
 
 Modules: ``dxf_file`` (file checks, ezdxf, recovery), ``plain_circles`` (the fast reader of plain
-CIRCLE entities), ``circles`` (modelspace and block expansion, labels), ``visibility`` (what
-CAD shows), ``units``,
-``neighbours`` (grid-hash neighbour search), ``marks`` (O, A, B and the frame), ``layout`` (ids,
-order, checks: :func:`read_layout`), ``layout_types`` (the results), ``dxf_writer`` (drawings for
-tests, demos and benchmarks).
+CIRCLE entities), ``circles`` (modelspace and block expansion, labels), ``visibility`` (what CAD
+shows), ``units``, ``neighbours`` (grid-hash neighbour search), ``marks`` (O, A, B and the frame),
+``layout`` (ids, order, checks: :func:`read_layout`), ``layout_types`` (the results),
+``dxf_writer`` (drawings for tests, demos and benchmarks).
 
 What is read
     * DXF R12 .. R2018 (and the pre-R12 files ezdxf accepts), ASCII or binary, via
