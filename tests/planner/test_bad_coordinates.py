@@ -11,7 +11,7 @@ import ezdxf
 import pytest
 
 from stud_planner.drawing import inspect_cli as drawing_inspect
-from stud_planner.drawing import DrawingError, StudLayout, read_circles, read_layout
+from stud_planner.drawing import DrawingError, DrawingLayout, read_circles, read_layout
 
 REPO = Path(__file__).resolve().parents[2]
 DEMO = REPO / "src" / "stud_planner" / "data" / "dome_demo.dxf"
@@ -97,7 +97,7 @@ def test_drawing_inspect_reports_finite_extents_and_strict_json(tmp_path, capsys
     assert "left out" in printed
     data = strict_loads(out.read_text())
     assert len(data["studs"]) == len(read_layout(DEMO).studs) and len(data["invalid_entities"]) == len(handles)
-    assert StudLayout.from_dict(data).invalid_entities == tuple(data["invalid_entities"])
+    assert DrawingLayout.from_dict(data).invalid_entities == tuple(data["invalid_entities"])
 
 
 def test_plan_warns_about_left_out_circles_and_writes_strict_json(tmp_path):

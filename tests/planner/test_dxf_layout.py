@@ -1,4 +1,4 @@
-"""stud_planner.drawing: DXF drawings -> StudLayout (drawing frame, metres).
+"""stud_planner.drawing: DXF drawings -> DrawingLayout (drawing frame, metres).
 
 Round trips through drawings written by stud_planner.drawing.dxf_writer (several DXF versions, binary,
 block references, units), every error and warning the parser promises, and the real corpus in
@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 
 from stud_planner.drawing import (
     DrawingError,
-    StudLayout,
+    DrawingLayout,
     close_pairs,
     read_circles,
     read_layout,
@@ -45,14 +45,14 @@ def expected_order(xy: np.ndarray) -> np.ndarray:
     return np.lexsort((xy[:, 0], row))
 
 
-def assert_studs(layout: StudLayout, xy: np.ndarray, diameter_m: float = 0.019, tol: float = 1e-9) -> None:
+def assert_studs(layout: DrawingLayout, xy: np.ndarray, diameter_m: float = 0.019, tol: float = 1e-9) -> None:
     assert len(layout.studs) == len(xy)
     np.testing.assert_allclose(layout.studs_xy_m(), xy[expected_order(xy)], atol=tol)
     assert [s.id for s in layout.studs] == [f"S{k + 1:04d}" for k in range(len(xy))]
     np.testing.assert_allclose([s.diameter_m for s in layout.studs], diameter_m, rtol=1e-9)
 
 
-def assert_marks(layout: StudLayout, marks=MARKS, tol: float = 1e-9) -> None:
+def assert_marks(layout: DrawingLayout, marks=MARKS, tol: float = 1e-9) -> None:
     for name, (x, y) in marks.items():
         m = layout.marks[name]
         assert (m.name, m.layer) == (name, "MARKS")
@@ -688,7 +688,7 @@ def test_layout_dict_round_trip_is_json(tmp_path):
     layout = read_layout(write_layout_dxf(tmp_path / "j.dxf", STUDS, MARKS, rotation_deg=12))
     d = json.loads(json.dumps(layout.to_dict()))
     assert d["frame_id"] == "drawing" and d["studs"][0]["id"] == "S0001"
-    again = StudLayout.from_dict(d)
+    again = DrawingLayout.from_dict(d)
     assert again.studs == layout.studs and again.marks == layout.marks
     assert again.wcs_to_drawing == layout.wcs_to_drawing and again.warnings == layout.warnings
 

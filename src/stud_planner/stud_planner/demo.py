@@ -111,7 +111,7 @@ def export_overlays(bag_dir: Path, out_dir: Path) -> int:
     return n
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog="demo", description="Run the simulated weld cell on a bundled curved part.")
     ap.add_argument("--part", choices=sorted(PARTS), default="dome",
                     help="the dome (default; outer studs on 20+ deg slopes) or a tank-shell section")
@@ -127,19 +127,25 @@ def main(argv: list[str] | None = None) -> int:
                          "'true_hand_eye_xyz_m=[0.056, -0.004, -0.097]' (docs/CALIBRATION.md)")
     ap.add_argument("--arm-port", type=int, default=8080, help="TCP port of the arm simulator (default: 8080)")
     ap.add_argument("--hmi-port", type=int, default=8090, help="port of the operator page (default: 8090)")
-    args = ap.parse_args(argv)
-    out = args.out.resolve()
-    if out.exists():
-        # a demo starts a new job: a new journal (and its mirror, else the driver would see the journal missing)
-        for stale in ("weld_journal.jsonl", "weld_journal.jsonl.mirror", "weld_report.json", "summary.json",
-                      "qa_report.json", "qa_report.csv", "qa_report.html"):
-            (out / stale).unlink(missing_ok=True)
-        import shutil
+    return ap.parse_args(argv)
 
-        shutil.rmtree(out / "cell_bag", ignore_errors=True)
-        shutil.rmtree(out / "overlays", ignore_errors=True)
-        shutil.rmtree(out / "qa", ignore_errors=True)
-    out.mkdir(parents=True, exist_ok=True)
+
+def _clear_previous_run(out: Path) -> None:
+    """A demo starts a new job: a new journal (and its mirror, else the driver would see the journal missing)."""
+    if not out.exists():
+        return
+    for stale in ("weld_journal.jsonl", "weld_journal.jsonl.mirror", "weld_report.json", "summary.json",
+                  "qa_report.json", "qa_report.csv", "qa_report.html"):
+        (out / stale).unlink(missing_ok=True)
+    import shutil
+
+    shutil.rmtree(out / "cell_bag", ignore_errors=True)
+    shutil.rmtree(out / "overlays", ignore_errors=True)
+    shutil.rmtree(out / "qa", ignore_errors=True)
+
+
+def _cell_command(args: argparse.Namespace, out: Path) -> list[str]:
+    """`ros2 run stud_planner cell --mode sim ...` for this demo (the sequencer starts and ends the job)."""
     cmd = ["ros2", "run", "stud_planner", "cell", "--mode", "sim", "--out", str(out),
            "--set", "cell_sequencer.auto_start=true", "--set", "cell_sequencer.exit_when_done=true",
            "--var", f"arm_time_scale={args.time_scale}", "--var", f"arm_port={args.arm_port}",
@@ -148,24 +154,14 @@ def main(argv: list[str] | None = None) -> int:
            "--var", f"scene={share_file('stud_perception', PARTS[args.part][1])}"]
     for var in args.vars:
         cmd += ["--var", var]
-    # Another cell on this machine with the same domain would mix with ours: say which one we use.
-    print(f"demo: ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')} (set ROS_DOMAIN_ID to run beside another "
-          "cell; `ros2 topic list` in a shell with the same value sees this one)", flush=True)
     if args.no_hmi:
         cmd.append("--no-hmi")
-    else:
-        print(f"demo: the operator screen is at http://127.0.0.1:{args.hmi_port}/ while the job runs", flush=True)
-    print("demo: " + " ".join(cmd), flush=True)
-    t0 = time.monotonic()
-    code = subprocess.call(cmd, env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    elapsed = time.monotonic() - t0
+    return cmd
 
-    report_file = out / "weld_report.json"
-    if not report_file.exists():
-        print(f"demo: FAILED: the cell ended with exit code {code} and no report ({report_file}); see {out}/*.log",
-              file=sys.stderr)
-        return 1
-    report = json.loads(report_file.read_text())
+
+def _evaluate(args: argparse.Namespace, out: Path, report: dict, code: int, elapsed: float) -> dict:
+    """The run judged: ``summary`` (``summary.json`` without ``per_stud``) and what the printout
+    needs (``acc`` with the per-stud rows, ``qa`` the QA record or None, ``qa_file``, ``elapsed_s``)."""
     acc = score(report, share_file("stud_perception", PARTS[args.part][1]), gun_axes_at_weld(out / "weld_journal.jsonl"))
     overlays = export_overlays(out / "cell_bag", out / "overlays")
     welded = sum(bool(t.get("welded")) for t in report["targets"])
@@ -181,10 +177,15 @@ def main(argv: list[str] | None = None) -> int:
                "stations": report.get("stations"), "unreachable": report.get("unreachable", []),
                "time_s": round(elapsed, 1), "accuracy": {k: v for k, v in acc.items() if k != "studs"},
                "overlays": overlays, "qa_summary": qa_counts}
-    write_json(out / "summary.json", {**summary, "per_stud": acc["studs"]})
+    return {"summary": summary, "acc": acc, "qa": qa, "qa_file": qa_file, "elapsed_s": elapsed}
+
+
+def _print_summary(args: argparse.Namespace, out: Path, report: dict, result: dict) -> None:
+    summary, acc, qa = result["summary"], result["acc"], result["qa"]
+    welded, total, overlays = summary["studs_welded"], summary["studs_total"], summary["overlays"]
     print()
     print("=" * 72)
-    print(f" weld-cell demo ({args.part}): {'PASSED' if ok else 'FAILED'}")
+    print(f" weld-cell demo ({args.part}): {'PASSED' if summary['ok'] else 'FAILED'}")
     print(f"   studs welded        {welded}/{total} over {report.get('stations')} camera station(s)"
           + (f", unreachable: {', '.join(report['unreachable'])}" if report.get("unreachable") else ""))
     print(f"   weld-point error    max {acc['max_xy_error_mm']:.2f} mm XY (mean {acc['mean_xy_error_mm']:.2f}), "
@@ -199,6 +200,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"point {1e3 * r['xy_error_m']:.2f} mm XY, {1e3 * r['z_error_m']:.2f} mm Z")
     if qa:
         lim = qa["limits"]
+        qa_counts = summary["qa_summary"]
         print("   QA (post-weld)      " + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in qa_counts.items() if v)
               + f"  [lean <= {lim['max_lean_deg']:g} deg, base within {lim['position_tol_mm']:g} mm, "
               f"height {lim['nominal_length_mm']:g} +- {lim['height_tol_mm']:g} mm]")
@@ -206,12 +208,39 @@ def main(argv: list[str] | None = None) -> int:
             if r["verdict"] != "pass":
                 print(f"     {r['stud_id']:>8}  {r['verdict']}: {'; '.join(r['reasons'])}")
     else:
-        print(f"   QA (post-weld)      no QA record ({qa_file} missing)")
-    print(f"   time                {elapsed:.0f} s (arm simulator at {args.time_scale:g}x real motion time)")
+        print(f"   QA (post-weld)      no QA record ({result['qa_file']} missing)")
+    print(f"   time                {result['elapsed_s']:.0f} s (arm simulator at {args.time_scale:g}x real motion time)")
     print(f"   output              {out}/  (weld_report.json, qa_report.json/.csv/.html, summary.json, "
           f"overlays/ [{overlays}], qa/, cell_bag/, logs)")
     print("=" * 72)
-    return 0 if ok else 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parse_args(argv)
+    out = args.out.resolve()
+    _clear_previous_run(out)
+    out.mkdir(parents=True, exist_ok=True)
+    cmd = _cell_command(args, out)
+    # Another cell on this machine with the same domain would mix with ours: say which one we use.
+    print(f"demo: ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID', '0')} (set ROS_DOMAIN_ID to run beside another "
+          "cell; `ros2 topic list` in a shell with the same value sees this one)", flush=True)
+    if not args.no_hmi:
+        print(f"demo: the operator screen is at http://127.0.0.1:{args.hmi_port}/ while the job runs", flush=True)
+    print("demo: " + " ".join(cmd), flush=True)
+    t0 = time.monotonic()
+    code = subprocess.call(cmd, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    elapsed = time.monotonic() - t0
+
+    report_file = out / "weld_report.json"
+    if not report_file.exists():
+        print(f"demo: FAILED: the cell ended with exit code {code} and no report ({report_file}); see {out}/*.log",
+              file=sys.stderr)
+        return 1
+    report = json.loads(report_file.read_text())
+    result = _evaluate(args, out, report, code, elapsed)
+    write_json(out / "summary.json", {**result["summary"], "per_stud": result["acc"]["studs"]})
+    _print_summary(args, out, report, result)
+    return 0 if result["summary"]["ok"] else 1
 
 
 if __name__ == "__main__":

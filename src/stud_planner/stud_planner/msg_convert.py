@@ -15,7 +15,7 @@ from stud_welding_msgs.msg import Registration, Stud, StudLayout
 from stud_planner import drawing
 
 
-def layout_to_msg(layout: drawing.StudLayout, stamp=None) -> StudLayout:
+def layout_to_msg(layout: drawing.DrawingLayout, stamp=None) -> StudLayout:
     msg = StudLayout()
     if stamp is not None:
         msg.header.stamp = stamp

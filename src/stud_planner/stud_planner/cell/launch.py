@@ -84,88 +84,105 @@ def load_config(path: str | os.PathLike) -> dict:
 
 def validate_config(cfg: Any, source: str = "cell.yaml") -> None:
     """Check the structure of a cell description (types, known keys, node references)."""
-    def fail(where: str, what: str) -> None:
-        raise CellConfigError(f"{source}: {where}: {what}")
+    check = _ConfigChecker(source)
+    check.mapping(cfg, "top level", TOP_KEYS)
+    check.launch(cfg.get("launch"))
+    check.mapping(cfg.get("vars"), "vars")
+    nodes = check.mapping(cfg.get("nodes"), "nodes")
+    if not nodes:
+        check.fail("nodes", "no nodes defined")
+    for name, node in nodes.items():
+        check.node(name, node, nodes)
+    modes = check.mapping(cfg.get("modes"), "modes")
+    if not modes:
+        check.fail("modes", "no modes defined")
+    for mode, spec in modes.items():
+        check.mode(mode, spec, nodes)
 
-    def mapping(value: Any, where: str, keys: set[str] | None = None) -> dict:
+
+class _ConfigChecker:
+    """The checks of :func:`validate_config`; each failure is a :class:`CellConfigError` naming the key."""
+
+    def __init__(self, source: str) -> None:
+        self.source = source
+
+    def fail(self, where: str, what: str) -> None:
+        raise CellConfigError(f"{self.source}: {where}: {what}")
+
+    def mapping(self, value: Any, where: str, keys: set[str] | None = None) -> dict:
         if value is None:
             return {}
         if not isinstance(value, dict):
-            fail(where, f"must be a mapping, got {type(value).__name__}")
+            self.fail(where, f"must be a mapping, got {type(value).__name__}")
         unknown = sorted(set(map(str, value)) - keys) if keys is not None else []
         if unknown:
-            fail(where, f"unknown key '{unknown[0]}' (known: {', '.join(sorted(keys))})")
+            self.fail(where, f"unknown key '{unknown[0]}' (known: {', '.join(sorted(keys))})")
         return value
 
-    def str_list(value: Any, where: str) -> list:
+    def str_list(self, value: Any, where: str) -> list:
         if not isinstance(value, list) or not all(isinstance(v, (str, int, float)) for v in value):
-            fail(where, "must be a list of strings")
+            self.fail(where, "must be a list of strings")
         return value
 
-    mapping(cfg, "top level", TOP_KEYS)
-    for key, kind in LAUNCH_KEYS.items():
-        value = mapping(cfg.get("launch"), "launch", set(LAUNCH_KEYS)).get(key)
-        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0
-                                  or (kind is int and not isinstance(value, int))):
-            fail(f"launch.{key}", f"must be a non-negative {kind.__name__}, got {value!r}")
-    mapping(cfg.get("vars"), "vars")
-    nodes = mapping(cfg.get("nodes"), "nodes")
-    if not nodes:
-        fail("nodes", "no nodes defined")
-    for name, node in nodes.items():
+    def launch(self, section: Any) -> None:
+        for key, kind in LAUNCH_KEYS.items():
+            value = self.mapping(section, "launch", set(LAUNCH_KEYS)).get(key)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0
+                                      or (kind is int and not isinstance(value, int))):
+                self.fail(f"launch.{key}", f"must be a non-negative {kind.__name__}, got {value!r}")
+
+    def node(self, name: Any, node: Any, nodes: dict) -> None:
         where = f"nodes.{name}"
         if not re.match(r"^[A-Za-z0-9_][A-Za-z0-9_-]*$", str(name)):
-            fail(where, "a node name uses letters, digits, '_' and '-'")
-        node = mapping(node, where, NODE_KEYS)
+            self.fail(where, "a node name uses letters, digits, '_' and '-'")
+        node = self.mapping(node, where, NODE_KEYS)
         has_pkg = "package" in node or "executable" in node
         if has_pkg == ("cmd" in node):
-            fail(where, "give either package + executable or cmd")
+            self.fail(where, "give either package + executable or cmd")
         if has_pkg and not (isinstance(node.get("package"), str) and isinstance(node.get("executable"), str)):
-            fail(where, "package and executable must both be strings")
-        if "cmd" in node and not str_list(node["cmd"], f"{where}.cmd"):
-            fail(f"{where}.cmd", "is empty")
-        str_list(node.get("args", []), f"{where}.args")
-        mapping(node.get("params"), f"{where}.params")
-        mapping(node.get("remaps"), f"{where}.remaps")
-        mapping(node.get("env"), f"{where}.env")
+            self.fail(where, "package and executable must both be strings")
+        if "cmd" in node and not self.str_list(node["cmd"], f"{where}.cmd"):
+            self.fail(f"{where}.cmd", "is empty")
+        self.str_list(node.get("args", []), f"{where}.args")
+        self.mapping(node.get("params"), f"{where}.params")
+        self.mapping(node.get("remaps"), f"{where}.remaps")
+        self.mapping(node.get("env"), f"{where}.env")
         for flag in ("required", "optional", "respawn", "exit_on"):
             if not isinstance(node.get(flag, False), bool):
-                fail(f"{where}.{flag}", f"must be true or false, got {node[flag]!r}")
+                self.fail(f"{where}.{flag}", f"must be true or false, got {node[flag]!r}")
         for num in ("max_respawns", "respawn_delay_s", "start_timeout_s"):
             value = node.get(num, 0)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or value < (-1 if num == "max_respawns"
-                                                                                           else 0):
-                fail(f"{where}.{num}", f"must be a number >= {-1 if num == 'max_respawns' else 0}, got {value!r}")
+            least = -1 if num == "max_respawns" else 0
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or value < least:
+                self.fail(f"{where}.{num}", f"must be a number >= {least}, got {value!r}")
         if "ready" in node:
             try:
                 re.compile(str(node["ready"]))
             except re.error as exc:
-                fail(f"{where}.ready", f"not a regular expression: {exc}")
+                self.fail(f"{where}.ready", f"not a regular expression: {exc}")
         after = node.get("start_after", [])
-        for dep in [after] if isinstance(after, str) else str_list(after, f"{where}.start_after"):
+        for dep in [after] if isinstance(after, str) else self.str_list(after, f"{where}.start_after"):
             if dep not in nodes:
-                fail(f"{where}.start_after", f"unknown node '{dep}'")
+                self.fail(f"{where}.start_after", f"unknown node '{dep}'")
             if dep == name:
-                fail(f"{where}.start_after", "a node cannot wait for itself")
-    modes = mapping(cfg.get("modes"), "modes")
-    if not modes:
-        fail("modes", "no modes defined")
-    for mode, spec in modes.items():
+                self.fail(f"{where}.start_after", "a node cannot wait for itself")
+
+    def mode(self, mode: Any, spec: Any, nodes: dict) -> None:
         where = f"modes.{mode}"
-        spec = mapping(spec, where, MODE_KEYS)
+        spec = self.mapping(spec, where, MODE_KEYS)
         listed = spec.get("nodes")
         if not isinstance(listed, list) or not listed:
-            fail(f"{where}.nodes", "must be a non-empty list of node names")
+            self.fail(f"{where}.nodes", "must be a non-empty list of node names")
         for n in listed:
             if n not in nodes:
-                fail(f"{where}.nodes", f"unknown node '{n}' (defined: {', '.join(nodes)})")
-        str_list(spec.get("needs", []), f"{where}.needs")
-        mapping(spec.get("vars"), f"{where}.vars")
+                self.fail(f"{where}.nodes", f"unknown node '{n}' (defined: {', '.join(nodes)})")
+        self.str_list(spec.get("needs", []), f"{where}.needs")
+        self.mapping(spec.get("vars"), f"{where}.vars")
         for section in ("params", "remaps"):
-            for n, value in mapping(spec.get(section), f"{where}.{section}").items():
+            for n, value in self.mapping(spec.get(section), f"{where}.{section}").items():
                 if n not in nodes:
-                    fail(f"{where}.{section}", f"unknown node '{n}'")
-                mapping(value, f"{where}.{section}.{n}")
+                    self.fail(f"{where}.{section}", f"unknown node '{n}'")
+                self.mapping(value, f"{where}.{section}.{n}")
 
 
 # -- substitutions --------------------------------------------------------------------------------

@@ -1,13 +1,13 @@
 """The drawing: a stud layout read from a 2D DXF drawing -- stud circles plus the marks O, A, B.
 
-Pure Python (ezdxf + numpy), no ROS: the drawing node converts :class:`StudLayout` to
+Pure Python (ezdxf + numpy), no ROS: the drawing node converts :class:`DrawingLayout` to
 ``stud_welding_msgs/StudLayout`` (field for field; lengths are already metres).
 
 Modules: ``dxf_file`` (file checks, ezdxf, recovery), ``plain_circles`` (the fast reader of plain
-CIRCLE entities), ``circles`` (modelspace and block expansion, visibility, labels), ``units``,
-``neighbours`` (grid-hash neighbour search), ``marks`` (O, A, B and the frame), ``layout`` (ids,
-order, checks: :func:`read_layout`), ``layout_types`` (the results), ``dxf_writer`` (drawings for
-tests, demos and benchmarks).
+CIRCLE entities), ``circles`` (modelspace and block expansion, labels), ``visibility`` (what CAD
+shows), ``units``, ``neighbours`` (grid-hash neighbour search), ``marks`` (O, A, B and the frame),
+``layout`` (ids, order, checks: :func:`read_layout`), ``layout_types`` (the results),
+``dxf_writer`` (drawings for tests, demos and benchmarks).
 
 What is read
     * DXF R12 .. R2018 (and the pre-R12 files ezdxf accepts), ASCII or binary, via
@@ -39,7 +39,7 @@ Decisions (each one is reported as a warning when it applies)
     * Circles with radius <= 0 are skipped.
     * A circle with a non-finite (NaN, inf) or absurd coordinate or radius (beyond
       ``MAX_COORDINATE_M``, 1e8 m, in WCS -- 1e300 is not a position) is **left out with a
-      warning naming its handle and layer** (``StudLayout.invalid_entities`` lists each one,
+      warning naming its handle and layer** (``DrawingLayout.invalid_entities`` lists each one,
       ``plan`` repeats them as report warnings): it has no position to weld at. Left out rather
       than refused, like the other skips above, so that one broken entity of a 250,000-stud
       drawing does not stop the job; a mark left out is an error all the same (marks missing).
@@ -80,7 +80,7 @@ Stud order and ids
     program reorders entities in the file. Duplicates (centres within ``duplicate_tol_m``, any
     layer) keep the first stud in this order.
 
-Warnings (``StudLayout.warnings``, one line each) and errors
+Warnings (``DrawingLayout.warnings``, one line each) and errors
     Warned: duplicates removed, stud pairs closer than ``min_spacing_m``, diameters far from
     the median, studs outside the marks' quadrant (x < 0 or y < 0), non-perpendicular or
     mirrored marks, assumed units, recovered files, and everything skipped above.
@@ -94,9 +94,9 @@ Warnings (``StudLayout.warnings``, one line each) and errors
 from stud_planner.drawing.circles import collect_circles, read_circles
 from stud_planner.drawing.dxf_file import load_document
 from stud_planner.drawing.layout import read_layout
-from stud_planner.drawing.layout_types import CircleSet, DrawingError, Mark, Stud, StudLayout
+from stud_planner.drawing.layout_types import CircleSet, DrawingError, DrawingLayout, Mark, Stud
 from stud_planner.drawing.neighbours import close_pairs
 from stud_planner.drawing.units import UNITS, units_to_metres
 
-__all__ = ["DrawingError", "Stud", "Mark", "StudLayout", "CircleSet", "read_layout", "read_circles", "collect_circles",
+__all__ = ["DrawingError", "Stud", "Mark", "DrawingLayout", "CircleSet", "read_layout", "read_circles", "collect_circles",
            "load_document", "close_pairs", "UNITS", "units_to_metres"]

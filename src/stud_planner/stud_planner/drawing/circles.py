@@ -1,12 +1,16 @@
 """Collecting circles from modelspace with block expansion (INSERT/MINSERT, full transforms,
-nesting, layer 0 inheritance), visibility, and the labels next to them."""
+nesting, layer 0 inheritance), visibility, and the labels next to them.
+
+Each DXF entity type we read has its handler (:attr:`_Collector.handlers`: CIRCLE, TEXT, MTEXT,
+INSERT; every other type holds nothing we use); whether CAD shows an entity is decided before
+any handler runs, in :mod:`stud_planner.drawing.visibility`."""
 from __future__ import annotations
 
 import re
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -14,6 +18,7 @@ from stud_planner.drawing.plain_circles import PlainCircles
 from stud_planner.drawing.dxf_file import _check_file, _load_document, _load_with_plain_circles, _one_line
 from stud_planner.drawing.layout_types import CircleSet, DrawingError
 from stud_planner.drawing.units import UNITS, units_to_metres
+from stud_planner.drawing.visibility import Visibility
 
 
 # -- collecting circles (with block expansion) -----------------------------------------------------
@@ -121,23 +126,62 @@ def _label_position(e: Any, dxftype: str) -> tuple[float, float, float]:
     return tuple(e.ocs().to_wcs(p))
 
 
+#: INSERT parameters of the common case (extrusion +Z, no MINSERT), one row per reference:
+#: (x, y, z, xscale, yscale, zscale, rotation_deg, layer, handle)
+_SimpleInsert = tuple
+#: any other INSERT reference: (transform (4, 4), layer, handle)
+_GeneralInsert = tuple
+
+
+@dataclass
+class _ScanBuffer:
+    """What one :meth:`_Collector.scan` gathers from its entities, before numpy turns it into a
+    :class:`_Content`: circles and labels of the container itself, and its INSERTs per block name."""
+
+    centers: list = field(default_factory=list)
+    us: list = field(default_factory=list)
+    vs: list = field(default_factory=list)
+    layers: list = field(default_factory=list)
+    handles: list = field(default_factory=list)
+    label_pos: list = field(default_factory=list)
+    letters: list = field(default_factory=list)
+    nonpositive: Counter = field(default_factory=Counter)
+    # INSERTs per block name: common case as raw parameters, turned into matrices in one numpy
+    # pass; the rest through ezdxf's Insert.matrix44().
+    simple: dict[str, list[_SimpleInsert]] = field(default_factory=dict)
+    general: dict[str, list[_GeneralInsert]] = field(default_factory=dict)
+
+    def add_label(self, e: Any, dxftype: str) -> None:
+        letter = _label_letter(e, dxftype)
+        if letter:
+            self.label_pos.append(_label_position(e, dxftype))
+            self.letters.append(letter)
+
+    def content(self) -> _Content:
+        z = np.zeros((0, 3))
+        return _Content(
+            np.array(self.centers, dtype=np.float64).reshape(-1, 3), np.array(self.us, dtype=np.float64).reshape(-1, 3),
+            np.array(self.vs, dtype=np.float64).reshape(-1, 3), np.array(self.layers, dtype=object),
+            np.array(self.label_pos, dtype=np.float64).reshape(-1, 3) if self.label_pos else z, tuple(self.letters),
+            self.nonpositive, np.array(self.handles, dtype=object),
+        )
+
+
 class _Collector:
-    """Walks modelspace and block definitions; caches each block's flattened content."""
+    """Walks modelspace and block definitions; caches each block's flattened content.
+
+    One handler per DXF entity type (:attr:`handlers`, as ezdxf's drawing add-on dispatches);
+    whether an entity is shown at all is decided before, in one place (:class:`Visibility`)."""
 
     def __init__(self, doc: Any, include_hidden_layers: bool = False) -> None:
         self.doc = doc
         self.cache: dict[str, _Content] = {}
         self.skipped_inserts: Counter = Counter()
         self.layer_entities: Counter = Counter()
-        # What CAD does not show is not part of the drawing: invisible entities (group 60) and
-        # layers that are frozen or off are left out (and counted for a warning).
-        self.hidden_layers: dict[str, str] = {}
-        for lay in doc.layers if not include_hidden_layers else ():
-            state = "frozen" if lay.is_frozen() else "off" if lay.is_off() else None
-            if state:
-                self.hidden_layers[lay.dxf.name.casefold()] = state
-        self.invisible: Counter = Counter()  # entity type -> count
-        self.on_hidden_layer: Counter = Counter()  # (layer, entity type) -> count
+        self.visibility = Visibility(doc.layers, include_hidden_layers)
+        #: entity type -> handler(entity, type, effective layer, buffer); other types hold nothing we read
+        self.handlers: dict[str, Callable[[Any, str, str | None, _ScanBuffer], None]] = {
+            "CIRCLE": self._circle, "TEXT": self._label, "MTEXT": self._label, "INSERT": self._insert}
 
     def skip_insert(self, name: str, reason: str, count: int = 1) -> None:
         self.skipped_inserts[(name, reason)] += count
@@ -172,14 +216,7 @@ class _Collector:
         names, counts = np.unique(layers, return_counts=True) if len(plain) else ((), ())
         for lay, c in zip(names, counts):
             self.layer_entities[lay] += int(c)
-        if plain.invisible.any():
-            self.invisible["CIRCLE"] += int(np.count_nonzero(plain.invisible))
-        visible = ~plain.invisible
-        state = {lay: self.hidden_layers.get(lay.casefold()) for lay in names}
-        hidden = visible & np.array([bool(state[lay]) for lay in layers.tolist()], dtype=bool)
-        for lay in set(layers[hidden].tolist()):
-            self.on_hidden_layer[(lay, "CIRCLE")] += int(np.count_nonzero(hidden & (layers == lay)))
-        take = visible & ~hidden
+        take = self.visibility.plain_circles_shown(layers, names, plain.invisible)
         r = plain.radius
         nonpositive = take & (r <= 0.0)
         for lay in set(layers[nonpositive].tolist()):
@@ -197,14 +234,9 @@ class _Collector:
     def scan(self, entities: Iterable[Any], stack: tuple[str, ...], in_block: bool,
              plain: PlainCircles | None = None) -> _Content:
         """Circles and labels of ``entities`` (INSERTs expanded). ``plain``: the modelspace's CIRCLE
-        entities, read by :mod:`dxf_plain_circles` (``entities`` then holds no CIRCLE); they go
+        entities, read by :mod:`~stud_planner.drawing.plain_circles` (``entities`` then holds no CIRCLE); they go
         through the same rules as the circles read here."""
-        centers, us, vs, layers, lpos, letters, handles = [], [], [], [], [], [], []
-        nonpos: Counter = Counter()
-        # INSERTs per block name: common case (extrusion +Z, no MINSERT) as raw parameters,
-        # turned into matrices in one numpy pass; the rest through ezdxf's Insert.matrix44().
-        simple: dict[str, list[tuple]] = {}
-        general: dict[str, list[tuple[np.ndarray, str | None, str | None]]] = {}
+        buf = _ScanBuffer()
         for e in entities:
             t = e.dxftype()
             try:
@@ -213,100 +245,95 @@ class _Collector:
                 layer = "0"
             if not in_block:
                 self.layer_entities[layer] += 1
-            if t in ("CIRCLE", "TEXT", "MTEXT", "INSERT"):
-                if e.dxf.get("invisible", 0):
-                    self.invisible[t] += 1
-                    continue
-                # A frozen INSERT hides all of its block; an off one only what inherits its layer
-                # (layer "0" inside), which is checked once layers are resolved.
-                state = self.hidden_layers.get(layer.casefold())
-                if state and (t != "INSERT" or state == "frozen") and not (in_block and layer == "0"):
-                    self.on_hidden_layer[(layer, t)] += 1
-                    continue
-            eff_layer = None if (in_block and layer == "0") else layer
-            if t == "CIRCLE":
-                dxf = e.dxf
-                r = float(dxf.radius)
-                if r <= 0.0:  # NaN goes on, to be left out with the other non-finite values
-                    nonpos[eff_layer] += 1
-                    continue
-                c = dxf.center
-                ez = dxf.extrusion
-                if ez.x == 0.0 and ez.y == 0.0 and ez.z > 0.0:
-                    centers.append((c.x, c.y, c.z))
-                    us.append((r, 0.0, 0.0))
-                    vs.append((0.0, r, 0.0))
-                else:  # OCS -> WCS (arbitrary axis algorithm), e.g. extrusion (0, 0, -1)
-                    ocs = e.ocs()
-                    centers.append(tuple(ocs.to_wcs(c)))
-                    us.append(tuple(ocs.ux * r))
-                    vs.append(tuple(ocs.uy * r))
-                layers.append(eff_layer)
-                handles.append(dxf.handle)
-            elif t in ("TEXT", "MTEXT"):
-                letter = _label_letter(e, t)
-                if letter:
-                    lpos.append(_label_position(e, t))
-                    letters.append(letter)
-            elif t == "INSERT":
-                for attrib in getattr(e, "attribs", ()):
-                    letter = _label_letter(attrib, "ATTRIB")
-                    if letter:
-                        lpos.append(_label_position(attrib, "ATTRIB"))
-                        letters.append(letter)
-                dxf = e.dxf
-                name = dxf.get("name", "")
-                try:
-                    ez = dxf.extrusion
-                    if e.mcount <= 1 and ez.x == 0.0 and ez.y == 0.0 and ez.z > 0.0:
-                        p = dxf.insert
-                        simple.setdefault(name, []).append((
-                            p.x, p.y, p.z, dxf.xscale, dxf.yscale, dxf.zscale, dxf.rotation, eff_layer, dxf.handle))
-                    else:
-                        refs = list(e.multi_insert()) if e.mcount > 1 else [e]
-                        for ref in refs:
-                            general.setdefault(name, []).append((_matrix(ref.matrix44()), eff_layer, dxf.handle))
-                except Exception as exc:  # e.g. ZeroDivisionError on a zero extrusion vector
-                    self.skip_insert(name, f"transform failed ({type(exc).__name__})")
-        z = np.zeros((0, 3))
-        own = _Content(
-            np.array(centers, dtype=np.float64).reshape(-1, 3), np.array(us, dtype=np.float64).reshape(-1, 3),
-            np.array(vs, dtype=np.float64).reshape(-1, 3), np.array(layers, dtype=object),
-            np.array(lpos, dtype=np.float64).reshape(-1, 3) if lpos else z, tuple(letters), nonpos,
-            np.array(handles, dtype=object),
-        )
+            handler = self.handlers.get(t)
+            if handler is None or not self.visibility.entity_shown(e, t, layer, in_block):
+                continue
+            handler(e, t, None if (in_block and layer == "0") else layer, buf)
+        own = buf.content()
         if plain is not None:
             own = self._with_plain(own, plain)
         parts = [own]
-        for name in list(simple) + [n for n in general if n not in simple]:
-            mats, ins_layers, ins_handles = [], [], []
-            if name in simple:
-                rows = simple[name]
-                mats.append(_insert_matrices(np.array([r[:7] for r in rows], dtype=np.float64), self.base_point(name)))
-                ins_layers += [r[7] for r in rows]
-                ins_handles += [r[8] for r in rows]
-            if name in general:
-                mats.append(np.stack([m for m, _, _ in general[name]]))
-                ins_layers += [lay for _, lay, _ in general[name]]
-                ins_handles += [h for _, _, h in general[name]]
-            M = np.concatenate(mats)
-            # rows 0, 1 = images of the block's x and y axes; a zero z scale is harmless in 2D
-            ok = np.all(np.isfinite(M), axis=(1, 2)) & (np.min(np.linalg.norm(M[:, :2, :3], axis=2), axis=1) > 1e-12)
-            if not ok.all():
-                self.skip_insert(name, "degenerate transform (zero scale)", int(np.count_nonzero(~ok)))
-            if not ok.any():
-                continue
-            try:
-                content, why = self.block_content(name, stack)
-                if content is None:
-                    self.skip_insert(name, why, int(np.count_nonzero(ok)))
-                    continue
-                parts.append(_apply(content, M[ok], [lay for lay, good in zip(ins_layers, ok) if good],
-                                    [h for h, good in zip(ins_handles, ok) if good]))
-            except Exception as exc:
-                self.skip_insert(name, f"expansion failed ({type(exc).__name__}: {_one_line(exc)})",
-                                 int(np.count_nonzero(ok)))
+        for name in list(buf.simple) + [n for n in buf.general if n not in buf.simple]:
+            placed = self._place_block(name, buf.simple.get(name, []), buf.general.get(name, []), stack)
+            if placed is not None:
+                parts.append(placed)
         return _concat(parts)
+
+    # -- the handlers: layer None = layer "0" in a block (inherits the INSERT's layer) ----------------
+    @staticmethod
+    def _circle(e: Any, dxftype: str, layer: str | None, buf: _ScanBuffer) -> None:
+        dxf = e.dxf
+        r = float(dxf.radius)
+        if r <= 0.0:  # NaN goes on, to be left out with the other non-finite values
+            buf.nonpositive[layer] += 1
+            return
+        c = dxf.center
+        ez = dxf.extrusion
+        if ez.x == 0.0 and ez.y == 0.0 and ez.z > 0.0:
+            buf.centers.append((c.x, c.y, c.z))
+            buf.us.append((r, 0.0, 0.0))
+            buf.vs.append((0.0, r, 0.0))
+        else:  # OCS -> WCS (arbitrary axis algorithm), e.g. extrusion (0, 0, -1)
+            ocs = e.ocs()
+            buf.centers.append(tuple(ocs.to_wcs(c)))
+            buf.us.append(tuple(ocs.ux * r))
+            buf.vs.append(tuple(ocs.uy * r))
+        buf.layers.append(layer)
+        buf.handles.append(dxf.handle)
+
+    @staticmethod
+    def _label(e: Any, dxftype: str, layer: str | None, buf: _ScanBuffer) -> None:
+        buf.add_label(e, dxftype)
+
+    def _insert(self, e: Any, dxftype: str, layer: str | None, buf: _ScanBuffer) -> None:
+        for attrib in getattr(e, "attribs", ()):
+            buf.add_label(attrib, "ATTRIB")
+        dxf = e.dxf
+        name = dxf.get("name", "")
+        try:
+            ez = dxf.extrusion
+            if e.mcount <= 1 and ez.x == 0.0 and ez.y == 0.0 and ez.z > 0.0:
+                p = dxf.insert
+                buf.simple.setdefault(name, []).append((
+                    p.x, p.y, p.z, dxf.xscale, dxf.yscale, dxf.zscale, dxf.rotation, layer, dxf.handle))
+            else:
+                refs = list(e.multi_insert()) if e.mcount > 1 else [e]
+                for ref in refs:
+                    buf.general.setdefault(name, []).append((_matrix(ref.matrix44()), layer, dxf.handle))
+        except Exception as exc:  # e.g. ZeroDivisionError on a zero extrusion vector
+            self.skip_insert(name, f"transform failed ({type(exc).__name__})")
+
+    # -- block expansion ----------------------------------------------------------------------------
+    def _place_block(self, name: str, simple: list[_SimpleInsert], general: list[_GeneralInsert],
+                     stack: tuple[str, ...]) -> _Content | None:
+        """Block ``name``'s content placed by all its INSERTs of one container (None: nothing placed)."""
+        mats, ins_layers, ins_handles = [], [], []
+        if simple:
+            mats.append(_insert_matrices(np.array([r[:7] for r in simple], dtype=np.float64), self.base_point(name)))
+            ins_layers += [r[7] for r in simple]
+            ins_handles += [r[8] for r in simple]
+        if general:
+            mats.append(np.stack([m for m, _, _ in general]))
+            ins_layers += [lay for _, lay, _ in general]
+            ins_handles += [h for _, _, h in general]
+        M = np.concatenate(mats)
+        # rows 0, 1 = images of the block's x and y axes; a zero z scale is harmless in 2D
+        ok = np.all(np.isfinite(M), axis=(1, 2)) & (np.min(np.linalg.norm(M[:, :2, :3], axis=2), axis=1) > 1e-12)
+        if not ok.all():
+            self.skip_insert(name, "degenerate transform (zero scale)", int(np.count_nonzero(~ok)))
+        if not ok.any():
+            return None
+        try:
+            content, why = self.block_content(name, stack)
+            if content is None:
+                self.skip_insert(name, why, int(np.count_nonzero(ok)))
+                return None
+            return _apply(content, M[ok], [lay for lay, good in zip(ins_layers, ok) if good],
+                          [h for h, good in zip(ins_handles, ok) if good])
+        except Exception as exc:
+            self.skip_insert(name, f"expansion failed ({type(exc).__name__}: {_one_line(exc)})",
+                             int(np.count_nonzero(ok)))
+            return None
 
 
 def _insert_matrices(params: np.ndarray, base: np.ndarray) -> np.ndarray:
@@ -325,6 +352,101 @@ def _insert_matrices(params: np.ndarray, base: np.ndarray) -> np.ndarray:
     return M
 
 
+def _drawing_units(doc: Any, path: Path, units_if_unitless: str, warns: list[str]) -> tuple[int, str, float, bool]:
+    """($INSUNITS code, unit name, metres per unit, assumed?) of ``doc``; warns when assumed."""
+    insunits = int(doc.header.get("$INSUNITS", 0) or 0)
+    if insunits in UNITS:
+        _, unit_name, scale = units_to_metres(insunits)
+        return insunits, unit_name, scale, False
+    try:
+        _, unit_name, scale = units_to_metres(units_if_unitless)
+    except ValueError as exc:
+        raise DrawingError(f"{path}: units_if_unitless: {exc}") from exc
+    what = "no $INSUNITS" if "$INSUNITS" not in doc.header else f"$INSUNITS {insunits} (unitless)"
+    if insunits not in (0,):
+        what = f"unsupported $INSUNITS code {insunits}"
+    warns.append(f"{path.name}: {what}: coordinates taken as {unit_name} (units_if_unitless)")
+    return insunits, unit_name, scale, True
+
+
+@dataclass(frozen=True)
+class _Shapes:
+    """Which collected circles are circles in plan view with a position: per circle (bool masks)."""
+
+    axis: np.ndarray      # length of the circle's first in-plane axis (its radius when kept)
+    radii: np.ndarray     # geometric mean of both axes
+    uniform: np.ndarray   # both axes of one length and square (no non-uniform block scale)
+    planar: np.ndarray    # parallel to XY
+    shown: np.ndarray     # usable values, radius > 0, not on a hidden layer
+    invalid: np.ndarray   # non-finite or out-of-range values (and not hidden)
+
+    @property
+    def ok(self) -> np.ndarray:
+        return self.uniform & self.planar & self.shown
+
+    @classmethod
+    def of(cls, content: _Content, hidden: np.ndarray, limit: float) -> "_Shapes":
+        """``limit``: the largest coordinate or radius in drawing units (:data:`MAX_COORDINATE_M`)."""
+        u, v = content.u, content.v
+        with np.errstate(over="ignore", invalid="ignore"):
+            nu, nv = np.linalg.norm(u, axis=1), np.linalg.norm(v, axis=1)
+            normal = np.cross(u, v)
+            nn = np.linalg.norm(normal, axis=1)
+        # Non-finite or absurd values (NaN, inf, 1e300: a corrupt file or a broken export) are no
+        # position at all: such a circle is left out, named by handle and layer, never planned.
+        with np.errstate(invalid="ignore"):
+            usable = (np.all(np.isfinite(content.centers), axis=1) & np.all(np.isfinite(u), axis=1)
+                      & np.all(np.isfinite(v), axis=1)
+                      & (np.max(np.abs(content.centers[:, :2]), axis=1, initial=0.0) <= limit)
+                      & (np.maximum(nu, nv) <= limit))
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            uniform = (np.abs(nu - nv) <= _SHAPE_TOL * np.maximum(nu, nv)) & (
+                np.abs(np.einsum("ij,ij->i", u, v)) <= _SHAPE_TOL * nu * nv
+            )
+            planar = np.abs(normal[:, 2]) >= (1.0 - _SHAPE_TOL) * nn
+        shown = usable & (nu > 0) & ~hidden  # a hidden circle is counted once, as hidden
+        radii = np.sqrt(nu * nv)  # equal to nu within _SHAPE_TOL for the circles kept
+        return cls(nu, radii, uniform, planar, shown, ~usable & ~hidden)
+
+
+def _invalid_entities(content: _Content, layers: np.ndarray, shapes: _Shapes, unit_name: str) -> tuple[str, ...]:
+    return tuple(
+        f"handle {content.handles[k]} on layer {layers[k]}: centre ({content.centers[k, 0]:g}, "
+        f"{content.centers[k, 1]:g}), radius {float(shapes.axis[k]):g} {unit_name}"
+        for k in np.flatnonzero(shapes.invalid).tolist())
+
+
+def _shape_warnings(file_name: str, content: _Content, layers: np.ndarray, shapes: _Shapes, skipped: dict[str, int],
+                    invalid_entities: tuple[str, ...]) -> list[str]:
+    """The warnings for circles left out for their values or their shape."""
+    warns = []
+    if invalid_entities:
+        warns.append(f"{file_name}: {len(invalid_entities)} circle{'s' if len(invalid_entities) != 1 else ''} with "
+                     f"non-finite or out-of-range values (beyond {MAX_COORDINATE_M:g} m) left out: "
+                     + "; ".join(invalid_entities[:5])
+                     + (f"; ... (+{len(invalid_entities) - 5})" if len(invalid_entities) > 5 else ""))
+    if skipped["radius<=0"]:
+        on = sorted({"0" if k is None else k for k in content.nonpositive}, key=str.casefold)
+        warns.append(f"{file_name}: {skipped['radius<=0']} circles with radius <= 0 skipped (layers: {', '.join(on)})")
+    if skipped["non-uniform scale"]:
+        on = sorted(set(layers[~shapes.uniform & shapes.shown]), key=str.casefold)
+        warns.append(f"{file_name}: {skipped['non-uniform scale']} circles in non-uniformly scaled block references "
+                     f"are ellipses and were skipped (layers: {', '.join(on)})")
+    if skipped["not parallel to XY"]:
+        on = sorted(set(layers[shapes.uniform & ~shapes.planar & shapes.shown]), key=str.casefold)
+        warns.append(f"{file_name}: {skipped['not parallel to XY']} circles not parallel to the XY plane skipped "
+                     f"(layers: {', '.join(on)})")
+    return warns
+
+
+def _insert_warnings(file_name: str, skipped_inserts: Counter) -> list[str]:
+    warns = []
+    for (name, reason), count in sorted(skipped_inserts.items()):
+        times = f"{count} references" if count > 1 else "1 reference"
+        warns.append(f"{file_name}: INSERT of block {name!r}: {reason}; {times} skipped, rest of the drawing kept")
+    return warns
+
+
 def collect_circles(
     doc: Any,
     path: str | Path = "<document>",
@@ -338,104 +460,41 @@ def collect_circles(
     """All circles of ``doc``'s modelspace with INSERTs expanded, in WCS (drawing units).
 
     Also reads the units and the O/A/B labels; see the module docstring for what is skipped.
-    ``plain``: the modelspace CIRCLE entities read by :mod:`dxf_plain_circles` and cut out of
+    ``plain``: the modelspace CIRCLE entities read by :mod:`~stud_planner.drawing.plain_circles` and cut out of
     ``doc`` (what :func:`read_circles` does for a large file); the result is the same.
     """
     path = Path(path)
     warns = list(warnings)
-    insunits = int(doc.header.get("$INSUNITS", 0) or 0)
-    if insunits in UNITS:
-        _, unit_name, scale = units_to_metres(insunits)
-        assumed = False
-    else:
-        try:
-            _, unit_name, scale = units_to_metres(units_if_unitless)
-        except ValueError as exc:
-            raise DrawingError(f"{path}: units_if_unitless: {exc}") from exc
-        assumed = True
-        what = "no $INSUNITS" if "$INSUNITS" not in doc.header else f"$INSUNITS {insunits} (unitless)"
-        if insunits not in (0,):
-            what = f"unsupported $INSUNITS code {insunits}"
-        warns.append(f"{path.name}: {what}: coordinates taken as {unit_name} (units_if_unitless)")
+    insunits, unit_name, scale, assumed = _drawing_units(doc, path, units_if_unitless, warns)
 
     collector = _Collector(doc, include_hidden_layers)
     content = collector.scan(doc.modelspace(), (), in_block=False, plain=plain)
+    visibility = collector.visibility
 
     layers = np.array(["0" if lay is None else lay for lay in content.layers], dtype=object)
-    hidden_names = {lay for lay in set(layers.tolist()) if lay.casefold() in collector.hidden_layers}
-    hidden = np.isin(layers, list(hidden_names))
-    for lay in hidden_names:  # circles that inherit a hidden layer (layer "0" in a block)
-        collector.on_hidden_layer[(lay, "CIRCLE")] += int(np.count_nonzero(layers == lay))
-    u, v = content.u, content.v
-    with np.errstate(over="ignore", invalid="ignore"):
-        nu, nv = np.linalg.norm(u, axis=1), np.linalg.norm(v, axis=1)
-        normal = np.cross(u, v)
-        nn = np.linalg.norm(normal, axis=1)
-    # Non-finite or absurd values (NaN, inf, 1e300: a corrupt file or a broken export) are no
-    # position at all: such a circle is left out, named by handle and layer, never planned.
-    limit = MAX_COORDINATE_M / scale
-    with np.errstate(invalid="ignore"):
-        usable = (np.all(np.isfinite(content.centers), axis=1) & np.all(np.isfinite(u), axis=1)
-                  & np.all(np.isfinite(v), axis=1) & (np.max(np.abs(content.centers[:, :2]), axis=1, initial=0.0) <= limit)
-                  & (np.maximum(nu, nv) <= limit))
-    invalid = ~usable & ~hidden
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        uniform = (np.abs(nu - nv) <= _SHAPE_TOL * np.maximum(nu, nv)) & (
-            np.abs(np.einsum("ij,ij->i", u, v)) <= _SHAPE_TOL * nu * nv
-        )
-        planar = np.abs(normal[:, 2]) >= (1.0 - _SHAPE_TOL) * nn
-    shown = usable & (nu > 0) & ~hidden  # a hidden circle is counted once, as hidden
-    ok = uniform & planar & shown
-    radii = np.sqrt(nu * nv)  # equal to nu within _SHAPE_TOL for the circles kept
+    hidden = visibility.inherited_hidden(layers)
+    shapes = _Shapes.of(content, hidden, MAX_COORDINATE_M / scale)
     skipped = {
         "radius<=0": int(sum(content.nonpositive.values())),
-        "non-uniform scale": int(np.count_nonzero(~uniform & shown)),
-        "not parallel to XY": int(np.count_nonzero(uniform & ~planar & shown)),
-        "invisible": int(collector.invisible["CIRCLE"]),
-        "frozen or off layer": int(sum(n for (_, t), n in collector.on_hidden_layer.items() if t == "CIRCLE")),
-        "non-finite or out of range": int(np.count_nonzero(invalid)),
+        "non-uniform scale": int(np.count_nonzero(~shapes.uniform & shapes.shown)),
+        "not parallel to XY": int(np.count_nonzero(shapes.uniform & ~shapes.planar & shapes.shown)),
+        "invisible": int(visibility.invisible["CIRCLE"]),
+        "frozen or off layer": visibility.hidden_circles(),
+        "non-finite or out of range": int(np.count_nonzero(shapes.invalid)),
     }
-    invalid_entities = tuple(
-        f"handle {content.handles[k]} on layer {layers[k]}: centre ({content.centers[k, 0]:g}, "
-        f"{content.centers[k, 1]:g}), radius {float(nu[k]):g} {unit_name}" for k in np.flatnonzero(invalid).tolist())
-    if invalid_entities:
-        warns.append(f"{path.name}: {len(invalid_entities)} circle{'s' if len(invalid_entities) != 1 else ''} with "
-                     f"non-finite or out-of-range values (beyond {MAX_COORDINATE_M:g} m) left out: "
-                     + "; ".join(invalid_entities[:5])
-                     + (f"; ... (+{len(invalid_entities) - 5})" if len(invalid_entities) > 5 else ""))
-    if skipped["radius<=0"]:
-        on = sorted({"0" if k is None else k for k in content.nonpositive}, key=str.casefold)
-        warns.append(f"{path.name}: {skipped['radius<=0']} circles with radius <= 0 skipped (layers: {', '.join(on)})")
-    if skipped["non-uniform scale"]:
-        on = sorted(set(layers[~uniform & shown]), key=str.casefold)
-        warns.append(f"{path.name}: {skipped['non-uniform scale']} circles in non-uniformly scaled block references "
-                     f"are ellipses and were skipped (layers: {', '.join(on)})")
-    if skipped["not parallel to XY"]:
-        on = sorted(set(layers[uniform & ~planar & shown]), key=str.casefold)
-        warns.append(f"{path.name}: {skipped['not parallel to XY']} circles not parallel to the XY plane skipped "
-                     f"(layers: {', '.join(on)})")
-    if collector.invisible:
-        what = ", ".join(f"{n} {t}" for t, n in sorted(collector.invisible.items()))
-        warns.append(f"{path.name}: invisible entities (DXF group 60) skipped, as CAD does not show them: {what}")
-    if collector.on_hidden_layer:
-        per_layer: dict[str, Counter] = {}
-        for (lay, t), n in collector.on_hidden_layer.items():
-            per_layer.setdefault(lay, Counter())[t] += n
-        what = "; ".join(f"{lay} ({collector.hidden_layers[lay.casefold()]}): "
-                         + ", ".join(f"{n} {t}" for t, n in sorted(c.items()))
-                         for lay, c in sorted(per_layer.items(), key=lambda kv: kv[0].casefold()))
-        warns.append(f"{path.name}: entities on frozen or off layers skipped, as CAD does not show them: {what}")
-    for (name, reason), count in sorted(collector.skipped_inserts.items()):
-        times = f"{count} references" if count > 1 else "1 reference"
-        warns.append(f"{path.name}: INSERT of block {name!r}: {reason}; {times} skipped, rest of the drawing kept")
+    invalid_entities = _invalid_entities(content, layers, shapes, unit_name)
+    warns += _shape_warnings(path.name, content, layers, shapes, skipped, invalid_entities)
+    warns += visibility.warnings(path.name)
+    warns += _insert_warnings(path.name, collector.skipped_inserts)
 
     labels = tuple(
         (letter, float(p[0]), float(p[1])) for letter, p in zip(content.label_letters, content.label_pos)
     )
+    ok = shapes.ok
     return CircleSet(
         source_file=str(path), dxf_version=str(doc.dxfversion), read_mode=read_mode, insunits=insunits,
         source_units=unit_name, metres_per_unit=scale, units_assumed=assumed,
-        centers_wcs=np.ascontiguousarray(content.centers[ok, :2]), radii=radii[ok],
+        centers_wcs=np.ascontiguousarray(content.centers[ok, :2]), radii=shapes.radii[ok],
         layers=tuple(layers[ok]), labels=labels, layer_entities=dict(collector.layer_entities),
         skipped=skipped, warnings=warns, invalid_entities=invalid_entities,
     )
@@ -446,7 +505,7 @@ def read_circles(path: str | Path, *, units_if_unitless: str = "mm", include_hid
     """Open ``path`` and return every usable circle (INSERTs expanded); no stud/mark logic.
 
     ``plain_circles``: read the modelspace's plain CIRCLE entities of an ASCII file with
-    :mod:`dxf_plain_circles` (arrays, ~20x faster than ezdxf's objects: a 250,000-stud drawing
+    :mod:`~stud_planner.drawing.plain_circles` (arrays, ~20x faster than ezdxf's objects: a 250,000-stud drawing
     in seconds) and the rest with ezdxf; False: everything with ezdxf. The result is the same."""
     path = Path(path)
     data, file_warns = _check_file(path)

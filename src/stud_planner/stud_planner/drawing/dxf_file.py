@@ -95,7 +95,7 @@ def _drop_default_insunits(doc: Any, data: bytes) -> None:
 
 def _load_with_plain_circles(path: Path, data: bytes) -> tuple[Any, PlainCircles | None]:
     """``(doc, circles)``: ezdxf's document of ``path`` without its plain modelspace circles, and
-    those circles (:mod:`dxf_plain_circles`); ``(None, None)`` when that does not apply (binary
+    those circles (:mod:`~stud_planner.drawing.plain_circles`); ``(None, None)`` when that does not apply (binary
     file, no plain circles, any doubt) or ezdxf cannot read the rest: then ezdxf reads the file
     whole, as :func:`load_document` does, with its errors and its recovery."""
     if data.startswith(_BINARY_SENTINEL):

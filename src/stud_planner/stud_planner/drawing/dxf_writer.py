@@ -6,7 +6,7 @@ with ``origin_wcs_m`` / ``rotation_deg`` (and ``mirror_frame``), converts to ``u
 draws the studs as circles, optionally as INSERTs of a block (rotated, scaled, mirrored,
 nested) or as circles with extrusion (0, 0, -1), as mirrored drawings contain them.
 
-:func:`stud_planner.dxf_layout.read_layout` on the written file gives back the input
+:func:`stud_planner.drawing.layout.read_layout` on the written file gives back the input
 (to float precision), which is what the round-trip tests check.
 """
 from __future__ import annotations
@@ -83,23 +83,46 @@ def write_layout_dxf(
     path = Path(path)
     studs = np.asarray(studs_xy_m, dtype=np.float64).reshape(-1, 2)
     n = studs.shape[0]
-    if units == "unitless":
-        insunits, scale = 0, units_to_metres(unitless_as)[2]
-    else:
-        insunits, _, scale = units_to_metres(units)
+    insunits, _, scale = (0, "", units_to_metres(unitless_as)[2]) if units == "unitless" else units_to_metres(units)
     k = 1.0 / scale  # drawing units per metre
     diam = np.broadcast_to(np.asarray(stud_diameter_m, dtype=np.float64), (n,))
     layers = [stud_layer] * n if isinstance(stud_layer, str) else list(stud_layer)
     if len(layers) != n:
         raise ValueError(f"stud_layer: {len(layers)} layers for {n} studs")
+    to_wcs = _frame_to_wcs(origin_wcs_m, rotation_deg, mirror_frame, k)
+    doc = _new_document(dxfversion, insunits, layers, mark_layer, label_layer)
+    msp = doc.modelspace()
+    stud_wcs = to_wcs(studs)
+    if not as_blocks:
+        for p, r, lay in zip(stud_wcs, diam * k / 2.0, layers):
+            _add_circle(msp, p, r, lay, ocs_flip)
+    else:
+        block = _stud_block(doc, block_scale, nested_blocks)
+        _add_stud_inserts(msp, block, stud_wcs, diam * k, layers, block_rotation_deg, block_scale, mirror_blocks,
+                          ocs_flip)
+    mark_r = mark_diameter_m * k / 2.0
+    for name in ("O", "A", "B"):
+        p = to_wcs(marks_xy_m[name])[0]
+        _add_circle(msp, p, mark_r, mark_layer, ocs_flip)
+        if labels:
+            _add_label(msp, name, p, mark_r, label_layer, label_kind)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    doc.saveas(path, fmt="bin" if binary else "asc")
+    return path
 
-    # drawing frame (m) -> WCS (drawing units)
+
+def _frame_to_wcs(origin_wcs_m: Sequence[float], rotation_deg: float, mirror_frame: bool, k: float):
+    """drawing frame (m) -> WCS (drawing units, ``k`` per metre), as a function of (N, 2) points."""
     M = _rot(rotation_deg) @ (np.diag([1.0, -1.0]) if mirror_frame else np.eye(2))
     t = np.asarray(origin_wcs_m, dtype=np.float64)
 
     def to_wcs(xy_m: np.ndarray) -> np.ndarray:
         return (np.asarray(xy_m, dtype=np.float64).reshape(-1, 2) @ M.T + t) * k
 
+    return to_wcs
+
+
+def _new_document(dxfversion: str, insunits: int, stud_layers: list[str], mark_layer: str, label_layer: str):
     doc = ezdxf.new(dxfversion, setup=False)
     if doc.dxfversion != "AC1009":  # R12 has no $INSUNITS: R12 drawings are always unitless
         doc.header["$INSUNITS"] = insunits
@@ -107,66 +130,62 @@ def write_layout_dxf(
     for name, color in ((mark_layer, 1), (label_layer, 7)):
         if name not in doc.layers:
             doc.layers.add(name, color=color)
-    for name in dict.fromkeys(layers):
+    for name in dict.fromkeys(stud_layers):
         if name not in doc.layers:
             doc.layers.add(name, color=3)
-    msp = doc.modelspace()
-    flip = OCS(_FLIP)
+    return doc
 
-    def add_circle(layout, center_wcs, radius: float, layer: str) -> None:
-        c = (float(center_wcs[0]), float(center_wcs[1]), 0.0)
-        if ocs_flip:
-            layout.add_circle(flip.from_wcs(c), radius, dxfattribs={"layer": layer, "extrusion": _FLIP})
-        else:
-            layout.add_circle(c, radius, dxfattribs={"layer": layer})
 
-    stud_wcs = to_wcs(studs)
-    radius_units = diam * k / 2.0
-    if not as_blocks:
-        for p, r, lay in zip(stud_wcs, radius_units, layers):
-            add_circle(msp, p, r, lay)
+def _add_circle(layout, center_wcs, radius: float, layer: str, ocs_flip: bool) -> None:
+    c = (float(center_wcs[0]), float(center_wcs[1]), 0.0)
+    if ocs_flip:
+        layout.add_circle(OCS(_FLIP).from_wcs(c), radius, dxfattribs={"layer": layer, "extrusion": _FLIP})
     else:
-        # block STUD: unit-diameter circle at an offset, base point elsewhere (both exercise the transform)
-        offset, base = np.array([3.0, -2.0]), np.array([1.0, 1.0])
-        stud_block = doc.blocks.new("STUD", base_point=(*base, 0.0))
-        stud_block.add_circle((*offset, 0.0), 0.5 / block_scale, dxfattribs={"layer": "0"})
-        # local position of the circle centre in the inserted block, and the block's length scale
-        local, unit_scale, block_name = offset - base, 1.0, "STUD"
-        if nested_blocks:
-            group = doc.blocks.new("STUD_GROUP", base_point=(0.0, 0.0, 0.0))
-            inner_ins, inner_rot, inner_scale = np.array([10.0, 5.0]), 30.0, 0.5
-            group.add_blockref("STUD", (*inner_ins, 0.0), dxfattribs={
-                "layer": "0", "rotation": inner_rot, "xscale": inner_scale, "yscale": inner_scale})
-            local = inner_ins + _rot(inner_rot) @ (inner_scale * (offset - base))
-            unit_scale, block_name = inner_scale, "STUD_GROUP"
-        sx = -1.0 if mirror_blocks else 1.0
-        for p, d_units, lay in zip(stud_wcs, diam * k, layers):
-            s = block_scale * d_units / unit_scale  # block circle (1 / block_scale) * unit_scale -> d_units
-            A = _rot(block_rotation_deg) @ np.diag([sx * s, s])
-            ins = p - A @ local
-            attribs = {"layer": lay, "rotation": block_rotation_deg, "xscale": sx * s, "yscale": s, "zscale": s}
-            if ocs_flip:
-                # INSERT in the OCS of extrusion -Z (OCS x = -WCS x): WCS = F (ins_ocs + A local)
-                attribs["extrusion"] = _FLIP
-                ins_ocs = np.array([-p[0], p[1]]) - A @ local
-                msp.add_blockref(block_name, (*ins_ocs, 0.0), dxfattribs=attribs)
-            else:
-                msp.add_blockref(block_name, (*ins, 0.0), dxfattribs=attribs)
+        layout.add_circle(c, radius, dxfattribs={"layer": layer})
 
-    mark_r = mark_diameter_m * k / 2.0
-    for name in ("O", "A", "B"):
-        p = to_wcs(marks_xy_m[name])[0]
-        add_circle(msp, p, mark_r, mark_layer)
-        if labels:
-            h = 2.0 * mark_r
-            pos = (float(p[0] + 1.2 * mark_r), float(p[1] + 1.2 * mark_r), 0.0)
-            if label_kind == "mtext":
-                msp.add_mtext(name, dxfattribs={"layer": label_layer, "insert": pos, "char_height": h})
-            else:
-                msp.add_text(name, height=h, dxfattribs={"layer": label_layer, "insert": pos})
-    path.parent.mkdir(parents=True, exist_ok=True)
-    doc.saveas(path, fmt="bin" if binary else "asc")
-    return path
+
+def _add_label(msp, name: str, mark_wcs: np.ndarray, mark_r: float, layer: str, kind: str) -> None:
+    h = 2.0 * mark_r
+    pos = (float(mark_wcs[0] + 1.2 * mark_r), float(mark_wcs[1] + 1.2 * mark_r), 0.0)
+    if kind == "mtext":
+        msp.add_mtext(name, dxfattribs={"layer": layer, "insert": pos, "char_height": h})
+    else:
+        msp.add_text(name, height=h, dxfattribs={"layer": layer, "insert": pos})
+
+
+def _stud_block(doc, block_scale: float, nested_blocks: bool) -> tuple[str, np.ndarray, float]:
+    """Block STUD: a circle of diameter ``1 / block_scale`` at an offset, base point elsewhere (both
+    exercise the transform), optionally inside STUD_GROUP. Returns (block to insert, local position
+    of the circle centre in it, the block's length scale)."""
+    offset, base = np.array([3.0, -2.0]), np.array([1.0, 1.0])
+    stud_block = doc.blocks.new("STUD", base_point=(*base, 0.0))
+    stud_block.add_circle((*offset, 0.0), 0.5 / block_scale, dxfattribs={"layer": "0"})
+    if not nested_blocks:
+        return "STUD", offset - base, 1.0
+    group = doc.blocks.new("STUD_GROUP", base_point=(0.0, 0.0, 0.0))
+    inner_ins, inner_rot, inner_scale = np.array([10.0, 5.0]), 30.0, 0.5
+    group.add_blockref("STUD", (*inner_ins, 0.0), dxfattribs={
+        "layer": "0", "rotation": inner_rot, "xscale": inner_scale, "yscale": inner_scale})
+    return "STUD_GROUP", inner_ins + _rot(inner_rot) @ (inner_scale * (offset - base)), inner_scale
+
+
+def _add_stud_inserts(msp, block: tuple[str, np.ndarray, float], stud_wcs: np.ndarray, diam_units: np.ndarray,
+                      layers: list[str], rotation_deg: float, block_scale: float, mirror: bool, ocs_flip: bool) -> None:
+    """One INSERT of ``block`` (:func:`_stud_block`) per stud, its circle landing on the stud."""
+    block_name, local, unit_scale = block
+    sx = -1.0 if mirror else 1.0
+    for p, d_units, lay in zip(stud_wcs, diam_units, layers):
+        s = block_scale * d_units / unit_scale  # block circle (1 / block_scale) * unit_scale -> d_units
+        A = _rot(rotation_deg) @ np.diag([sx * s, s])
+        ins = p - A @ local
+        attribs = {"layer": lay, "rotation": rotation_deg, "xscale": sx * s, "yscale": s, "zscale": s}
+        if ocs_flip:
+            # INSERT in the OCS of extrusion -Z (OCS x = -WCS x): WCS = F (ins_ocs + A local)
+            attribs["extrusion"] = _FLIP
+            ins_ocs = np.array([-p[0], p[1]]) - A @ local
+            msp.add_blockref(block_name, (*ins_ocs, 0.0), dxfattribs=attribs)
+        else:
+            msp.add_blockref(block_name, (*ins, 0.0), dxfattribs=attribs)
 
 
 def write_scene_drawing(

@@ -2,7 +2,7 @@
 
 Prints the DXF version, units, stud layers and count, the marks and the frame they define,
 the rule that identified the marks and every warning. ``--json`` writes the layout
-(:meth:`StudLayout.to_dict`), ``--png`` a preview (OpenCV): studs with ids, marks, and the
+(:meth:`DrawingLayout.to_dict`), ``--png`` a preview (OpenCV): studs with ids, marks, and the
 drawing frame's x (red) and y (green) axes.
 
 Any failure -- a bad argument, a drawing the parser refuses, a file ezdxf chokes on -- is one
@@ -21,7 +21,7 @@ import numpy as np
 
 from stud_common.strict_json import write_json
 
-from stud_planner.drawing import DrawingError, StudLayout, read_layout, units_to_metres
+from stud_planner.drawing import DrawingError, DrawingLayout, read_layout, units_to_metres
 
 PROG = "drawing_inspect"
 
@@ -82,7 +82,7 @@ def _fmt_len(metres: float) -> str:
     return f"{metres * 1e3:.3f} mm" if abs(metres) < 10 else f"{metres:.4f} m"
 
 
-def summary(layout: StudLayout) -> str:
+def summary(layout: DrawingLayout) -> str:
     """Human-readable multi-line summary of ``layout``."""
     L = layout
     u = L.source_units
@@ -120,7 +120,7 @@ def summary(layout: StudLayout) -> str:
     return "\n".join(lines)
 
 
-def render_preview(layout: StudLayout, path: Path, size_px: int = 1600, max_ids: int = 400) -> None:
+def render_preview(layout: DrawingLayout, path: Path, size_px: int = 1600, max_ids: int = 400) -> None:
     """Write a PNG preview: studs (blue) with ids, marks (red) with names, frame axes from O."""
     try:
         import cv2

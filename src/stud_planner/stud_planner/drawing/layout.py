@@ -5,6 +5,7 @@ from __future__ import annotations
 import gc
 import math
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
@@ -12,7 +13,7 @@ import ezdxf.lldxf.const as dxfconst
 import numpy as np
 from stud_planner.drawing.circles import _LABEL_LETTERS, read_circles
 from stud_planner.drawing.dxf_file import _one_line
-from stud_planner.drawing.layout_types import CircleSet, DrawingError, Mark, Stud, StudLayout
+from stud_planner.drawing.layout_types import CircleSet, DrawingError, DrawingLayout, Mark, Stud
 from stud_planner.drawing.marks import _fmt_pats, _identify_marks, _layer_matcher
 from stud_planner.drawing.neighbours import _TooDense, close_pairs
 
@@ -35,7 +36,7 @@ def read_layout(
     collinear_tol_deg: float = 1.0,
     right_angle_ambiguity_deg: float = 2.0,
     include_hidden_layers: bool = False,
-) -> StudLayout:
+) -> DrawingLayout:
     """Read the stud layout of a DXF drawing (see the module docstring for every rule).
 
     Args:
@@ -63,11 +64,11 @@ def read_layout(
     with _bulk_allocation():
         cs = read_circles(path, units_if_unitless=units_if_unitless, include_hidden_layers=include_hidden_layers)
         try:
-            return _build_layout(
-                path, cs, stud_layers, mark_layer, min_diameter_m, max_diameter_m, min_spacing_m,
+            return _build_layout(path, cs, _Rules(
+                stud_layers, mark_layer, min_diameter_m, max_diameter_m, min_spacing_m,
                 duplicate_tol_m, diameter_outlier_ratio, label_distance_factor, perpendicular_tol_deg,
                 collinear_tol_deg, right_angle_ambiguity_deg,
-            )
+            ))
         except DrawingError:
             raise
         except Exception as exc:
@@ -111,41 +112,50 @@ def _runs(values: np.ndarray, tol: float, within: np.ndarray | None = None) -> n
     return run
 
 
-def _build_layout(
-    path: Path, cs: CircleSet, stud_layers, mark_layer, min_diameter_m, max_diameter_m, min_spacing_m,
-    duplicate_tol_m, diameter_outlier_ratio, label_distance_factor, perpendicular_tol_deg,
-    collinear_tol_deg, right_angle_ambiguity_deg,
-) -> StudLayout:
-    warns = list(cs.warnings)
+@dataclass(frozen=True)
+class _Rules:
+    """The options of :func:`read_layout` (its docstring says what each one does)."""
+
+    stud_layers: str | Sequence[str]
+    mark_layer: str | Sequence[str]
+    min_diameter_m: float | None
+    max_diameter_m: float | None
+    min_spacing_m: float | None
+    duplicate_tol_m: float
+    diameter_outlier_ratio: float
+    label_distance_factor: float
+    perpendicular_tol_deg: float
+    collinear_tol_deg: float
+    right_angle_ambiguity_deg: float
+
+
+@dataclass(frozen=True)
+class _Frame:
+    """The drawing frame the marks define: ``T`` maps WCS (drawing units) to the frame (metres)."""
+
+    T: np.ndarray
+    angle_deg: float
+    mirrored: bool
+    mark_d: dict[str, float]  # mark diameters (m)
+
+    def to_drawing(self, xy_units: np.ndarray) -> np.ndarray:
+        return xy_units @ self.T[:2, :2].T + self.T[:2, 2]
+
+
+def _drawing_frame(path: Path, cs: CircleSet, marks_idx: dict[str, int], rules: _Rules, warns: list[str]) -> _Frame:
+    """Frame: x along OA, y perpendicular on B's side; metres. Refuses coincident or collinear marks."""
     s = cs.metres_per_unit
-    name = path.name
-    stud_match, _ = _layer_matcher(stud_layers)
-    hit = {lay: stud_match(lay) for lay in set(cs.layers)}  # a few layers, many circles
-    is_stud = np.array([hit[lay] for lay in cs.layers], dtype=bool)
-    if not is_stud.any():
-        raise DrawingError(
-            f"{path}: no studs found: no circles on layer(s) {_fmt_pats(stud_layers)}{cs.skipped_summary()}; "
-            f"layers: {cs.layer_summary()}"
-        )
-
-    marks_idx, rule, mark_warns, mark_members = _identify_marks(
-        path, cs, mark_layer, duplicate_tol_m / s, label_distance_factor, collinear_tol_deg,
-        right_angle_ambiguity_deg,
-    )
-    warns += mark_warns
-
-    # Frame: x along OA, y perpendicular on B's side; metres.
     O, A, B = (cs.centers_wcs[marks_idx[k]] * s for k in _LABEL_LETTERS)
     oa, ob = A - O, B - O
     d_oa, d_ob = float(np.hypot(*oa)), float(np.hypot(*ob))
     mark_d = {k: 2.0 * float(cs.radii[marks_idx[k]]) * s for k in _LABEL_LETTERS}
     for p, q, dist in (("O", "A", d_oa), ("O", "B", d_ob), ("A", "B", float(np.hypot(*(B - A))))):
-        if dist <= max(mark_d[p], mark_d[q], duplicate_tol_m):
+        if dist <= max(mark_d[p], mark_d[q], rules.duplicate_tol_m):
             raise DrawingError(f"{path}: marks coincident: {p} and {q} are {dist * 1e3:.3f} mm apart "
                                f"(mark diameter {max(mark_d[p], mark_d[q]) * 1e3:.1f} mm)")
     cross = oa[0] * ob[1] - oa[1] * ob[0]
     angle = math.degrees(math.atan2(abs(cross), float(oa @ ob)))
-    if angle < collinear_tol_deg or angle > 180.0 - collinear_tol_deg:
+    if angle < rules.collinear_tol_deg or angle > 180.0 - rules.collinear_tol_deg:
         raise DrawingError(f"{path}: marks collinear: angle AOB is {angle:.2f} deg, O, A, B define no frame")
     mirrored = bool(cross < 0)
     ex = oa / d_oa
@@ -154,57 +164,60 @@ def _build_layout(
     T = np.eye(3)
     T[:2, :2] = R * s
     T[:2, 2] = -R @ O
-    if abs(angle - 90.0) > perpendicular_tol_deg:
-        warns.append(f"{name}: marks not perpendicular: angle AOB is {angle:.2f} deg; x runs along OA, "
+    if abs(angle - 90.0) > rules.perpendicular_tol_deg:
+        warns.append(f"{path.name}: marks not perpendicular: angle AOB is {angle:.2f} deg; x runs along OA, "
                      f"y perpendicular to it on B's side")
     if mirrored:
-        warns.append(f"{name}: B is clockwise from A in the DXF: the drawing frame is mirrored relative to "
+        warns.append(f"{path.name}: B is clockwise from A in the DXF: the drawing frame is mirrored relative to "
                      f"the DXF (drawn as seen from below?); check the mark labels")
+    return _Frame(T, angle, mirrored, mark_d)
 
-    def to_drawing(xy_units: np.ndarray) -> np.ndarray:
-        return xy_units @ T[:2, :2].T + T[:2, 2]
 
+def _marks(cs: CircleSet, marks_idx: dict[str, int], frame: _Frame) -> dict[str, Mark]:
     marks = {}
     for k in _LABEL_LETTERS:
         i = marks_idx[k]
-        dx, dy = to_drawing(cs.centers_wcs[i][None, :])[0]
+        dx, dy = frame.to_drawing(cs.centers_wcs[i][None, :])[0]
         marks[k] = Mark(k, float(dx), float(dy), float(cs.centers_wcs[i][0]), float(cs.centers_wcs[i][1]),
-                        mark_d[k], cs.layers[i])
+                        frame.mark_d[k], cs.layers[i])
+    return marks
 
-    # Stud candidates: stud layers, minus the mark circles (and their concentric rings), diameter filter.
-    is_stud[list(marks_idx.values())] = False
-    is_stud[mark_members] = False
-    idx = np.flatnonzero(is_stud)
-    diam = 2.0 * cs.radii[idx] * s
+
+def _diameter_filter(path: Path, cs: CircleSet, idx: np.ndarray, rules: _Rules,
+                     warns: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """The stud candidates ``idx`` within the diameter range, and their diameters (m)."""
+    diam = 2.0 * cs.radii[idx] * cs.metres_per_unit
     keep = np.ones(idx.size, dtype=bool)
-    if min_diameter_m is not None:
-        keep &= diam >= min_diameter_m
-    if max_diameter_m is not None:
-        keep &= diam <= max_diameter_m
+    if rules.min_diameter_m is not None:
+        keep &= diam >= rules.min_diameter_m
+    if rules.max_diameter_m is not None:
+        keep &= diam <= rules.max_diameter_m
     if not keep.all():
-        lo = f"{min_diameter_m * 1e3:g}" if min_diameter_m is not None else "0"
-        hi = f"{max_diameter_m * 1e3:g}" if max_diameter_m is not None else "inf"
-        warns.append(f"{name}: {np.count_nonzero(~keep)} circles on stud layers outside the diameter filter "
+        lo = f"{rules.min_diameter_m * 1e3:g}" if rules.min_diameter_m is not None else "0"
+        hi = f"{rules.max_diameter_m * 1e3:g}" if rules.max_diameter_m is not None else "inf"
+        warns.append(f"{path.name}: {np.count_nonzero(~keep)} circles on stud layers outside the diameter filter "
                      f"[{lo}, {hi}] mm ignored")
     idx, diam = idx[keep], diam[keep]
     if idx.size == 0:
         raise DrawingError(
-            f"{path}: no studs found: no circles on layer(s) {_fmt_pats(stud_layers)} pass the diameter filter"
+            f"{path}: no studs found: no circles on layer(s) {_fmt_pats(rules.stud_layers)} pass the diameter filter"
             f"{cs.skipped_summary()}; layers: {cs.layer_summary()}"
         )
-    xy = to_drawing(cs.centers_wcs[idx])
-    layer_arr = np.array([cs.layers[i] for i in idx], dtype=object)
+    return idx, diam
 
-    # Deterministic order: layer, row (y), column (x), then diameter and exact coordinates. Rows
-    # and columns are runs of values less than ORDER_TOL_M apart, so float noise from the CAD
-    # placement (a rotated or shifted copy) never moves a stud across a grid boundary.
+
+def _stud_order(xy: np.ndarray, diam: np.ndarray, layer_arr: np.ndarray) -> np.ndarray:
+    """Deterministic order: layer, row (y), column (x), then diameter and exact coordinates. Rows
+    and columns are runs of values less than ORDER_TOL_M apart, so float noise from the CAD
+    placement (a rotated or shifted copy) never moves a stud across a grid boundary."""
     layer_key = np.array([lay.casefold() for lay in layer_arr])
     row = _runs(xy[:, 1], ORDER_TOL_M)
     col = _runs(xy[:, 0], ORDER_TOL_M, within=row)
-    order = np.lexsort((xy[:, 0], xy[:, 1], diam, col, row, layer_key))
-    xy, diam, layer_arr = xy[order], diam[order], layer_arr[order]
+    return np.lexsort((xy[:, 0], xy[:, 1], diam, col, row, layer_key))
 
-    # Duplicates (any layer): keep the first in order.
+
+def _first_of_duplicates(name: str, xy: np.ndarray, duplicate_tol_m: float, warns: list[str]) -> np.ndarray:
+    """Duplicates (any layer): keep the first in order. Returns the mask of the studs kept."""
     alive = np.ones(len(xy), dtype=bool)
     try:
         i, j, _ = close_pairs(xy, duplicate_tol_m)
@@ -222,21 +235,23 @@ def _build_layout(
     if n_dup:
         extra = " (approximate: too many coincident circles for the exact check)" if dense else ""
         warns.append(f"{name}: {n_dup} duplicate studs within {duplicate_tol_m * 1e3:g} mm removed{extra}")
-    xy, diam, layer_arr = xy[alive], diam[alive], layer_arr[alive]
-    n = len(xy)
-    width = max(4, len(str(n)))
-    ids = [f"S{k + 1:0{width}d}" for k in range(n)]
-    studs = tuple(map(Stud, ids, xy[:, 0].tolist(), xy[:, 1].tolist(), diam.tolist(), layer_arr.tolist()))
+    return alive
 
-    # Checks that only warn.
+
+def _check_studs(name: str, xy: np.ndarray, diam: np.ndarray, ids: list[str], marks: dict[str, Mark],
+                 rules: _Rules) -> list[str]:
+    """Checks that only warn: odd diameters, studs too close, on a mark, outside the marks' quadrant."""
+    warns = []
+    n = len(xy)
     median_d = float(np.median(diam))
-    if diameter_outlier_ratio and diameter_outlier_ratio > 1.0:
-        odd = np.flatnonzero((diam > median_d * diameter_outlier_ratio) | (diam < median_d / diameter_outlier_ratio))
+    ratio = rules.diameter_outlier_ratio
+    if ratio and ratio > 1.0:
+        odd = np.flatnonzero((diam > median_d * ratio) | (diam < median_d / ratio))
         if odd.size:
             warns.append(f"{name}: {odd.size} studs with unusual diameter (median {median_d * 1e3:.2f} mm): "
                          + ", ".join(f"{ids[k]} {diam[k] * 1e3:.2f} mm" for k in odd[:5])
                          + (f", ... (+{odd.size - 5})" if odd.size > 5 else ""))
-    spacing = 2.5 * median_d if min_spacing_m is None else float(min_spacing_m)
+    spacing = 2.5 * median_d if rules.min_spacing_m is None else float(rules.min_spacing_m)
     if spacing > 0 and n > 1:
         try:
             i, j, d = close_pairs(xy, spacing)
@@ -250,7 +265,8 @@ def _build_layout(
                          f"{spacing * 1e3:.1f} mm (are the drawing units right?)")
     for k in _LABEL_LETTERS:  # a ring of the mark symbol drawn on a stud layer?
         m = marks[k]
-        on_mark = np.flatnonzero(np.hypot(xy[:, 0] - m.x_m, xy[:, 1] - m.y_m) < max(0.5 * m.diameter_m, duplicate_tol_m))
+        on_mark = np.flatnonzero(np.hypot(xy[:, 0] - m.x_m, xy[:, 1] - m.y_m)
+                                 < max(0.5 * m.diameter_m, rules.duplicate_tol_m))
         if on_mark.size:
             warns.append(f"{name}: {_ids_list([ids[j] for j in on_mark])} on a stud layer lie(s) on mark {k}: part "
                          f"of the mark symbol drawn on the wrong layer? (kept as studs)")
@@ -258,15 +274,55 @@ def _build_layout(
     if outside.size:
         warns.append(f"{name}: {outside.size} studs outside the marks' quadrant (negative x or y): "
                      f"{_ids_list([ids[k] for k in outside])}")
+    return warns
+
+
+def _build_layout(path: Path, cs: CircleSet, rules: _Rules) -> DrawingLayout:
+    warns = list(cs.warnings)
+    s = cs.metres_per_unit
+    name = path.name
+    stud_match, _ = _layer_matcher(rules.stud_layers)
+    hit = {lay: stud_match(lay) for lay in set(cs.layers)}  # a few layers, many circles
+    is_stud = np.array([hit[lay] for lay in cs.layers], dtype=bool)
+    if not is_stud.any():
+        raise DrawingError(
+            f"{path}: no studs found: no circles on layer(s) {_fmt_pats(rules.stud_layers)}{cs.skipped_summary()}; "
+            f"layers: {cs.layer_summary()}"
+        )
+
+    marks_idx, rule, mark_warns, mark_members = _identify_marks(
+        path, cs, rules.mark_layer, rules.duplicate_tol_m / s, rules.label_distance_factor, rules.collinear_tol_deg,
+        rules.right_angle_ambiguity_deg,
+    )
+    warns += mark_warns
+    frame = _drawing_frame(path, cs, marks_idx, rules, warns)
+    marks = _marks(cs, marks_idx, frame)
+
+    # Stud candidates: stud layers, minus the mark circles (and their concentric rings), diameter filter.
+    is_stud[list(marks_idx.values())] = False
+    is_stud[mark_members] = False
+    idx, diam = _diameter_filter(path, cs, np.flatnonzero(is_stud), rules, warns)
+    xy = frame.to_drawing(cs.centers_wcs[idx])
+    layer_arr = np.array([cs.layers[i] for i in idx], dtype=object)
+    order = _stud_order(xy, diam, layer_arr)
+    xy, diam, layer_arr = xy[order], diam[order], layer_arr[order]
+    alive = _first_of_duplicates(name, xy, rules.duplicate_tol_m, warns)
+    xy, diam, layer_arr = xy[alive], diam[alive], layer_arr[alive]
+    n = len(xy)
+    width = max(4, len(str(n)))
+    ids = [f"S{k + 1:0{width}d}" for k in range(n)]
+    studs = tuple(map(Stud, ids, xy[:, 0].tolist(), xy[:, 1].tolist(), diam.tolist(), layer_arr.tolist()))
+    warns += _check_studs(name, xy, diam, ids, marks, rules)
 
     bbox = (float(xy[:, 0].min()), float(xy[:, 1].min()), float(xy[:, 0].max()), float(xy[:, 1].max()))
-    return StudLayout(
+    return DrawingLayout(
         source_file=str(path), dxf_version=cs.dxf_version,
         dxf_release=dxfconst.acad_release.get(cs.dxf_version, cs.dxf_version), read_mode=cs.read_mode,
         source_units=cs.source_units, insunits=cs.insunits, units_assumed=cs.units_assumed,
         metres_per_unit=s, studs=studs, mark_o=marks["O"], mark_a=marks["A"], mark_b=marks["B"],
-        mark_diameter_m=float(np.mean(list(mark_d.values()))), marks_rule=rule, angle_aob_deg=float(angle),
-        mirrored=mirrored, wcs_to_drawing=tuple(tuple(float(v) for v in row) for row in T), bbox_m=bbox,
+        mark_diameter_m=float(np.mean(list(frame.mark_d.values()))), marks_rule=rule,
+        angle_aob_deg=float(frame.angle_deg), mirrored=frame.mirrored,
+        wcs_to_drawing=tuple(tuple(float(v) for v in row) for row in frame.T), bbox_m=bbox,
         stud_layers=tuple(sorted(set(layer_arr.tolist()), key=str.casefold)), warnings=warns,
         invalid_entities=cs.invalid_entities,
     )

@@ -40,7 +40,7 @@ class Mark:
 
 
 @dataclass(frozen=True)
-class StudLayout:
+class DrawingLayout:
     """A stud layout in the ``drawing`` frame (origin O, x toward A, y toward B; metres).
 
     ``wcs_to_drawing`` is the 3x3 homogeneous map ``[x_m, y_m, 1] = T @ [x_wcs, y_wcs, 1]`` from
@@ -119,7 +119,7 @@ class StudLayout:
         }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "StudLayout":
+    def from_dict(cls, d: dict[str, Any]) -> "DrawingLayout":
         """Inverse of :meth:`to_dict`."""
         marks = {k: Mark(name=k, **{f: v for f, v in m.items() if f != "name"}) for k, m in d["marks"].items()}
         return cls(

@@ -75,17 +75,7 @@ def _identify_marks(
             f"need 3 (O, A, B){cs.skipped_summary()}; layers: {cs.layer_summary()}"
         )
 
-    # Labels: each candidate circle takes the letter of its nearest O/A/B label within reach.
-    by_letter: dict[str, list[int]] = {k: [] for k in _LABEL_LETTERS}
-    if cs.labels:
-        lab_xy = np.array([(x, y) for _, x, y in cs.labels])
-        letters = [lt for lt, _, _ in cs.labels]
-        for k in cand:
-            d = np.hypot(*(lab_xy - xy[k]).T)
-            j = int(np.argmin(d))
-            if d[j] <= label_distance_factor * 2.0 * r[k]:
-                by_letter[letters[j]].append(int(k))
-    labelled = {lt: ks for lt, ks in by_letter.items() if ks}
+    labelled = _labelled(cs, cand, label_distance_factor)
     multi = {lt: ks for lt, ks in labelled.items() if len(ks) > 1}
     if multi:
         lt, ks = next(iter(multi.items()))
@@ -101,6 +91,44 @@ def _identify_marks(
             f"{path}: marks ambiguous: found {cand.size} mark circles {where} but only "
             f"{len(labelled)} of the labels O, A, B next to them; need exactly 3 circles or all three labels"
         )
+    marks = _marks_by_geometry(path, xy, r, cand, where, collinear_tol_deg, right_angle_ambiguity_deg)
+    if labelled:
+        disagree = [lt for lt, ks in labelled.items() if marks[lt] != ks[0]]
+        if disagree:
+            raise DrawingError(
+                f"{path}: marks ambiguous: label(s) {', '.join(disagree)} disagree with the geometry rule "
+                f"(right angle at O, B counter-clockwise from A); label all three marks"
+            )
+        warns.append(f"{path.name}: only label(s) {', '.join(sorted(labelled))} found next to the marks; "
+                     f"marks identified by geometry")
+    return marks, "geometry", warns, _members(marks, on_layer, xy, dup_tol_units)
+
+
+def _members(marks: dict[str, int], on_layer: np.ndarray, xy: np.ndarray, tol: float) -> np.ndarray:
+    centres = xy[list(marks.values())]
+    d = np.hypot(*(xy[on_layer][:, None, :] - centres[None, :, :]).transpose(2, 0, 1))
+    return on_layer[np.any(d <= tol, axis=1)]
+
+
+def _labelled(cs: CircleSet, cand: np.ndarray, label_distance_factor: float) -> dict[str, list[int]]:
+    """Labels: each candidate circle takes the letter of its nearest O/A/B label within reach.
+    Returns letter -> the circles it names (letters naming none left out)."""
+    xy, r = cs.centers_wcs, cs.radii
+    by_letter: dict[str, list[int]] = {k: [] for k in _LABEL_LETTERS}
+    if cs.labels:
+        lab_xy = np.array([(x, y) for _, x, y in cs.labels])
+        letters = [lt for lt, _, _ in cs.labels]
+        for k in cand:
+            d = np.hypot(*(lab_xy - xy[k]).T)
+            j = int(np.argmin(d))
+            if d[j] <= label_distance_factor * 2.0 * r[k]:
+                by_letter[letters[j]].append(int(k))
+    return {lt: ks for lt, ks in by_letter.items() if ks}
+
+
+def _marks_by_geometry(path: Path, xy: np.ndarray, r: np.ndarray, cand: np.ndarray, where: str,
+                       collinear_tol_deg: float, right_angle_ambiguity_deg: float) -> dict[str, int]:
+    """The geometry rule on exactly 3 circles: O at the clear right angle, B counter-clockwise from A."""
     p = [xy[k] for k in cand]
     for s1, s2 in ((0, 1), (0, 2), (1, 2)):
         dist = math.dist(p[s1], p[s2])
@@ -123,20 +151,4 @@ def _identify_marks(
     oa, ob = p[a] - p[o], p[b] - p[o]
     if oa[0] * ob[1] - oa[1] * ob[0] < 0:
         a, b = b, a
-    marks = {"O": int(cand[o]), "A": int(cand[a]), "B": int(cand[b])}
-    if labelled:
-        disagree = [lt for lt, ks in labelled.items() if marks[lt] != ks[0]]
-        if disagree:
-            raise DrawingError(
-                f"{path}: marks ambiguous: label(s) {', '.join(disagree)} disagree with the geometry rule "
-                f"(right angle at O, B counter-clockwise from A); label all three marks"
-            )
-        warns.append(f"{path.name}: only label(s) {', '.join(sorted(labelled))} found next to the marks; "
-                     f"marks identified by geometry")
-    return marks, "geometry", warns, _members(marks, on_layer, xy, dup_tol_units)
-
-
-def _members(marks: dict[str, int], on_layer: np.ndarray, xy: np.ndarray, tol: float) -> np.ndarray:
-    centres = xy[list(marks.values())]
-    d = np.hypot(*(xy[on_layer][:, None, :] - centres[None, :, :]).transpose(2, 0, 1))
-    return on_layer[np.any(d <= tol, axis=1)]
+    return {"O": int(cand[o]), "A": int(cand[a]), "B": int(cand[b])}

@@ -4,6 +4,12 @@ safety banner, which buttons are valid now, and the decisions waiting for the op
 The node (hmi_node) converts messages to the plain values taken here; this module decides
 what the page says, and builds the JSON-ready dicts it renders (see docs/HMI.md).
 
+By concern: :mod:`~stud_planner.hmi.stud_table` (the per-stud table: targets, weld states,
+inspection, rework), :mod:`~stud_planner.hmi.alarms` (codes, severities, the alarm list),
+:mod:`~stud_planner.hmi.job_clock` (the job's states and its clock), :mod:`~stud_planner.hmi.hand_eye`
+(the calibration display); here :class:`CellView` puts them together with the arm, the cell, the
+buttons and the decisions. The names of those modules are importable from here too.
+
 Per-stud state: a stud's *target* (status, pose, errors) comes from ``/weld_targets``, one
 view at a time; its *weld state* comes from the arm: the WeldJob feedback (phase per stud),
 ``/arm/state`` (the stud being processed) and the WeldJob results (welded / skipped / failed
@@ -14,202 +20,26 @@ from ``/inspection/rework``.
 from __future__ import annotations
 
 import enum
-import math
 import os
 from dataclasses import dataclass
 from typing import Iterable
 
 from stud_common.vocabulary import ArmMode, CellState, TargetStatus
-from stud_planner.cell.rework import NEEDS_DECISION
+from stud_planner.hmi.alarms import ALARMS, DIAG_CODE, STATE_SOURCES, Alarm, AlarmDef, AlarmList, Code, Severity
+from stud_planner.hmi.hand_eye import HandEyeDisplay, hand_eye_text, same_hand_eye
+from stud_planner.hmi.job_clock import ENDED_STATES, OPERATOR_STOP_TEXT, RUNNING_STATES, JobClock
+from stud_planner.hmi.stud_table import (FINAL_WELD_STATES, STATUS_NOT_SEEN, STATUS_OUT_OF_VIEW, WELD_ACTIVE,
+                                         WELD_FAILED, WELD_NONE, WELD_SKIPPED, WELD_WELDED, StudTable, TargetInfo)
 
-#: Weld states of a stud, as sent in the rows' ``weld`` field.
-WELD_NONE, WELD_ACTIVE, WELD_WELDED, WELD_SKIPPED, WELD_FAILED = "", "active", "welded", "skipped", "failed"
-_FINAL = (WELD_WELDED, WELD_SKIPPED, WELD_FAILED)
-#: WeldJob feedback phases while a stud is being worked on (rm65_driver.weld_sequence).
-_ACTIVE_PHASES = ("approach", "descend", "weld", "dwell")
-#: The driver reports "retract" only after the weld is confirmed and journalled as welded.
-_WELDED_PHASE = "retract"
-STATUS_OUT_OF_VIEW = TargetStatus.OUT_OF_VIEW.text
-STATUS_NOT_SEEN = "not_seen"  # in the drawing, in no view yet
-
-
-@dataclass(frozen=True)
-class TargetInfo:
-    """One stud's match on one view, in the message's units (metres, degrees)."""
-
-    stud_id: str
-    status: str                               # WeldTarget.status_text, "ok" when usable
-    status_code: int                          # WeldTarget.STATUS_*
-    position_m: tuple[float, float, float]    # world frame; NaN when not matched
-    xy_error_m: float
-    inclination_deg: float
-    view: int
-
-
-class StudTable:
-    """The operator's stud table: one row per stud, drawing order first, then order of appearance."""
-
-    def __init__(self) -> None:
-        self._order: dict[str, None] = {}  # an ordered set
-        self._targets: dict[str, TargetInfo] = {}
-        self._weld: dict[str, str] = {}
-        self._phase: dict[str, str] = {}
-        self._active = ""  # the stud the arm is on now
-        self._inspection: dict[str, tuple[str, tuple[str, ...]]] = {}  # stud -> (verdict, reasons)
-        self._rework: dict[str, str] = {}  # stud -> the operator's decision ("rework" / "accept")
-        self._has_layout = False
-        self.view = -1
-        self.algorithm = ""
-
-    def _known(self, stud_id: str) -> None:
-        if stud_id:
-            self._order.setdefault(stud_id, None)
-
-    def set_layout(self, stud_ids: Iterable[str]) -> None:
-        """The drawing: its studs in drawing order (those in no view yet are "not seen").
-
-        The first layout only orders what is known (it may arrive after the first view or job
-        result when the HMI starts before the drawing node); a later one is another drawing:
-        everything is forgotten."""
-        ids = dict.fromkeys(stud_ids)
-        if self._has_layout:
-            self._targets.clear()
-            self._weld.clear()
-            self._phase.clear()
-            self._inspection.clear()
-            self._rework.clear()
-            self._active = ""
-            self.view = -1
-            self._order = ids
-        else:
-            self._order = {**ids, **self._order}
-        self._has_layout = True
-
-    def update_view(self, targets: Iterable[TargetInfo], view: int = -1, algorithm: str = "") -> None:
-        """The targets of one view. A stud out of this view keeps its result from an earlier view
-        (the cell shoots several stations; each sees part of the drawing)."""
-        for t in targets:
-            self._known(t.stud_id)
-            old = self._targets.get(t.stud_id)
-            if t.status == STATUS_OUT_OF_VIEW and old is not None and old.status != STATUS_OUT_OF_VIEW:
-                continue
-            self._targets[t.stud_id] = t
-        self.view, self.algorithm = view, algorithm
-
-    def weld_feedback(self, stud_id: str, phase: str) -> bool:
-        """WeldJob feedback: ``phase`` of ``stud_id`` (approach, descend, weld, dwell, retract, skip).
-        True when this reports the stud welded for the first time."""
-        self._known(stud_id)
-        self._phase[stud_id] = phase
-        newly = False
-        if phase == _WELDED_PHASE:
-            newly = self._weld.get(stud_id) != WELD_WELDED
-            self._weld[stud_id] = WELD_WELDED
-        if phase in _ACTIVE_PHASES:
-            self._active = stud_id
-        elif self._active == stud_id:
-            self._active = ""
-        return newly
-
-    def arm_progress(self, current_stud: str) -> bool:
-        """``/arm/state``: the stud being processed now ("" between studs and jobs). True if that changed."""
-        if current_stud == self._active:
-            return False
-        self._known(current_stud)
-        self._active = current_stud
-        return True
-
-    def job_result(self, welded: Iterable[str], skipped: Iterable[str], failed: Iterable[str]) -> list[str]:
-        """A finished WeldJob: its lists are the truth for the studs they name. Returns the studs
-        it reports welded that were not known welded before."""
-        newly = []
-        for ids, state in ((skipped, WELD_SKIPPED), (failed, WELD_FAILED), (welded, WELD_WELDED)):
-            for sid in ids:
-                self._known(sid)
-                if state == WELD_WELDED and self._weld.get(sid) != WELD_WELDED:
-                    newly.append(sid)
-                self._weld[sid] = state
-        self._active = ""
-        return newly
-
-    def inspected(self, stud_id: str, verdict: str, reasons: Iterable[str] = ()) -> None:
-        """``/inspection/result``: the newest verdict of a stud (``Verdict`` values)."""
-        self._known(stud_id)
-        self._inspection[stud_id] = (verdict, tuple(reasons))
-
-    def rework_decided(self, stud_id: str, decision: str) -> None:
-        """``/inspection/rework``: the operator's decision on a stud that did not pass (the newest counts)."""
-        self._known(stud_id)
-        self._rework[stud_id] = decision
-
-    def awaiting_rework(self) -> list[dict]:
-        """Inspected studs that did not pass and have no decision yet, in table order."""
-        out = []
-        for sid in self._order:
-            verdict, reasons = self._inspection.get(sid, ("", ()))
-            if verdict in NEEDS_DECISION and sid not in self._rework:
-                out.append({"stud_id": sid, "verdict": verdict, "reasons": list(reasons)})
-        return out
-
-    @property
-    def stud_ids(self) -> list[str]:
-        return list(self._order)
-
-    def weld_state(self, stud_id: str) -> str:
-        state = self._weld.get(stud_id, WELD_NONE)
-        if state not in _FINAL and stud_id == self._active:
-            return WELD_ACTIVE
-        return state
-
-    def rows(self) -> list[dict]:
-        out = []
-        for sid in self._order:
-            t = self._targets.get(sid)
-            weld = self.weld_state(sid)
-            row = {"stud_id": sid, "status": t.status if t else STATUS_NOT_SEEN,
-                   "status_code": t.status_code if t else None,
-                   "inclination_deg": t.inclination_deg if t else None,
-                   "position_mm": [v * 1000.0 for v in t.position_m] if t else None,
-                   "xy_error_mm": t.xy_error_m * 1000.0 if t else None,
-                   "view": t.view if t else None,
-                   "weld": weld, "phase": self._phase.get(sid, ""), "welded": weld == WELD_WELDED,
-                   "inspection": self._inspection.get(sid, ("", ()))[0],
-                   "inspection_reasons": list(self._inspection.get(sid, ("", ()))[1]),
-                   "rework": self._rework.get(sid, "")}
-            out.append(row)
-        return out
-
-    def weld_counts(self) -> dict[str, int]:
-        """How many studs are welded, failed, skipped, being welded, or not yet (``""``)."""
-        counts = {state: 0 for state in (WELD_NONE, WELD_ACTIVE, *_FINAL)}
-        for sid in self._order:
-            counts[self.weld_state(sid)] += 1
-        return counts
-
-    def counts(self) -> dict[str, int]:
-        counts: dict[str, int] = {}
-        for sid in self._order:
-            t = self._targets.get(sid)
-            key = t.status if t else STATUS_NOT_SEEN
-            counts[key] = counts.get(key, 0) + 1
-        return counts
-
-    def message(self) -> dict:
-        """The ``targets`` WebSocket message (docs/HMI.md)."""
-        rows = self.rows()
-        return {"type": "targets", "view": self.view, "algorithm": self.algorithm, "rows": rows,
-                "counts": self.counts(), "welded": sum(r["welded"] for r in rows), "total": len(rows)}
-
-
-
-# -- the cell's and the arm's states: stud_common.vocabulary (tests check them against the messages) ---
-#: A job is under way in these states (PAUSED is under way too, but does not move).
-RUNNING_STATES = frozenset({CellState.REGISTERING, CellState.MOVING, CellState.SHOOTING, CellState.MATCHING,
-                            CellState.WELDING, CellState.INSPECTING})
-#: No job runs: a new one may start.
-ENDED_STATES = frozenset({CellState.IDLE, CellState.DONE, CellState.FAILED})
-#: The sequencer ends a job the operator stopped in FAILED with this message: not an alarm.
-OPERATOR_STOP_TEXT = "stopped by the operator"
+__all__ = [
+    "ArmMode", "CellState", "TargetStatus",
+    "ALARMS", "DIAG_CODE", "STATE_SOURCES", "Alarm", "AlarmDef", "AlarmList", "Code", "Severity",
+    "HandEyeDisplay", "hand_eye_text", "same_hand_eye",
+    "ENDED_STATES", "OPERATOR_STOP_TEXT", "RUNNING_STATES", "JobClock",
+    "FINAL_WELD_STATES", "STATUS_NOT_SEEN", "STATUS_OUT_OF_VIEW", "WELD_ACTIVE", "WELD_FAILED", "WELD_NONE",
+    "WELD_SKIPPED", "WELD_WELDED", "StudTable", "TargetInfo",
+    "ArmInfo", "CellInfo", "Timeouts", "COMMANDS", "STUD_DECISIONS", "CellView",
+]
 
 
 def _enum_or_int(enum_type, value: int):
@@ -221,146 +51,6 @@ def _enum_or_int(enum_type, value: int):
 
 def _text(value) -> str:
     return value.text if isinstance(value, enum.Enum) else str(value)
-
-
-class Severity(enum.IntEnum):
-    WARNING = 1    # needs the operator's attention; the job goes on
-    ERROR = 2      # the job stops, or cannot start
-    CRITICAL = 3   # safety: the arm is stopped and will not move
-
-    @property
-    def text(self) -> str:
-        return self.name.lower()
-
-
-@dataclass(frozen=True)
-class AlarmDef:
-    code: str
-    severity: Severity
-    title: str
-
-
-class Code:
-    """Alarm codes (docs/HMI.md lists each with its cause and what to do)."""
-
-    ESTOP, ARM_FAULT, ARM_DISCONNECTED, ARM_LOST, UNCERTAIN = "A100", "A101", "A102", "A103", "A104"
-    CELL_FAILED, CELL_LOST, UNREACHABLE = "A110", "A111", "A112"
-    REGISTRATION = "A120"
-    REWORK = "A130"
-    HAND_EYE = "A140"
-    NODE_WARN, NODE_ERROR, NODE_STALE = "A201", "A202", "A203"
-
-
-ALARMS: dict[str, AlarmDef] = {d.code: d for d in (
-    AlarmDef(Code.ESTOP, Severity.CRITICAL, "e-stop latched"),
-    AlarmDef(Code.ARM_FAULT, Severity.CRITICAL, "arm in FAULT"),
-    AlarmDef(Code.ARM_DISCONNECTED, Severity.ERROR, "arm controller not connected"),
-    AlarmDef(Code.ARM_LOST, Severity.ERROR, "no arm state"),
-    AlarmDef(Code.UNCERTAIN, Severity.WARNING, "uncertain studs need a decision"),
-    AlarmDef(Code.CELL_FAILED, Severity.ERROR, "cell job failed"),
-    AlarmDef(Code.CELL_LOST, Severity.ERROR, "no cell status"),
-    AlarmDef(Code.UNREACHABLE, Severity.WARNING, "studs no station reaches"),
-    AlarmDef(Code.REGISTRATION, Severity.WARNING, "registration not valid"),
-    AlarmDef(Code.REWORK, Severity.WARNING, "studs need a rework decision"),
-    AlarmDef(Code.HAND_EYE, Severity.ERROR, "nodes use different hand-eye calibrations"),
-    AlarmDef(Code.NODE_WARN, Severity.WARNING, "node warning"),
-    AlarmDef(Code.NODE_ERROR, Severity.ERROR, "node error"),
-    AlarmDef(Code.NODE_STALE, Severity.ERROR, "node stale"),
-)}
-_DIAG_CODE = {1: Code.NODE_WARN, 2: Code.NODE_ERROR, 3: Code.NODE_STALE}
-#: Nodes whose health the HMI reads from a topic of their own, with more detail than their
-#: /diagnostics: their diagnostics raise no second alarm for the same cause.
-STATE_SOURCES = {"rm65_driver": "/arm/state", "cell_sequencer": "/cell/status"}
-
-
-@dataclass
-class Alarm:
-    code: str
-    source: str
-    text: str
-    raised: float                 # s since the epoch
-    acked: float | None = None
-    cleared: float | None = None
-
-    @property
-    def key(self) -> str:
-        return f"{self.code}@{self.source}"
-
-    @property
-    def severity(self) -> Severity:
-        return ALARMS[self.code].severity
-
-    def to_dict(self) -> dict:
-        d = ALARMS[self.code]
-        return {"key": self.key, "code": self.code, "severity": d.severity.text, "title": d.title,
-                "source": self.source, "text": self.text, "raised": self.raised, "acked": self.acked is not None,
-                "acked_at": self.acked, "cleared": self.cleared}
-
-
-class AlarmList:
-    """Alarms with a code and a severity: raised while their cause is there, acknowledged by the
-    operator, cleared (moved to the history) when the cause is gone -- acknowledged or not.
-
-    Each input (a *scope*: the arm, the cell, one node's diagnostics, ...) reports the complete set
-    of alarms it causes now; what it reported before and not now has cleared. A cause that stays
-    is one alarm however often it is reported (no repeat counts), and its acknowledgement stays.
-    """
-
-    def __init__(self, history: int = 50) -> None:
-        self.history_size = history
-        self._active: dict[str, Alarm] = {}
-        self._history: list[Alarm] = []
-        self._scopes: dict[str, set[str]] = {}
-        self.changed = False
-
-    def update(self, scope: str, causes: dict[tuple[str, str], str], now: float) -> None:
-        """``causes``: (code, source) -> text, everything ``scope`` raises now."""
-        keys = set()
-        for (code, source), text in causes.items():
-            alarm = Alarm(code, source, text, now)
-            keys.add(alarm.key)
-            old = self._active.get(alarm.key)
-            if old is None:
-                self._active[alarm.key] = alarm
-                self.changed = True
-            elif old.text != text:
-                old.text = text
-                self.changed = True
-        for key in self._scopes.get(scope, set()) - keys:
-            self._clear(key, now)
-        self._scopes[scope] = keys
-
-    def _clear(self, key: str, now: float) -> None:
-        alarm = self._active.pop(key, None)
-        if alarm is None:
-            return
-        alarm.cleared = now
-        self._history.insert(0, alarm)
-        del self._history[self.history_size:]
-        self.changed = True
-
-    def acknowledge(self, key: str, now: float) -> int:
-        """Acknowledge one active alarm by its ``key`` ("A100@rm65_driver"), or all with "all";
-        returns how many were acknowledged."""
-        n = 0
-        for alarm in self._active.values():
-            if (key == "all" or alarm.key == key) and alarm.acked is None:
-                alarm.acked = now
-                n += 1
-        self.changed = self.changed or n > 0
-        return n
-
-    def active(self) -> list[Alarm]:
-        """Most severe first, then newest first."""
-        return sorted(self._active.values(), key=lambda a: (-a.severity, -a.raised))
-
-    def message(self) -> dict:
-        """The ``alarms`` WebSocket message (docs/HMI.md)."""
-        active = self.active()
-        return {"type": "alarms", "active": [a.to_dict() for a in active],
-                "history": [a.to_dict() for a in self._history],
-                "unacked": sum(a.acked is None for a in active),
-                "highest": active[0].severity.text if active else ""}
 
 
 # -- inputs, as plain values ---------------------------------------------------------------------
@@ -400,67 +90,6 @@ class Timeouts:
     diagnostics_s: float = 10.0
 
 
-class JobClock:
-    """Time of the running job without its pauses, and the cycle per stud from the welds' times."""
-
-    def __init__(self) -> None:
-        self.started: float | None = None
-        self.ended: float | None = None
-        self._paused_since: float | None = None
-        self._paused_s = 0.0
-        self._welds: list[float] = []  # active job time of each weld reported [s]
-
-    def cell_state(self, state: int, now: float) -> None:
-        under_way = state in RUNNING_STATES or state == CellState.PAUSED
-        if under_way and (self.started is None or self.ended is not None):
-            self.started, self.ended, self._paused_since, self._paused_s, self._welds = now, None, None, 0.0, []
-        if self.started is None or self.ended is not None:
-            return
-        if state == CellState.PAUSED and self._paused_since is None:
-            self._paused_since = now
-        elif state != CellState.PAUSED and self._paused_since is not None:
-            self._paused_s += now - self._paused_since
-            self._paused_since = None
-        if state in ENDED_STATES:
-            self.ended = now
-
-    @property
-    def running(self) -> bool:
-        return self.started is not None and self.ended is None
-
-    def active_s(self, now: float) -> float | None:
-        """Job time so far (or of the ended job) without pauses [s]; None before the first job."""
-        if self.started is None:
-            return None
-        end = self.ended if self.ended is not None else now
-        paused = self._paused_s + (end - self._paused_since if self._paused_since is not None else 0.0)
-        return max(0.0, end - self.started - paused)
-
-    def welded(self, now: float) -> None:
-        if self.running:
-            self._welds.append(self.active_s(now) or 0.0)
-
-    @property
-    def cycle_s(self) -> float | None:
-        """Mean time per stud between the job's first and last weld (moves and shots between
-        stations included, pauses not); None before the second weld."""
-        w = self._welds
-        return (w[-1] - w[0]) / (len(w) - 1) if len(w) >= 2 else None
-
-    @property
-    def last_cycle_s(self) -> float | None:
-        w = self._welds
-        return w[-1] - w[-2] if len(w) >= 2 else None
-
-
-def _same_hand_eye(a: dict, b: dict, tol_m: float = 1e-4, tol_deg: float = 0.01) -> bool:
-    try:
-        return (all(abs(x - y) <= tol_m for x, y in zip(a["xyz_m"], b["xyz_m"], strict=True))
-                and all(abs(x - y) <= tol_deg for x, y in zip(a["rpy_deg"], b["rpy_deg"], strict=True)))
-    except (KeyError, TypeError, ValueError):
-        return False
-
-
 #: Page commands and what each does (the node maps them to services).
 COMMANDS = ("start", "pause", "resume", "stop", "estop", "ack", "resolve_stud", "record_rework")
 #: Decisions on an uncertain stud (ResolveStud): the page's words -> welded?
@@ -484,7 +113,7 @@ class CellView:
         self.part = {"part": "", "drawing": "", "drawing_file": "", "studs": 0, "warnings": []}
         self.has_layout = False
         self.registration: dict | None = None
-        self._hand_eye: dict[str, dict] = {}  # publishing node -> summary
+        self.hand_eye = HandEyeDisplay()
         self.changed = True
 
     # -- inputs ----------------------------------------------------------------------------------
@@ -545,14 +174,7 @@ class CellView:
 
     def on_hand_eye(self, node: str, summary: dict, now: float) -> None:
         """``/calibration/hand_eye`` of one node (HandEyeInUse.summary(), JSON)."""
-        self._hand_eye[node] = summary
-        first = next(iter(self._hand_eye.values()))
-        differ = [n for n, s in self._hand_eye.items() if not _same_hand_eye(first, s)]
-        causes = {}
-        if differ:
-            causes[Code.HAND_EYE, "calibration"] = "; ".join(
-                f"{n}: {_hand_eye_text(s)}" for n, s in sorted(self._hand_eye.items()))
-        self.alarms.update("calibration", causes, now)
+        self.alarms.update("calibration", self.hand_eye.update(node, summary), now)
         self.changed = True
 
     def weld_feedback(self, stud_id: str, phase: str, now: float) -> None:
@@ -590,7 +212,7 @@ class CellView:
         if name in STATE_SOURCES:
             return
         self._diag_at[name] = now
-        code = _DIAG_CODE.get(level)
+        code = DIAG_CODE.get(level)
         self.alarms.update(f"diag:{name}", {(code, name): message} if code else {}, now)
 
     def tick(self, now: float) -> None:
@@ -746,7 +368,7 @@ class CellView:
         welded = max(counts[WELD_WELDED], self.cell.studs_welded if self.cell else 0)
         unreachable = set(self.cell.unreachable) if self.cell else set()
         weld_of = {sid: self.table.weld_state(sid) for sid in self.table.stud_ids}
-        unreachable_open = sum(1 for s in unreachable if weld_of.get(s, WELD_NONE) not in _FINAL)
+        unreachable_open = sum(1 for s in unreachable if weld_of.get(s, WELD_NONE) not in FINAL_WELD_STATES)
         remaining = max(0, total - welded - counts[WELD_FAILED] - counts[WELD_SKIPPED] - unreachable_open)
         cycle = self.clock.cycle_s
         running = self.clock.running
@@ -762,11 +384,7 @@ class CellView:
 
     def calibration(self) -> dict | None:
         """The hand-eye in use (the first node's; ``agree`` false when nodes differ)."""
-        if not self._hand_eye:
-            return None
-        first = next(iter(self._hand_eye.values()))
-        return {**first, "text": _hand_eye_text(first), "nodes": sorted(self._hand_eye),
-                "agree": all(_same_hand_eye(first, s) for s in self._hand_eye.values())}
+        return self.hand_eye.message()
 
     def status_message(self, now: float) -> dict:
         """The ``status`` WebSocket message (docs/HMI.md)."""
@@ -778,13 +396,3 @@ class CellView:
                                                    "message": cell.message},
                 "arm": None if self.arm is None else {"mode": _text(self.arm_mode), "stale_s": self.arm_stale_s(now)}}
 
-
-def _hand_eye_text(s: dict) -> str:
-    """One line: where the hand-eye comes from and its values."""
-    xyz = ", ".join(f"{v * 1000:.1f}" for v in s.get("xyz_m") or [])
-    rpy = ", ".join(f"{v:.2f}" for v in s.get("rpy_deg") or [])
-    if s.get("source") == "file":
-        rms = s.get("position_rms_mm")
-        extra = f", residual {rms:.2f} mm" if isinstance(rms, (int, float)) and math.isfinite(rms) else ""
-        return f"file {os.path.basename(s.get('path') or '')} ({s.get('date') or 'undated'}{extra}): xyz [{xyz}] mm, rpy [{rpy}]°"
-    return f"typed values: xyz [{xyz}] mm, rpy [{rpy}]°"

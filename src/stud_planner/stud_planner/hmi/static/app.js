@@ -29,7 +29,7 @@ function setConnected(up, why) {
 }
 
 // Buttons: enabled only when the node says the action is valid now (status.controls, from
-// hmi_model.CellView.controls), the WebSocket is up and the page may command.
+// hmi.model.CellView.controls), the WebSocket is up and the page may command.
 function applyControls() {
   const why = [];
   document.querySelectorAll("#controls button[data-cmd]").forEach((b) => {
@@ -142,7 +142,7 @@ function onRegistration(m) {
   text(r, m.valid ? "valid, residual " + fmt(m.residual_mm, 2) + " mm" : "NOT valid: " + m.message);
 }
 
-// -- status: banner, buttons, progress, part, calibration, decisions (hmi_model.CellView) ----------
+// -- status: banner, buttons, progress, part, calibration, decisions (hmi.model.CellView) ----------
 function onStatus(m) {
   hmi.status = m;
   hmi.statusAt = Date.now();
