@@ -21,6 +21,7 @@ import struct
 import sys
 import time
 from dataclasses import dataclass, replace
+from typing import Any
 from pathlib import Path
 
 import numpy as np
@@ -51,12 +52,12 @@ class View:
 
     index: int
     stamp_ns: int
-    info: object
-    pose: object
+    info: Any             # sensor_msgs/CameraInfo
+    pose: Any             # geometry_msgs/PoseStamped
     color_stamp_ns: int
     depth_stamp_ns: int
-    color: object = None
-    depth: object = None
+    color: Any = None     # sensor_msgs/Image, while the view is processed
+    depth: Any = None
 
 
 TOPIC_TYPES = {"color": "sensor_msgs/msg/Image", "depth": "sensor_msgs/msg/Image",
@@ -211,7 +212,7 @@ def views_with_images(bag_path: Path, topics: dict[str, str], views: list[View])
     for v in views:
         for name in IMAGE_ROLES:
             want.setdefault((name, getattr(v, f"{name}_stamp_ns")), []).append(v)
-    got: dict[int, dict[str, object]] = {}
+    got: dict[int, dict[str, Any]] = {}
     by_topic = {topics[name]: name for name in IMAGE_ROLES}
     count = {t: 0 for t in by_topic}
     try:
@@ -287,13 +288,16 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
     ids = [s.id for s in layout.studs]
     xy = layout.studs_xy_m()
     chosen = _BestTargets(len(ids))
-    totals = {"iterations": 0, "match_time": 0.0, "views": 0}
+    totals = {"iterations": 0, "views": 0}
+    match_time = 0.0
 
     def match_view(v: View, camera, color, depth) -> None:
+        nonlocal match_time
+        assert registration is not None  # matching starts once a view is registered
         _progress(totals["views"], len(views), quiet, "matching")
         t = plan_view(ids, xy, registration.M_local2world, depth, camera, config)
         totals["iterations"] += t.matches.total_iterations
-        totals["match_time"] += t.match_time_s
+        match_time += t.match_time_s
         totals["views"] += 1
         if overlay_dir is not None:
             import cv2
@@ -323,7 +327,7 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
     if totals["views"] != len(views):
         raise PlanError(f"{bag}: {len(views) - totals['views']} of {len(views)} views lost their images between "
                         "two reads of the bag (was it written to meanwhile?)")
-    iterations_total, match_time = totals["iterations"], totals["match_time"]
+    iterations_total = totals["iterations"]
     _progress(len(views), len(views), quiet, "matching")
     targets = chosen.entries(ids, xy)
     return {

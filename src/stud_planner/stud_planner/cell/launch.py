@@ -29,7 +29,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, NoReturn, Sequence
 
 import yaml
 
@@ -115,7 +115,7 @@ class _ConfigChecker:
         if not isinstance(value, dict):
             self.fail(where, f"must be a mapping, got {type(value).__name__}")
         unknown = sorted(set(map(str, value)) - keys) if keys is not None else []
-        if unknown:
+        if unknown and keys is not None:
             self.fail(where, f"unknown key '{unknown[0]}' (known: {', '.join(sorted(keys))})")
         return value
 
@@ -425,7 +425,7 @@ def child_specs(plan: Sequence[PlannedNode], out_dir: Path) -> list[ChildSpec]:
 
 # -- command line -----------------------------------------------------------------------------------
 class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:
+    def error(self, message: str) -> NoReturn:
         raise CellConfigError(f"{self.prog}: {message}")
 
 

@@ -173,6 +173,12 @@ class _Child:
     def pid(self) -> int | None:
         return self.popen.pid if self.popen is not None else None
 
+    @property
+    def process(self) -> subprocess.Popen:
+        """The running (or ended) instance; only asked of a child that has been started."""
+        assert self.popen is not None, f"{self.spec.name} has not been started"
+        return self.popen
+
 
 class Launcher:
     """Start ``specs`` as child processes, supervise them, stop them; see the module docstring.
@@ -305,7 +311,7 @@ class Launcher:
             time.sleep(self.tick_s)
 
     def _maybe_start_waiting(self, child: _Child, now: float) -> None:
-        deps = [self._children[n] for n in child.spec.start_after]
+        deps = [self._children[n] for n in child.spec.start_after or ()]
         # without a ready pattern a dependency is ready once started (it may be a one-shot step that has ended)
         not_ready = [d for d in deps if not (d.ready.is_set() or (d.ready_rx is None and d.popen is not None))]
         gone = [d for d in not_ready if d.state in ("exited", "skipped")]
@@ -360,11 +366,11 @@ class Launcher:
             self._after_death(child, 127)
             return
         child.state = "running"
-        child.reader = threading.Thread(target=self._read, args=(child, child.popen.stdout, log),
+        child.reader = threading.Thread(target=self._read, args=(child, child.process.stdout, log),
                                         name=f"launch-{spec.name}", daemon=True)
         child.reader.start()
         again = f" (respawn {child.respawns})" if child.respawns else ""
-        self._say(f"started {spec.name}{again}: pid {child.popen.pid}")
+        self._say(f"started {spec.name}{again}: pid {child.process.pid}")
 
     def _read(self, child: _Child, pipe, log) -> None:
         try:
@@ -390,7 +396,7 @@ class Launcher:
 
     # -- deaths ---------------------------------------------------------------------------------
     def _on_exit(self, child: _Child) -> None:
-        rc = child.popen.returncode
+        rc = child.process.returncode
         child.state, child.returncode = "exited", rc
         self._drain_and_clean(child)
         self._after_death(child, rc)
@@ -446,8 +452,8 @@ class Launcher:
             deadline = time.monotonic() + timeout_s
             while time.monotonic() < deadline:
                 for child in alive:
-                    if child.state == "running" and child.popen.poll() is not None:
-                        child.state, child.returncode = "exited", child.popen.returncode
+                    if child.state == "running" and child.process.poll() is not None:
+                        child.state, child.returncode = "exited", child.process.returncode
                         self._drain_and_clean(child)
                 if all(c.state != "running" for c in alive):
                     break
@@ -458,7 +464,7 @@ class Launcher:
 
     def _signal_group(self, child: _Child, sig: int) -> None:
         try:
-            os.killpg(child.popen.pid, sig)
+            os.killpg(child.process.pid, sig)
         except (ProcessLookupError, PermissionError):
             pass
 
@@ -475,11 +481,11 @@ class Launcher:
         """The child has exited: whatever it left in its process group would be an orphan."""
         if child.popen is None:
             return
-        left = group_members(child.popen.pid)
+        left = group_members(child.process.pid)
         if left:
             self._say(f"{child.spec.name} left {len(left)} process(es) behind ({', '.join(map(str, left))}): SIGKILL")
             try:
-                os.killpg(child.popen.pid, signal.SIGKILL)
+                os.killpg(child.process.pid, signal.SIGKILL)
             except (ProcessLookupError, PermissionError):
                 pass
 
@@ -487,14 +493,14 @@ class Launcher:
         for child in self._children.values():
             if child.popen is None:
                 continue
-            if child.popen.poll() is None:
+            if child.process.poll() is None:
                 child.stop_signal = signal.SIGKILL
                 self._signal_group(child, signal.SIGKILL)
                 try:
-                    child.popen.wait(timeout=self.sigkill_timeout_s)
+                    child.process.wait(timeout=self.sigkill_timeout_s)
                 except subprocess.TimeoutExpired:
                     pass
-                child.state, child.returncode = "exited", child.popen.returncode
+                child.state, child.returncode = "exited", child.process.returncode
             self._kill_leftovers(child)
 
     # -- signals --------------------------------------------------------------------------------
@@ -516,7 +522,7 @@ class Launcher:
         for name, child in self._children.items():
             ok, note = self._judge(child)
             self.outcomes[name] = ChildOutcome(name, child.pid, child.returncode, child.respawns,
-                                               child.stop_signal.name if child.stop_signal else None, ok, note)
+                                               signal.Signals(child.stop_signal).name if child.stop_signal else None, ok, note)
             if not ok:
                 self._exit_code = max(self._exit_code, 1)
         self._say(f"summary: {self._stop_reason or 'stopped'}; exit code {self._exit_code}")

@@ -11,6 +11,7 @@ from typing import Sequence
 
 import ezdxf.lldxf.const as dxfconst
 import numpy as np
+from stud_common.rotations import float3
 from stud_planner.drawing.circles import _LABEL_LETTERS, read_circles
 from stud_planner.drawing.dxf_file import _one_line
 from stud_planner.drawing.layout_types import CircleSet, DrawingError, DrawingLayout, Mark, Stud
@@ -322,7 +323,7 @@ def _build_layout(path: Path, cs: CircleSet, rules: _Rules) -> DrawingLayout:
         metres_per_unit=s, studs=studs, mark_o=marks["O"], mark_a=marks["A"], mark_b=marks["B"],
         mark_diameter_m=float(np.mean(list(frame.mark_d.values()))), marks_rule=rule,
         angle_aob_deg=float(frame.angle_deg), mirrored=frame.mirrored,
-        wcs_to_drawing=tuple(tuple(float(v) for v in row) for row in frame.T), bbox_m=bbox,
+        wcs_to_drawing=tuple(float3(row) for row in frame.T), bbox_m=bbox,
         stud_layers=tuple(sorted(set(layer_arr.tolist()), key=str.casefold)), warnings=warns,
         invalid_entities=cs.invalid_entities,
     )

@@ -8,10 +8,16 @@ from typing import Any
 
 import numpy as np
 
+from stud_common.rotations import float3
 
 
 class DrawingError(Exception):
     """A drawing that cannot be used; the message names the file and the problem (one line)."""
+
+
+def _float4(values) -> tuple[float, float, float, float]:
+    a, b, c, d = (float(v) for v in values)
+    return a, b, c, d
 
 
 # -- result types ----------------------------------------------------------------------------------
@@ -130,8 +136,8 @@ class DrawingLayout:
             mark_o=marks["O"], mark_a=marks["A"], mark_b=marks["B"],
             mark_diameter_m=float(d["mark_diameter_m"]), marks_rule=d["marks_rule"],
             angle_aob_deg=float(d["angle_aob_deg"]), mirrored=bool(d["mirrored"]),
-            wcs_to_drawing=tuple(tuple(float(v) for v in r) for r in d["wcs_to_drawing"]),
-            bbox_m=tuple(float(v) for v in d["bbox_m"]), stud_layers=tuple(d["stud_layers"]),
+            wcs_to_drawing=tuple(float3(r) for r in d["wcs_to_drawing"]),
+            bbox_m=_float4(d["bbox_m"]), stud_layers=tuple(d["stud_layers"]),
             warnings=list(d["warnings"]), invalid_entities=tuple(d.get("invalid_entities", ())),
         )
 

@@ -287,7 +287,7 @@ def split_plain_circles(text: str) -> tuple[str, PlainCircles] | None:
     newlines, exactly what ezdxf's loader reads line by line."""
     tags = _Tags.of(text)
     section = _entities_section(tags) if tags is not None else None
-    if section is None:
+    if tags is None or section is None:
         return None
     types, ent_first, ent_stop = section
     is_circle = np.array([t == "CIRCLE" for t in types], dtype=bool)

@@ -19,10 +19,9 @@ from ``/inspection/rework``.
 """
 from __future__ import annotations
 
-import enum
 import os
 from dataclasses import dataclass
-from typing import Iterable
+from typing import Any, Iterable
 
 from stud_common.vocabulary import ArmMode, CellState, TargetStatus
 from stud_planner.hmi.alarms import ALARMS, DIAG_CODE, STATE_SOURCES, Alarm, AlarmDef, AlarmList, Code, Severity
@@ -50,7 +49,7 @@ def _enum_or_int(enum_type, value: int):
 
 
 def _text(value) -> str:
-    return value.text if isinstance(value, enum.Enum) else str(value)
+    return str(getattr(value, "text", value))
 
 
 # -- inputs, as plain values ---------------------------------------------------------------------
@@ -254,7 +253,7 @@ class CellView:
             return None
         stale = self.arm_stale_s(now)
         if mode == ArmMode.ESTOP:
-            out = {"kind": "estop", "title": "E-STOP LATCHED",
+            out: dict[str, Any] = {"kind": "estop", "title": "E-STOP LATCHED",
                    "text": (arm.message or "e-stop engaged") + ". The arm refuses every motion. Make the cell safe, "
                            "then release the latch at the cell (/arm/estop false)."}
         else:

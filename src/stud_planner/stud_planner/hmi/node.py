@@ -36,7 +36,7 @@ import os
 import queue
 import time
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Any, Callable
 
 import cv2
 from action_msgs.msg import GoalStatus, GoalStatusArray
@@ -175,7 +175,7 @@ class HmiNode(Node):
         self._commands: queue.SimpleQueue = queue.SimpleQueue()  # from the server thread
         self._calls: list[_Call] = []
         self._jobs_seen: dict[bytes, float] = {}                  # goal uuid -> its stamp (results asked for)
-        self._jobs_to_fetch: dict[bytes, object] = {}             # goal uuid -> GoalInfo
+        self._jobs_to_fetch: dict[bytes, Any] = {}             # goal uuid -> GoalInfo
 
         self.clients_by_name = {c.name: self.create_client(c.srv_type, c.name)
                                 for calls in COMMANDS.values() for c in calls}
@@ -494,7 +494,9 @@ class HmiNode(Node):
 
     def destroy_node(self) -> None:
         # After Ctrl-C the ROS context is already shut down: the server's last lines cannot go to rosout.
-        logging.getLogger("stud_planner.hmi.server").removeHandler(getattr(self, "_log_handler", None))
+        handler = getattr(self, "_log_handler", None)
+        if handler is not None:
+            logging.getLogger("stud_planner.hmi.server").removeHandler(handler)
         server = getattr(self, "server", None)
         if server is not None:
             server.stop()

@@ -307,7 +307,8 @@ class HmiServer:
         return await serve(
             self._serve_client, sock=self._sock, process_request=self._process_request,
             server_header=SERVER_HEADER, compression=None, max_size=MAX_INCOMING_BYTES,
-            open_timeout=REQUEST_TIMEOUT_S, close_timeout=CLOSE_TIMEOUT_S, create_connection=self._new_connection)
+            open_timeout=REQUEST_TIMEOUT_S, close_timeout=CLOSE_TIMEOUT_S,
+            create_connection=self._new_connection)  # type: ignore[arg-type]  # called like the class it defaults to
 
     def _new_connection(self, *args, **kwargs) -> ServerConnection:
         conn = _Connection(*args, **kwargs)
@@ -523,7 +524,7 @@ class HmiServer:
         origin = origin.rstrip("/").lower()
         if origin in self.allowed_origins or "*" in self.allowed_origins:
             return True
-        return bool(host) and urlsplit(origin).netloc == host.lower()
+        return bool(host) and urlsplit(origin).netloc == (host or "").lower()
 
     def _static(self, path: str) -> Response:
         rel = "index.html" if path in ("", "/") else unquote(path).lstrip("/")
