@@ -12,8 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rm65_driver import journal as J
-from rm65_driver.journal import Journal, JournalCorrupt, JournalError, mirror_path, repair_journal
+from rm65_driver.journal import Journal
+from rm65_driver.journal_records import JournalError, encode_record, mirror_path
+from rm65_driver.journal_repair import ACTION_ACCEPT_INTACT, ACTION_LOAD_BACKUP, repair_journal
+from rm65_driver.journal_scan import JournalCorrupt
 
 
 def test_records_are_json_lines_and_survive_a_reload(tmp_path):
@@ -214,7 +216,7 @@ def _unknown_event_in_the_middle(path):
     lines = path.read_text().splitlines(keepends=True)
     rec = json.loads(lines[2])
     rec["event"] = "forgotten"
-    lines[2] = J.encode_record(rec).decode()  # a valid checksum, an event no driver writes
+    lines[2] = encode_record(rec).decode()  # a valid checksum, an event no driver writes
     path.write_text("".join(lines))
     return "line 3 (unknown event"
 
@@ -286,7 +288,7 @@ def test_load_backup_restores_the_mirror_and_moves_the_damaged_file_aside(tmp_pa
     _random_bytes(path)
     with pytest.raises(JournalError, match="unknown journal action"):
         repair_journal(path, "fix_it")
-    msg = repair_journal(path, J.ACTION_LOAD_BACKUP, note="disk checked")
+    msg = repair_journal(path, ACTION_LOAD_BACKUP, note="disk checked")
     assert "loaded" in msg and ".corrupt-" in msg
     [aside] = tmp_path.glob("j.jsonl.corrupt-*")
     assert len(aside.read_bytes()) == 4096
@@ -294,7 +296,7 @@ def test_load_backup_restores_the_mirror_and_moves_the_damaged_file_aside(tmp_pa
         assert j.welded_ids == {f"S{i}" for i in range(1, 9)} and j.uncertain_ids == {"Sx"} and not j.warnings
         last = json.loads(path.read_text().splitlines()[-1])
         assert last["event"] == "recovered" and last["action"] == "load_backup" and last["note"] == "disk checked"
-    assert "intact: nothing to repair" in repair_journal(path, J.ACTION_LOAD_BACKUP)
+    assert "intact: nothing to repair" in repair_journal(path, ACTION_LOAD_BACKUP)
 
 
 def test_accept_intact_keeps_the_records_before_the_damage_and_marks_later_studs_uncertain(tmp_path):
@@ -308,8 +310,8 @@ def test_accept_intact_keeps_the_records_before_the_damage_and_marks_later_studs
         Journal(path)
     assert exc.value.report.backup is None and "first 4 record(s)" in str(exc.value)
     with pytest.raises(JournalError, match="no intact copy"):
-        repair_journal(path, J.ACTION_LOAD_BACKUP)
-    msg = repair_journal(path, J.ACTION_ACCEPT_INTACT, note="checked the plate")
+        repair_journal(path, ACTION_LOAD_BACKUP)
+    msg = repair_journal(path, ACTION_ACCEPT_INTACT, note="checked the plate")
     assert "kept 4 intact record(s)" in msg
     with Journal(path) as j:
         assert j.welded_ids == {"S1", "S2"}
@@ -322,7 +324,7 @@ def test_accept_intact_keeps_the_records_before_the_damage_and_marks_later_studs
 def test_accept_intact_uses_what_the_mirror_still_knows(tmp_path):
     path = write_job(tmp_path / "j.jsonl")
     _random_bytes(path)  # the whole journal gone; the mirror intact
-    repair_journal(path, J.ACTION_ACCEPT_INTACT)
+    repair_journal(path, ACTION_ACCEPT_INTACT)
     with Journal(path) as j:
         assert j.welded_ids == set() and j.uncertain_ids == {f"S{i}" for i in range(1, 9)}
 

@@ -21,7 +21,7 @@ Weld-journal FAULT: a journal found damaged at start-up (anything but a torn las
 that fails or changes while the driver runs, puts the driver in ``ArmState.MODE_FAULT``;
 ``/arm/state.message`` and ``/diagnostics`` (ERROR) name the file and the lines. Every weld job is
 aborted at once with that message until an operator resolves it with /arm/resolve_journal
-(accept the intact part, or load the intact copy); see :func:`.journal.repair_journal`.
+(accept the intact part, or load the intact copy); see :func:`.journal_repair.repair_journal`.
 
 Parameters are checked at start-up, each against its range and all together against what the
 weld job accepts (:class:`WeldParams`, :class:`SafetyLimits`): a bad value ends the node with one
@@ -60,7 +60,10 @@ from stud_common.ros_io import Param
 
 from . import protocol as P
 from .arm_client import ArmClient, ArmError
-from .journal import ACTION_ACCEPT_INTACT, ACTION_LOAD_BACKUP, Journal, JournalCorrupt, JournalError, repair_journal
+from .journal import Journal
+from .journal_records import JournalError
+from .journal_repair import ACTION_ACCEPT_INTACT, ACTION_LOAD_BACKUP, repair_journal
+from .journal_scan import JournalCorrupt
 from .kinematics import D6_BY_VARIANT, DHModel, RM65Kinematics
 from .safety import SafetyChecker, SafetyLimits
 from .weld_sequence import JobResult, StudTarget, WeldParams, WeldSequence
@@ -133,7 +136,7 @@ PARAMS = [
 ]
 
 
-#: ResolveJournal.action -> journal.repair_journal action
+#: ResolveJournal.action -> journal_repair.repair_journal action
 JOURNAL_ACTIONS = {ResolveJournal.Request.ACTION_ACCEPT_INTACT: ACTION_ACCEPT_INTACT,
                    ResolveJournal.Request.ACTION_LOAD_BACKUP: ACTION_LOAD_BACKUP}
 

@@ -66,7 +66,8 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .arm_client import ArmClient, ArmCommandError, ArmConnectionError, ArmError, ArmStopped, ArmTimeout
-from .journal import Journal, JournalError
+from .journal import Journal
+from .journal_records import JournalError
 from .kinematics import matrix_to_pose6, tool_pose_facing
 from .safety import SafetyChecker, StudPlan
 from .stud_order import order_by_path
