@@ -7,7 +7,7 @@ from typing import Callable
 import numpy as np
 
 from rm65_driver.simulator import ArmSimulator
-from rm65_driver.weld_sequence import StudTarget
+from rm65_driver.weld_job import StudTarget
 
 #: A "ready" pose in front of the arm, tool pointing down (0.289, 0, 0.183 m flange).
 HOME_DEG = (0.0, -30.0, -100.0, 0.0, -50.0, 0.0)

@@ -66,7 +66,8 @@ from .journal_repair import ACTION_ACCEPT_INTACT, ACTION_LOAD_BACKUP, repair_jou
 from .journal_scan import JournalCorrupt
 from .kinematics import D6_BY_VARIANT, DHModel, RM65Kinematics
 from .safety import SafetyChecker, SafetyLimits
-from .weld_sequence import JobResult, StudTarget, WeldParams, WeldSequence
+from .weld_job import JobResult, StudTarget, WeldParams
+from .weld_sequence import WeldSequence
 
 JOINT_NAMES = [f"joint{i}" for i in range(1, 7)]
 
