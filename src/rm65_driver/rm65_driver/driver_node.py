@@ -25,9 +25,9 @@ that fails or changes while the driver runs, puts the driver in ``ArmState.MODE_
 aborted at once with that message until an operator resolves it with /arm/resolve_journal
 (accept the intact part, or load the intact copy); see :func:`.journal_repair.repair_journal`.
 
-Parameters are checked at start-up, each against its range and all together against what the
-weld job accepts (:class:`WeldParams`, :class:`SafetyLimits`): a bad value ends the node with one
-line naming it and exit code 2.
+Parameters (:mod:`.driver_params`) are checked at start-up, each against its range and all
+together against what the weld job accepts (:class:`~.weld_job.WeldParams`,
+:class:`~.safety.SafetyLimits`): a bad value ends the node with one line naming it and exit code 2.
 
 The e-stop here is a *software* stop (``set_arm_stop`` + trigger output low + a latch that refuses
 new jobs until released). It is not a safety-rated emergency stop: the cell's hardware e-stop
