@@ -33,7 +33,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from stud_welding_msgs.action import WeldJob
 from stud_welding_msgs.msg import CellStatus
 
-from rm65_driver.journal import read_records
+from rm65_driver.journal_scan import read_records
 from stud_planner.cell.cycle_time import CycleEvent, format_split, motion_from_journal, split_cycle
 
 TARGET_S_PER_STUD = 2.0

@@ -1,13 +1,15 @@
 """Helpers shared by the rm65_driver tests (imported as a plain module; tests/ is not a package)."""
 from __future__ import annotations
 
+import random
 import time
 from typing import Callable
 
 import numpy as np
 
+from rm65_driver.journal import Journal
 from rm65_driver.simulator import ArmSimulator
-from rm65_driver.weld_sequence import StudTarget
+from rm65_driver.weld_job import StudTarget
 
 #: A "ready" pose in front of the arm, tool pointing down (0.289, 0, 0.183 m flange).
 HOME_DEG = (0.0, -30.0, -100.0, 0.0, -50.0, 0.0)
@@ -50,3 +52,35 @@ def welds_per_stud(sim: ArmSimulator, targets, io: int = 1, tol_m: float = 0.002
         assert d[k] < tol_m, f"a trigger fired {d[k] * 1e3:.1f} mm away from the nearest stud"
         counts[targets[k].stud_id] += 1
     return counts
+
+
+# -- weld journals (test_journal, test_journal_repair) ----------------------------------------------
+
+
+def write_job(path, n=8, uncertain_last=False):
+    """A journal of ``n`` welded studs S1..Sn (and a dangling 'started' Sx with ``uncertain_last``)."""
+    with Journal(path) as j:
+        for i in range(1, n + 1):
+            j.started(f"S{i}", job="job-1", position=[0.1 * i, 0.0, 0.0])
+            j.welded(f"S{i}", job="job-1")
+        if uncertain_last:
+            j.started("Sx", job="job-1")
+    return path
+
+
+def random_bytes(path):
+    """Damage: ``path`` replaced by 4096 random bytes; returns what the damage report names."""
+    rng = random.Random(14)
+    path.write_bytes(bytes(rng.randrange(256) for _ in range(4096)))
+    return "line"
+
+
+def nul_block_over_one_stud(path):
+    """Damage: NULs over S3's two records (lines 5 and 6) of a :func:`write_job` journal."""
+    lines = path.read_bytes().split(b"\n")
+    start = sum(len(x) + 1 for x in lines[:4])  # S3's started and welded: lines 5 and 6
+    n = len(lines[4]) + len(lines[5]) + 1
+    data = bytearray(path.read_bytes())
+    data[start:start + n] = b"\0" * n
+    path.write_bytes(bytes(data))
+    return "line 5"

@@ -254,7 +254,8 @@ def _weld_in_process(sim, journal_path, targets):
     from rm65_driver.arm_client import ArmClient
     from rm65_driver.journal import Journal
     from rm65_driver.safety import SafetyChecker, SafetyLimits
-    from rm65_driver.weld_sequence import WeldParams, WeldSequence
+    from rm65_driver.weld_job import WeldParams
+    from rm65_driver.weld_sequence import WeldSequence
 
     params = WeldParams(standoff_m=0.04, pulse_s=0.01, dwell_s=0.01, joint_speed_pct=50, linear_speed_pct=20)
     with ArmClient("127.0.0.1", sim.port) as client, Journal(journal_path) as journal:

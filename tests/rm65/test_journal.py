@@ -1,19 +1,20 @@
 """Weld journal: checksummed durable JSON lines and a mirror, welded/uncertain sets, torn tails vs.
-corruption, operator repair, failed appends, legacy files, operator decisions."""
+corruption, failed appends, legacy files, operator decisions (operator repair: test_journal_repair.py)."""
 from __future__ import annotations
 
 import errno
 import json
 import os
-import random
 import zlib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from rm65_driver import journal as J
-from rm65_driver.journal import Journal, JournalCorrupt, JournalError, mirror_path, repair_journal
+from rm65_driver.journal import Journal
+from rm65_driver.journal_records import JournalError, encode_record, mirror_path
+from rm65_driver.journal_scan import JournalCorrupt
+from rm65_testing import nul_block_over_one_stud, random_bytes, write_job
 
 
 def test_records_are_json_lines_and_survive_a_reload(tmp_path):
@@ -109,17 +110,6 @@ def test_empty_and_blank_files(tmp_path):
 # -- records, checksums, identity ----------------------------------------------------------------
 
 
-def write_job(path, n=8, uncertain_last=False):
-    """A journal of ``n`` welded studs S1..Sn (and a dangling 'started' Sx with ``uncertain_last``)."""
-    with Journal(path) as j:
-        for i in range(1, n + 1):
-            j.started(f"S{i}", job="job-1", position=[0.1 * i, 0.0, 0.0])
-            j.welded(f"S{i}", job="job-1")
-        if uncertain_last:
-            j.started("Sx", job="job-1")
-    return path
-
-
 def test_records_carry_seq_job_journal_id_and_a_crc32_of_their_canonical_json(tmp_path):
     path = write_job(tmp_path / "j.jsonl", n=2)
     recs = [json.loads(x) for x in path.read_text().splitlines()]
@@ -187,22 +177,6 @@ def test_a_checksum_failing_last_line_with_its_newline_is_a_torn_tail_too(tmp_pa
 # -- corruption: file and line, nothing written --------------------------------------------------
 
 
-def _random_bytes(path):
-    rng = random.Random(14)
-    path.write_bytes(bytes(rng.randrange(256) for _ in range(4096)))
-    return "line"
-
-
-def _nul_block_over_one_stud(path):
-    lines = path.read_bytes().split(b"\n")
-    start = sum(len(x) + 1 for x in lines[:4])  # S3's started and welded: lines 5 and 6
-    n = len(lines[4]) + len(lines[5]) + 1
-    data = bytearray(path.read_bytes())
-    data[start:start + n] = b"\0" * n
-    path.write_bytes(bytes(data))
-    return "line 5"
-
-
 def _crc_mismatch_in_the_middle(path):
     lines = path.read_text().splitlines(keepends=True)
     lines[2] = lines[2].replace('"event":"started"', '"event":"skipped"')
@@ -214,7 +188,7 @@ def _unknown_event_in_the_middle(path):
     lines = path.read_text().splitlines(keepends=True)
     rec = json.loads(lines[2])
     rec["event"] = "forgotten"
-    lines[2] = J.encode_record(rec).decode()  # a valid checksum, an event no driver writes
+    lines[2] = encode_record(rec).decode()  # a valid checksum, an event no driver writes
     path.write_text("".join(lines))
     return "line 3 (unknown event"
 
@@ -233,7 +207,7 @@ def _legacy_record_after_checksummed_ones(path):
     return "line 5 (record without checksum"
 
 
-@pytest.mark.parametrize("damage", [_random_bytes, _nul_block_over_one_stud, _crc_mismatch_in_the_middle,
+@pytest.mark.parametrize("damage", [random_bytes, nul_block_over_one_stud, _crc_mismatch_in_the_middle,
                                     _unknown_event_in_the_middle, _a_line_deleted,
                                     _legacy_record_after_checksummed_ones])
 def test_damage_other_than_a_torn_tail_is_corruption_naming_file_and_line(tmp_path, damage):
@@ -250,7 +224,7 @@ def test_damage_other_than_a_torn_tail_is_corruption_naming_file_and_line(tmp_pa
 
 def test_a_damaged_mirror_is_a_fault_offering_the_intact_journal(tmp_path):
     path = write_job(tmp_path / "j.jsonl")
-    _nul_block_over_one_stud(mirror_path(path))
+    nul_block_over_one_stud(mirror_path(path))
     with pytest.raises(JournalCorrupt) as exc:
         Journal(path)
     assert f"its mirror {mirror_path(path)} is damaged: line 5 (not JSON" in str(exc.value)
@@ -276,55 +250,6 @@ def test_a_mirror_one_record_behind_is_brought_level(tmp_path):
     with Journal(path) as j:
         assert j.welded_ids == {"S1", "S2"} and "one record behind" in j.warnings[0]
     assert mirror_path(path).read_bytes() == path.read_bytes()
-
-
-# -- operator repair ----------------------------------------------------------------------------
-
-
-def test_load_backup_restores_the_mirror_and_moves_the_damaged_file_aside(tmp_path):
-    path = write_job(tmp_path / "j.jsonl", uncertain_last=True)
-    _random_bytes(path)
-    with pytest.raises(JournalError, match="unknown journal action"):
-        repair_journal(path, "fix_it")
-    msg = repair_journal(path, J.ACTION_LOAD_BACKUP, note="disk checked")
-    assert "loaded" in msg and ".corrupt-" in msg
-    [aside] = tmp_path.glob("j.jsonl.corrupt-*")
-    assert len(aside.read_bytes()) == 4096
-    with Journal(path) as j:
-        assert j.welded_ids == {f"S{i}" for i in range(1, 9)} and j.uncertain_ids == {"Sx"} and not j.warnings
-        last = json.loads(path.read_text().splitlines()[-1])
-        assert last["event"] == "recovered" and last["action"] == "load_backup" and last["note"] == "disk checked"
-    assert "intact: nothing to repair" in repair_journal(path, J.ACTION_LOAD_BACKUP)
-
-
-def test_accept_intact_keeps_the_records_before_the_damage_and_marks_later_studs_uncertain(tmp_path):
-    path = write_job(tmp_path / "j.jsonl")
-    with Journal(path) as j:
-        j.skipped("S1", "already welded")  # after the damage below, but S1 is welded before it: stays welded
-        j.skipped("S20", "unreachable")
-    _nul_block_over_one_stud(path)
-    _random_bytes(mirror_path(path))  # no intact copy left
-    with pytest.raises(JournalCorrupt) as exc:
-        Journal(path)
-    assert exc.value.report.backup is None and "first 4 record(s)" in str(exc.value)
-    with pytest.raises(JournalError, match="no intact copy"):
-        repair_journal(path, J.ACTION_LOAD_BACKUP)
-    msg = repair_journal(path, J.ACTION_ACCEPT_INTACT, note="checked the plate")
-    assert "kept 4 intact record(s)" in msg
-    with Journal(path) as j:
-        assert j.welded_ids == {"S1", "S2"}
-        # S3 was under the NUL block: nothing names it any more (the operator is told 'first 4 records')
-        assert j.uncertain_ids == {"S4", "S5", "S6", "S7", "S8", "S20"}
-        assert j.status("S3") == "new"
-    assert len(list(tmp_path.glob("j.jsonl*.corrupt-*"))) == 2
-
-
-def test_accept_intact_uses_what_the_mirror_still_knows(tmp_path):
-    path = write_job(tmp_path / "j.jsonl")
-    _random_bytes(path)  # the whole journal gone; the mirror intact
-    repair_journal(path, J.ACTION_ACCEPT_INTACT)
-    with Journal(path) as j:
-        assert j.welded_ids == set() and j.uncertain_ids == {f"S{i}" for i in range(1, 9)}
 
 
 # -- failed appends -----------------------------------------------------------------------------
@@ -360,7 +285,7 @@ def test_verify_notices_a_change_made_behind_the_journals_back(tmp_path):
     path = write_job(tmp_path / "j.jsonl", n=3)
     j = Journal(path)
     j.verify()
-    _nul_block_over_one_stud(path)
+    nul_block_over_one_stud(path)
     with pytest.raises(JournalCorrupt, match="line 5"):
         j.verify()
     with pytest.raises(JournalError, match="failed earlier"):

@@ -18,7 +18,8 @@ from rm65_driver.journal import Journal
 from rm65_driver.kinematics import RM65Kinematics
 from rm65_driver.safety import SafetyChecker, SafetyLimits
 from rm65_driver.simulator import ArmSimulator
-from rm65_driver.weld_sequence import StudTarget, WeldParams, WeldSequence
+from rm65_driver.weld_job import StudTarget, WeldParams
+from rm65_driver.weld_sequence import WeldSequence
 from rm65_testing import FAST, dome_targets, wait_for, welds_per_stud
 
 PARAMS = WeldParams(standoff_m=0.04, tool_offset_m=0.15, pulse_s=0.01, dwell_s=0.01, joint_speed_pct=50,

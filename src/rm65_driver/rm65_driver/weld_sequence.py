@@ -2,7 +2,9 @@
 
 Pure Python on top of :class:`~rm65_driver.arm_client.ArmClient`,
 :class:`~rm65_driver.journal.Journal` and :class:`~rm65_driver.safety.SafetyChecker`; the ROS
-node only converts ``WeldTarget`` messages to :class:`StudTarget` and forwards feedback.
+node only converts ``WeldTarget`` messages to :class:`~rm65_driver.weld_job.StudTarget` and forwards
+feedback. The job's inputs and result (:class:`~rm65_driver.weld_job.WeldParams`, ``JobResult``) are in
+:mod:`.weld_job`.
 
 Per target, in order:
 
@@ -54,126 +56,30 @@ uncertain.
 """
 from __future__ import annotations
 
-import datetime as _dt
 import logging
-import math
 import threading
 import time
-import uuid
-from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 
 from .arm_client import ArmClient, ArmCommandError, ArmConnectionError, ArmError, ArmStopped, ArmTimeout
-from .journal import Journal, JournalError
+from .journal import Journal
+from .journal_records import JournalError
 from .kinematics import matrix_to_pose6, tool_pose_facing
 from .safety import SafetyChecker, StudPlan
 from .stud_order import order_by_path
+from .weld_job import JobResult, PhaseCallback, StudTarget, WeldedCallback, WeldParams, new_job_id
 
 _log = logging.getLogger(__name__)
-
-PHASES = ("approach", "descend", "weld", "dwell", "retract", "skip")
-STUD_ORDERS = ("given", "path", "tour")
-
-
-@dataclass(frozen=True)
-class StudTarget:
-    """One stud to weld: ``position`` (3,) m on the surface and unit outward ``normal`` (3,), world frame."""
-
-    stud_id: str
-    position: np.ndarray
-    normal: np.ndarray
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "position", np.asarray(self.position, dtype=np.float64).reshape(3))
-        n = np.asarray(self.normal, dtype=np.float64).reshape(3)
-        norm = np.linalg.norm(n)
-        object.__setattr__(self, "normal", n / norm if norm > 0 else n)
-
-
-@dataclass(frozen=True)
-class WeldParams:
-    """Job parameters. Lengths m, times s, speeds % of the controller maximum.
-
-    ``tool_offset_m``: flange -> weld-gun tip along the flange z axis (the ``weld_tool`` frame,
-    set on the controller as tool frame ``tool_frame_name``). ``trigger_io``: controller DO 1..4
-    (or tool-flange DO 1..2 with ``trigger_on_tool``); needs an external relay, see the module doc.
-    """
-
-    standoff_m: float = 0.05
-    tool_offset_m: float = 0.15
-    plunge_m: float = 0.0
-    tool_payload_kg: float = 1.0
-    tool_frame_name: str = "weld_gun"
-    trigger_io: int = 1
-    trigger_on_tool: bool = False
-    set_io_mode: bool = True  # Gen-3 multiplexed IO must be switched to output first
-    pulse_s: float = 0.2
-    dwell_s: float = 0.5
-    joint_speed_pct: int = 30
-    linear_speed_pct: int = 10
-    motion_timeout_s: float = 60.0
-    # The fast approach: the last final_approach_m before the contact at linear_speed_pct (slow,
-    # controlled), the rest of the standoff and the retract at approach_speed_pct. 0 (or not
-    # shorter than the standoff): the whole standoff slow, the retract too.
-    final_approach_m: float = 0.0
-    approach_speed_pct: int = 10
-    stud_order: str = "given"  # "given" | "path" | "tour"
-    reconnect_timeout_s: float = 10.0
-    max_reconnects_per_stud: int = 3
-    on_disconnect: str = "continue"  # or "abort"
-    require_base_work_frame: bool = True
-
-    def __post_init__(self) -> None:
-        if self.stud_order not in STUD_ORDERS:
-            raise ValueError(f"stud_order={self.stud_order!r}: expected one of {', '.join(STUD_ORDERS)}")
-        if self.on_disconnect not in ("continue", "abort"):
-            raise ValueError(f"on_disconnect={self.on_disconnect!r}: expected 'continue' or 'abort'")
-        for name in ("standoff_m", "tool_offset_m", "plunge_m", "tool_payload_kg", "pulse_s", "dwell_s",
-                     "motion_timeout_s", "reconnect_timeout_s", "final_approach_m"):
-            if not math.isfinite(getattr(self, name)):
-                raise ValueError(f"{name}={getattr(self, name)} must be a finite number")
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name}={getattr(self, name)} must not be negative")
-        if self.standoff_m <= 0:
-            raise ValueError("standoff_m must be positive (the approach pose must be off the surface)")
-
-    @property
-    def fast_approach(self) -> bool:
-        """A fast approach to a short standoff before the slow final move (see the fields)."""
-        return 0.0 < self.final_approach_m < self.standoff_m
-
-    @property
-    def tool_T(self) -> np.ndarray:
-        """Flange -> weld tool (4x4, m)."""
-        T = np.eye(4)
-        T[2, 3] = self.tool_offset_m
-        return T
-
-
-@dataclass
-class JobResult:
-    welded: list[str] = field(default_factory=list)
-    skipped: list[str] = field(default_factory=list)
-    failed: list[str] = field(default_factory=list)
-    messages: list[str] = field(default_factory=list)
-    success: bool = False
-    message: str = ""
-    job_id: str = ""
-
-
-PhaseCallback = Callable[[str, str, int, int], None]  # (stud_id, phase, done, total)
-WeldedCallback = Callable[[str, np.ndarray], None]  # (stud_id, joints at the weld, rad): after the journal says welded
-
-
-def new_job_id() -> str:
-    """``<UTC time>-<6 hex>``: sorts by start time, unique across restarts and cells."""
-    return f"{_dt.datetime.now(_dt.timezone.utc):%Y%m%dT%H%M%SZ}-{uuid.uuid4().hex[:6]}"
 
 
 class _JobEnded(Exception):
     """Internal: the job stops here (cancel, halt, abort); ``message`` goes to the result."""
+
+
+#: How a job goes on after a connection loss at a stud (:meth:`WeldSequence._after_connection_loss`).
+_RETRY, _NEXT, _END = "retry", "next", "end"
 
 
 class WeldSequence:
@@ -357,73 +263,22 @@ class WeldSequence:
                 self._end_unprocessed(targets[i:], res)
                 res.message = self._stop_message()
                 return
-            status = self.journal.status(t.stud_id)
-            if status == "welded":
-                if resume:
-                    res.welded.append(t.stud_id)
-                else:
-                    res.skipped.append(t.stud_id)
-                    res.messages.append(f"{t.stud_id}: already welded (journal); not welded again")
-                self._finish_one(t, "skip")
-                i += 1
-                continue
-            if status == "uncertain":
-                res.failed.append(t.stud_id)
-                res.messages.append(f"{t.stud_id}: uncertain in the journal (started, never confirmed): "
-                                    "needs an operator decision (resolve_stud) before it can be welded")
-                self._finish_one(t, "skip")
+            if self._settled_by_journal(t, resume, res):
                 i += 1
                 continue
             try:
                 outcome = self._do_stud(t, res)
             except ArmConnectionError as exc:
                 reconnects += 1
-                phase = self.phase
-                status = self.journal.status(t.stud_id)
-                _log.warning("connection lost at stud %s (phase %s, journal %s): %s", t.stud_id, phase, status, exc)
-                recovered = ""
-                try:
-                    self._recover(t, phase)
-                except (ArmError, _JobEnded) as exc2:
-                    recovered = str(exc2)
-                if status == "welded":  # lost during the retract: the stud is done
-                    res.welded.append(t.stud_id)
-                elif status == "uncertain":
-                    res.failed.append(t.stud_id)
-                    res.messages.append(f"{t.stud_id}: uncertain (connection lost after the trigger); "
-                                        "not re-welded, needs an operator decision")
-                if recovered:
-                    self._end_unprocessed(targets[i:], res)
-                    res.message = f"aborted: connection lost at {t.stud_id} and not recovered: {recovered}"
+                step = self._after_connection_loss(targets, i, reconnects, exc, res)
+                if step == _END:
                     return
-                if status in ("welded", "uncertain"):
-                    self._finish_one(t, "skip")
+                if step == _NEXT:
                     i += 1
                     reconnects = 0
-                    if status == "uncertain" and self.params.on_disconnect == "abort":
-                        self._end_unprocessed(targets[i:], res)
-                        res.message = "aborted after a connection loss mid-weld (on_disconnect=abort)"
-                        return
-                elif reconnects > self.params.max_reconnects_per_stud:
-                    res.failed.append(t.stud_id)
-                    res.messages.append(f"{t.stud_id}: connection lost {reconnects} times at this stud")
-                    self._end_unprocessed(targets[i + 1:], res)
-                    res.message = "aborted: the connection keeps dropping"
-                    return
                 continue  # the same stud again (it was never triggered), or the next one
             except _JobEnded as end:
-                status = self.journal.status(t.stud_id)
-                if status == "welded":
-                    res.welded.append(t.stud_id)
-                elif status == "uncertain":
-                    res.failed.append(t.stud_id)
-                    res.messages.append(f"{t.stud_id}: uncertain (job ended after the trigger): "
-                                        "needs an operator decision")
-                elif not str(end).startswith(("cancelled", "halted")):
-                    res.failed.append(t.stud_id)
-                    res.messages.append(f"{t.stud_id}: {end}")
-                self._end_unprocessed(targets[i:], res)
-                res.message = str(end)
+                self._after_job_ended(targets, i, end, res)
                 return
             reconnects = 0
             if outcome == "welded":
@@ -434,6 +289,79 @@ class WeldSequence:
         res.success = not res.failed and not stopped
         res.message = self._stop_message() if stopped else (
             f"done: {len(res.welded)} welded, {len(res.skipped)} skipped, {len(res.failed)} failed")
+
+    def _settled_by_journal(self, t: StudTarget, resume: bool, res: JobResult) -> bool:
+        """A stud the journal already decides (welded: not touched; uncertain: refused); True if so."""
+        status = self.journal.status(t.stud_id)
+        if status == "welded":
+            if resume:
+                res.welded.append(t.stud_id)
+            else:
+                res.skipped.append(t.stud_id)
+                res.messages.append(f"{t.stud_id}: already welded (journal); not welded again")
+            self._finish_one(t, "skip")
+            return True
+        if status == "uncertain":
+            res.failed.append(t.stud_id)
+            res.messages.append(f"{t.stud_id}: uncertain in the journal (started, never confirmed): "
+                                "needs an operator decision (resolve_stud) before it can be welded")
+            self._finish_one(t, "skip")
+            return True
+        return False
+
+    def _after_connection_loss(self, targets: list[StudTarget], i: int, reconnects: int, exc: ArmConnectionError,
+                               res: JobResult) -> str:
+        """Recover from a connection loss at ``targets[i]`` (the ``reconnects``-th there) and say how the
+        job goes on: :data:`_RETRY` the same stud (never triggered), :data:`_NEXT` stud, or :data:`_END`."""
+        t = targets[i]
+        phase = self.phase
+        status = self.journal.status(t.stud_id)
+        _log.warning("connection lost at stud %s (phase %s, journal %s): %s", t.stud_id, phase, status, exc)
+        recovered = ""
+        try:
+            self._recover(t, phase)
+        except (ArmError, _JobEnded) as exc2:
+            recovered = str(exc2)
+        if status == "welded":  # lost during the retract: the stud is done
+            res.welded.append(t.stud_id)
+        elif status == "uncertain":
+            res.failed.append(t.stud_id)
+            res.messages.append(f"{t.stud_id}: uncertain (connection lost after the trigger); "
+                                "not re-welded, needs an operator decision")
+        if recovered:
+            self._end_unprocessed(targets[i:], res)
+            res.message = f"aborted: connection lost at {t.stud_id} and not recovered: {recovered}"
+            return _END
+        if status in ("welded", "uncertain"):
+            self._finish_one(t, "skip")
+            if status == "uncertain" and self.params.on_disconnect == "abort":
+                self._end_unprocessed(targets[i + 1:], res)
+                res.message = "aborted after a connection loss mid-weld (on_disconnect=abort)"
+                return _END
+            return _NEXT
+        if reconnects > self.params.max_reconnects_per_stud:
+            res.failed.append(t.stud_id)
+            res.messages.append(f"{t.stud_id}: connection lost {reconnects} times at this stud")
+            self._end_unprocessed(targets[i + 1:], res)
+            res.message = "aborted: the connection keeps dropping"
+            return _END
+        return _RETRY
+
+    def _after_job_ended(self, targets: list[StudTarget], i: int, end: _JobEnded, res: JobResult) -> None:
+        """The job ended (cancel, halt, abort) at ``targets[i]``: the stud's outcome from the journal."""
+        t = targets[i]
+        status = self.journal.status(t.stud_id)
+        if status == "welded":
+            res.welded.append(t.stud_id)
+        elif status == "uncertain":
+            res.failed.append(t.stud_id)
+            res.messages.append(f"{t.stud_id}: uncertain (job ended after the trigger): "
+                                "needs an operator decision")
+        elif not str(end).startswith(("cancelled", "halted")):
+            res.failed.append(t.stud_id)
+            res.messages.append(f"{t.stud_id}: {end}")
+        self._end_unprocessed(targets[i:], res)
+        res.message = str(end)
 
     def _stop_message(self) -> str:
         return f"halted: {self._halt_reason}" if self._halt else "cancelled"
