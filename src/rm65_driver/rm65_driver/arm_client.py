@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from . import protocol as P
 
@@ -380,7 +381,7 @@ class ArmClient:
         assert failed
         raise self._refusal(msg["command"])  # decoded outside the lock: it queries the state
 
-    def move_joints_and_wait(self, q_rad: Sequence[float], v: int, timeout_s: float = 30.0,
+    def move_joints_and_wait(self, q_rad: ArrayLike, v: int, timeout_s: float = 30.0,
                              stop_count: int | None = None) -> None:
         """``movej`` to ``q_rad`` (6,) at ``v`` % and wait for arrival.
 
@@ -395,7 +396,7 @@ class ArmClient:
         """``movej_p`` (joint-space move) to a tool pose ``[m, m, m, rad, rad, rad]`` in the work frame."""
         self._move_and_wait(P.movej_p(pose6, v), timeout_s, stop_count)
 
-    def move_linear_and_wait(self, pose6: Sequence[float], v: int, timeout_s: float = 30.0,
+    def move_linear_and_wait(self, pose6: ArrayLike, v: int, timeout_s: float = 30.0,
                              stop_count: int | None = None) -> None:
         """``movel`` (straight line) to a tool pose ``[m, m, m, rad, rad, rad]`` in the work frame."""
         self._move_and_wait(P.movel(pose6, v), timeout_s, stop_count)

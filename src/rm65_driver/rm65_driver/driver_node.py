@@ -87,7 +87,7 @@ def target_from_msg(msg: WeldTarget) -> tuple[StudTarget | None, str]:
         R, _ = ros_io.pose_to_rt(msg.pose)
         n = R[:, 2]
     p = msg.pose.position
-    return StudTarget(msg.stud_id, [p.x, p.y, p.z], n), ""
+    return StudTarget(msg.stud_id, np.array([p.x, p.y, p.z]), n), ""
 
 
 def result_to_msg(res: JobResult, pre_skipped: list[tuple[str, str]]) -> WeldJob.Result:

@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import threading
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from rclpy.node import Node
 from std_msgs.msg import Bool
 from stud_welding_msgs.srv import MoveTo, ResolveJournal, ResolveStud
 
@@ -30,8 +31,7 @@ JOURNAL_ACTIONS = {ResolveJournal.Request.ACTION_ACCEPT_INTACT: ACTION_ACCEPT_IN
                    ResolveJournal.Request.ACTION_LOAD_BACKUP: ACTION_LOAD_BACKUP}
 
 
-
-class DriverServices:
+class DriverServices(Node):
     """Service and e-stop handlers of :class:`~rm65_driver.driver_node.DriverNode` (state lives there)."""
 
     p: dict[str, Any]
@@ -40,12 +40,20 @@ class DriverServices:
     journal: Journal | None
     journal_path: Path
     sequence: WeldSequence | None
-    tool_T: np.ndarray
     _job_lock: threading.Lock
     _journal_fault: JournalError | None
     _estop: bool
     _message: str
     _last_state: Any
+
+    if TYPE_CHECKING:  # DriverNode's and DriverStatus's
+        @property
+        def tool_T(self) -> np.ndarray: ...
+        @property
+        def journal_fault(self) -> JournalError | None: ...
+        def _fault_text(self, fault: JournalError) -> str: ...
+        def _open_journal(self) -> None: ...
+        def _hand_eye(self) -> np.ndarray: ...
 
     # -- services ---------------------------------------------------------------------------------
     def _stop_now(self, reason: str) -> tuple[bool, str]:
@@ -144,7 +152,7 @@ class DriverServices:
     def _on_resolve(self, req, resp):
         if self.journal is None or self.journal_fault is not None:
             resp.success = False
-            resp.message = f"{self._fault_text(self.journal_fault)}: resolve the journal first"  # type: ignore[arg-type]
+            resp.message = f"{self._fault_text(self.journal_fault)}: resolve the journal first"
             return resp
         welded = req.decision == ResolveStud.Request.DECISION_WELDED
         if req.decision not in (ResolveStud.Request.DECISION_WELDED, ResolveStud.Request.DECISION_NOT_WELDED):

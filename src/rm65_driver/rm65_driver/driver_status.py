@@ -12,10 +12,12 @@ from __future__ import annotations
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
+from rclpy.node import Node
+from rclpy.publisher import Publisher
 from sensor_msgs.msg import JointState
 from stud_welding_msgs.msg import ArmState, WeldRecord
 
@@ -23,6 +25,7 @@ from stud_common import ros_io
 
 from .arm_client import ArmClient, ArmError
 from .journal import Journal
+from .journal_records import JournalError
 from .journal_scan import JournalCorrupt
 from .kinematics import RM65Kinematics
 from .weld_sequence import WeldSequence
@@ -30,7 +33,7 @@ from .weld_sequence import WeldSequence
 JOINT_NAMES = [f"joint{i}" for i in range(1, 7)]
 
 
-class DriverStatus:
+class DriverStatus(Node):
     """State polling and publishing of :class:`~rm65_driver.driver_node.DriverNode` (state lives there)."""
 
     p: dict[str, Any]
@@ -41,13 +44,23 @@ class DriverStatus:
     sequence: WeldSequence | None
     hand_eye: Any
     diag: ros_io.Diagnostics
-    tool_T: np.ndarray
+    pub_state: Publisher
+    pub_joints: Publisher
+    pub_welds: Publisher
+    pub_camera: Publisher | None
     _running: bool
     _wake: threading.Event
     _estop: bool
     _message: str
     _last_state: Any
     _connected_logged: bool | None
+
+    if TYPE_CHECKING:  # DriverNode's
+        @property
+        def tool_T(self) -> np.ndarray: ...
+        @property
+        def journal_fault(self) -> JournalError | None: ...
+        def _fault_text(self, fault: JournalError) -> str: ...
 
     # -- state publishing -------------------------------------------------------------------------
     def _poll_loop(self) -> None:

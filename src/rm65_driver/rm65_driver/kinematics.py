@@ -349,7 +349,7 @@ class RM65Kinematics:
         lam2 = damping**2
         eye6 = np.eye(6)
         active = np.ones(len(q), dtype=bool)
-        e_pos = e_rot = None
+        e_pos = e_rot = np.full(len(q), np.inf)  # (no iteration: nothing converged)
         it = 0
         first_converged = None
         for it in range(1, max_iterations + 1):

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from typing import Any, Iterable, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 _log = logging.getLogger(__name__)
 
@@ -147,23 +148,23 @@ def _to_int_list(values: Iterable[float], scale: float) -> list[int]:
     return [int(round(v * scale)) for v in vals]
 
 
-def joints_to_wire(q_rad: Sequence[float]) -> list[int]:
+def joints_to_wire(q_rad: ArrayLike) -> list[int]:
     """Joint angles rad -> int 0.001 deg."""
     return _to_int_list(np.degrees(np.asarray(q_rad, dtype=np.float64)), 1000.0)
 
 
-def joints_from_wire(mdeg: Sequence[int]) -> np.ndarray:
+def joints_from_wire(mdeg: ArrayLike) -> np.ndarray:
     """Joint angles int 0.001 deg -> rad, shape (n,)."""
     return np.radians(np.asarray(mdeg, dtype=np.float64) / 1000.0)
 
 
-def pose_to_wire(pose6: Sequence[float]) -> list[int]:
+def pose_to_wire(pose6: ArrayLike) -> list[int]:
     """``[x, y, z (m), rx, ry, rz (rad)]`` -> ``[µm, µm, µm, mrad, mrad, mrad]``."""
     p = np.asarray(pose6, dtype=np.float64).reshape(6)
     return _to_int_list(p[:3], 1e6) + _to_int_list(p[3:], 1e3)
 
 
-def pose_from_wire(wire: Sequence[int]) -> np.ndarray:
+def pose_from_wire(wire: ArrayLike) -> np.ndarray:
     """``[µm, µm, µm, mrad, mrad, mrad]`` -> ``[x, y, z (m), rx, ry, rz (rad)]``."""
     w = np.asarray(wire, dtype=np.float64).reshape(6)
     return np.concatenate([w[:3] / 1e6, w[3:] / 1e3])
@@ -188,19 +189,19 @@ def _check_speed(v: int) -> int:
     return v
 
 
-def movej(q_rad: Sequence[float], v: int, r: int = 0, trajectory_connect: int = 0) -> dict[str, Any]:
+def movej(q_rad: ArrayLike, v: int, r: int = 0, trajectory_connect: int = 0) -> dict[str, Any]:
     """Joint move to ``q_rad`` (6,) at ``v`` % of max joint speed."""
     return {"command": "movej", "joint": joints_to_wire(q_rad), "v": _check_speed(v), "r": int(r),
             "trajectory_connect": int(trajectory_connect)}
 
 
-def movej_p(pose6: Sequence[float], v: int, r: int = 0, trajectory_connect: int = 0) -> dict[str, Any]:
+def movej_p(pose6: ArrayLike, v: int, r: int = 0, trajectory_connect: int = 0) -> dict[str, Any]:
     """Joint-space move to a Cartesian pose ``[m, m, m, rad, rad, rad]`` (current tool in current work frame)."""
     return {"command": "movej_p", "pose": pose_to_wire(pose6), "v": _check_speed(v), "r": int(r),
             "trajectory_connect": int(trajectory_connect)}
 
 
-def movel(pose6: Sequence[float], v: int, r: int = 0, trajectory_connect: int = 0) -> dict[str, Any]:
+def movel(pose6: ArrayLike, v: int, r: int = 0, trajectory_connect: int = 0) -> dict[str, Any]:
     """Straight-line move of the current tool to a pose ``[m, m, m, rad, rad, rad]``."""
     return {"command": "movel", "pose": pose_to_wire(pose6), "v": _check_speed(v), "r": int(r),
             "trajectory_connect": int(trajectory_connect)}

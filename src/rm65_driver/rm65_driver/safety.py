@@ -16,9 +16,9 @@ the flange -> tool transform ``tool_T`` (4x4, m).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .kinematics import SHOULDER_M, WORKING_RADIUS_M, RM65Kinematics, tool_pose_facing
 
@@ -96,7 +96,7 @@ class SafetyChecker:
             return f"{kind} speed {v_pct} % outside 1..{cap} % (speed cap)"
         return None
 
-    def check_tool_tilt(self, normal: Sequence[float]) -> str | None:
+    def check_tool_tilt(self, normal: ArrayLike) -> str | None:
         """The gun, along -normal, leans from vertical by the normal's angle to world +z."""
         n = np.asarray(normal, dtype=np.float64)
         norm = np.linalg.norm(n)
@@ -155,7 +155,7 @@ class SafetyChecker:
         return None
 
     # -- a whole stud --------------------------------------------------------------------
-    def check_target(self, position_m: Sequence[float], normal: Sequence[float], standoff_m: float,
+    def check_target(self, position_m: ArrayLike, normal: ArrayLike, standoff_m: float,
                      q_current: np.ndarray, plunge_m: float = 0.0) -> TargetCheck:
         """Plan and check one stud: gun tilt, approach pose on the normal at ``standoff_m``, contact
         pose (``plunge_m`` beyond the surface), both in the workspace and reachable inside the

@@ -93,17 +93,17 @@ def plan_motion(kin: RM65Kinematics, name: str, msg: dict[str, Any], q_start: np
         path = np.vstack([q_start, res.q])
         return path, kin.joint_move_time(q_start, res.q, frac), 0
     # movel
-    path, why = kin.linear_path(q_start, T_goal, tool=T_tool)
-    if path is None:
+    line, why = kin.linear_path(q_start, T_goal, tool=T_tool)
+    if line is None:
         _log.info("simulator: movel refused: %s", why)
         return None, 0.0, 0x1003
     T0 = kin.fk(q_start, T_tool)
     length = float(np.linalg.norm(T_goal[:3, 3] - T0[:3, 3]))
     angle = rotation_angle(T0, T_goal)
-    dq = np.abs(np.diff(path, axis=0))
+    dq = np.abs(np.diff(line, axis=0))
     joint_t = float(np.sum(np.max(dq / kin.max_speed_rad_s, axis=1))) / frac
     t = max(length / (max_line_speed_m_s * frac), angle / (max_angular_speed_rad_s * frac), joint_t)
-    return path, t, 0
+    return line, t, 0
 
 
 def within_reach(kin: RM65Kinematics, T_goal: np.ndarray, T_tool: np.ndarray) -> bool:

@@ -94,7 +94,7 @@ class StatePublisherNode(Node):
                 raise SystemExit(2) from None
         return rm65_urdf(RM65Description(
             variant=self.p["arm_variant"], tool_offset_m=self.p["tool_offset_m"],
-            hand_eye_xyz_m=tuple(self.hand_eye.xyz_m), hand_eye_rpy_deg=tuple(self.hand_eye.rpy_deg),
+            hand_eye_xyz_m=self.hand_eye.xyz_m, hand_eye_rpy_deg=self.hand_eye.rpy_deg,
             include_camera=self.p["publish_camera_frame"]))
 
     def _on_joints(self, msg: JointState) -> None:

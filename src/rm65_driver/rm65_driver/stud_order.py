@@ -12,9 +12,10 @@ from __future__ import annotations
 from typing import Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 
-def joint_move_costs(Q_from: np.ndarray, Q_to: np.ndarray, max_speed_rad_s: Sequence[float]) -> np.ndarray:
+def joint_move_costs(Q_from: np.ndarray, Q_to: np.ndarray, max_speed_rad_s: ArrayLike) -> np.ndarray:
     """(N, M) full-speed move times (s) between joint vectors ``Q_from`` (N, 6) and ``Q_to`` (M, 6), rad."""
     A = np.atleast_2d(np.asarray(Q_from, dtype=np.float64))
     B = np.atleast_2d(np.asarray(Q_to, dtype=np.float64))
@@ -30,7 +31,7 @@ def path_cost(order: Sequence[int], cost: np.ndarray, from_start: np.ndarray, to
     return c + (float(to_end[order[-1]]) if to_end is not None else 0.0)
 
 
-def order_by_path(q_start: np.ndarray, Q: np.ndarray, max_speed_rad_s: Sequence[float],
+def order_by_path(q_start: np.ndarray, Q: np.ndarray, max_speed_rad_s: ArrayLike,
                   q_end: np.ndarray | None = None, max_passes: int = 50) -> list[int]:
     """Indices of the studs' joint vectors ``Q`` (N, 6) in visiting order from ``q_start`` (6,):
     nearest neighbour, improved by 2-opt; ``q_end`` (6,): the path ends there (its last leg counts)."""
