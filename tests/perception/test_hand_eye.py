@@ -26,7 +26,9 @@ from stud_perception.hand_eye import (BoardShot, HandEyeError, board_points_m, c
                                       rotation_angle_deg, rotation_spread_deg, solve_ax_xb)
 from stud_perception.markers import MarkDetectorConfig, detect_marks
 from stud_common.rotations import rpy_to_matrix
-from stud_perception.scene import load_scene, render, view_camera
+from stud_perception.scene_cameras import view_camera
+from stud_perception.scene_file import load_scene
+from stud_perception.scene_render import render
 from stud_planner.cell.hand_eye_views import plan_calibration_views, plan_check_views
 
 CI = os.environ.get("CI") == "true"  # derandomised in CI: the same cases every run
