@@ -56,7 +56,8 @@ def _three(name: str):
 PARAMS = [
     Param("source", "sim", "where frames come from; only 'sim' here (real cameras: run the vendor driver)",
           choices=("sim",), read_only=True),
-    Param("scene_file", "", "scene description (.json/.yaml, see stud_perception/scene_file.py); empty: the bundled dome"),
+    Param("scene_file", "", "scene description (.json/.yaml, see stud_perception/scene_file.py); "
+          "empty: the bundled dome"),
     Param("image_width", DEMO_IMAGE_SIZE[0], "image width [px]", min=16, max=8192),
     Param("image_height", DEMO_IMAGE_SIZE[1], "image height [px]", min=16, max=8192),
     Param("fov_width_m", DEMO_FOV_WIDTH_M, "field-of-view width at fov_distance_m [m]", min=0.01, max=10.0),
