@@ -35,7 +35,7 @@ import numpy as np
 from stud_perception.scene_solids import Component, Dome, Plate, Pose2D, SceneError
 from stud_perception.welded_studs import DEFAULT_STUD_DIAMETER_M, DEFAULT_STUD_LENGTH_M
 
-# Surface ids of :attr:`RenderedView.surface_id`.
+# Surface ids of :attr:`stud_perception.scene_render.RenderedView.surface_id`.
 SURFACE_NONE = -1
 SURFACE_TABLE = 0
 SURFACE_BOARD = 1
@@ -192,7 +192,8 @@ _DEMO_POSE = Pose2D(x_m=-0.135, y_m=-0.11, yaw_rad=math.pi / 2)
 def demo_dome_scene() -> SceneSpec:
     """The paper's set-up: a 50 mm high dome (base radius 0.2 m; normals 0 deg at the apex,
     ~14 deg at the outer studs) with 17 studs, and the marking board beside it
-    (|OA| = 130 mm, |OB| = 100 mm, 20 mm marks, 5 mm plate). Pair with :func:`demo_camera`."""
+    (|OA| = 130 mm, |OB| = 100 mm, 20 mm marks, 5 mm plate). Pair with
+    :func:`~stud_perception.scene_cameras.demo_camera`."""
     # Studs: apex, a ring of 8 at 50 mm and a ring of 8 at 100 mm (world, around the apex).
     ang = np.arange(8) * (2 * math.pi / 8)
     ring1 = np.column_stack([0.05 * np.cos(ang), 0.05 * np.sin(ang)])

@@ -98,7 +98,7 @@ def scene_from_dict(d: dict[str, Any]) -> SceneSpec:
     radius_m, axis_yaw_deg, length_m, height_m), ``trough`` (centre_xy_m, radius_m, axis_yaw_deg,
     length_m, width_m, rim_height_m), ``tilted_plane`` / ``plane`` (centre_xy_m, size_m, yaw_deg,
     height_m, tilt_deg). ``obstacles`` are flat boxes (stiffeners); ``specular_lobe_deg`` makes the
-    component shiny (see :class:`SceneSpec`).
+    component shiny (see :class:`~stud_perception.scene.SceneSpec`).
     """
     _take(d, "", {"component", "board", "drawing_to_world", "studs", "obstacles", "specular_lobe_deg",
                   "stud_length_mm", "stud_diameter_mm", "weld_defects"})

@@ -57,7 +57,7 @@ class RenderedView:
     (N, 3) the surface point above the stud's world XY, ``stud_normals_w`` (N, 3) unit outward
     normals, ``stud_pixels_uv`` (N, 2) its projection, ``stud_visible`` (N,) in the image and
     not occluded. Marks: ``marks_world_m`` (3, 3) O, A, B and ``marks_pixels_uv`` (3, 2).
-    :func:`distort_view` turns it into the raw images of a camera with lens distortion.
+    :func:`~stud_perception.scene_cameras.distort_view` turns it into the raw images of a camera with lens distortion.
     """
 
     color_bgr: np.ndarray
