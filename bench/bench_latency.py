@@ -37,7 +37,10 @@ from stud_welding_msgs.msg import Registration, Stud, StudLayout, WeldTargetArra
 
 from stud_common import ros_io  # noqa: E402
 from stud_perception.camera_node import shot_messages  # noqa: E402
-from stud_perception.scene import grid_stud_scene, load_scene, render, view_camera  # noqa: E402
+from stud_perception.scene import grid_stud_scene  # noqa: E402
+from stud_perception.scene_cameras import view_camera  # noqa: E402
+from stud_perception.scene_file import load_scene  # noqa: E402
+from stud_perception.scene_render import render  # noqa: E402
 
 SCENE = REPO / "src" / "stud_perception" / "config" / "dome_scene.json"
 

@@ -50,7 +50,9 @@ for _pkg in ("stud_common", "stud_perception", "stud_planner"):  # run from a ch
 
 import numpy as np  # noqa: E402
 
-from stud_perception import scene as scn  # noqa: E402
+from stud_perception.scene import demo_dome_scene, grid_stud_scene  # noqa: E402
+from stud_perception.scene_cameras import demo_camera  # noqa: E402
+from stud_perception.scene_render import render  # noqa: E402
 from stud_perception.camera_model import CameraModel  # noqa: E402
 from stud_perception.depth_image import fill_depth_at  # noqa: E402
 from stud_planner.matching.matchers import MatchResults, match_batch, match_bfs, match_fpm  # noqa: E402
@@ -246,7 +248,7 @@ def scaling_table(view, camera: CameraModel, s_px: float, args) -> None:
 
     rows = []
     for n in sizes:
-        grid = scn.grid_stud_scene(n, base=view.scene)
+        grid = grid_stud_scene(n, base=view.scene)
         xy = grid.studs_world_xy_m
         t_b, batch = best_of(lambda: match_batch(xy, depth, camera), repeats)
         t_bp, _ = best_of(lambda: estimate_surface_poses_for_matches(match_batch(xy, depth, camera), depth, camera),
@@ -292,8 +294,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     pinned = "not pinned" if args.no_pin else pin_to_one_cpu()
-    camera = scn.demo_camera()
-    view = scn.render(scn.demo_dome_scene(), camera, seed=args.seed, depth_noise_m=DEPTH_NOISE_M,
+    camera = demo_camera()
+    view = render(demo_dome_scene(), camera, seed=args.seed, depth_noise_m=DEPTH_NOISE_M,
                       hole_fraction=HOLE_FRACTION)
     print(f"stud matcher benchmark: numpy {np.__version__}, Python {sys.version.split()[0]}, {pinned}, "
           f"{'quick' if args.quick else 'full'} run")

@@ -73,7 +73,10 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from bench_matchers import BfsOracle  # noqa: E402
-from stud_perception.scene import Cylinder, demo_dome_scene, grid_stud_scene, render, view_camera  # noqa: E402
+from stud_perception.scene import demo_dome_scene, grid_stud_scene  # noqa: E402
+from stud_perception.scene_cameras import view_camera  # noqa: E402
+from stud_perception.scene_render import render  # noqa: E402
+from stud_perception.scene_solids import Cylinder  # noqa: E402
 from stud_planner.matching.matchers import match_batch, match_bfs, match_fpm  # noqa: E402
 from stud_planner.matching.view_targets import PlannerConfig, plan_view  # noqa: E402
 

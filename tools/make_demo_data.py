@@ -35,8 +35,9 @@ from rm65_driver.kinematics import RM65Kinematics  # noqa: E402
 from rm65_driver.safety import SafetyChecker, SafetyLimits  # noqa: E402
 from stud_perception.camera_model import nadir_rotation  # noqa: E402
 from stud_common.rotations import rpy_to_matrix  # noqa: E402
-from stud_perception.scene import (Cylinder, Dome, MarkingBoard, Pose2D, SceneSpec, scene_from_dict,  # noqa: E402
-                                   scene_to_dict, surface_height, surface_normal)
+from stud_perception.scene import MarkingBoard, SceneSpec, surface_height, surface_normal  # noqa: E402
+from stud_perception.scene_file import scene_from_dict, scene_to_dict  # noqa: E402
+from stud_perception.scene_solids import Cylinder, Dome, Pose2D  # noqa: E402
 from stud_common.strict_json import write_json  # noqa: E402
 from stud_planner.cell.job import JobConfig  # noqa: E402
 from stud_planner.drawing import read_layout  # noqa: E402

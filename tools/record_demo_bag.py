@@ -26,7 +26,9 @@ from stud_bag import BagWriter, Qos  # noqa: E402
 from stud_common import ros_io  # noqa: E402
 from stud_perception.camera_model import nadir_rotation  # noqa: E402
 from stud_perception.camera_node import shot_messages  # noqa: E402
-from stud_perception.scene import load_scene, render, view_camera  # noqa: E402
+from stud_perception.scene_cameras import view_camera  # noqa: E402
+from stud_perception.scene_file import load_scene  # noqa: E402
+from stud_perception.scene_render import render  # noqa: E402
 from stud_common.strict_json import write_json  # noqa: E402
 from stud_planner.cell.job import JobConfig  # noqa: E402
 from stud_planner.drawing import read_layout  # noqa: E402

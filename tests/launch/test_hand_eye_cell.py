@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from stud_common.rotations import transform_xyz_rpy
-from stud_perception.hand_eye import rotation_angle_deg
+from stud_perception.hand_eye_solvers import rotation_angle_deg
 from stud_common.hand_eye_in_use import load_hand_eye_file
 from test_cell_ros import N_DEMO_STUDS, free_port
 

@@ -14,7 +14,10 @@ from stud_perception.camera_model import CameraModel
 from stud_perception.depth_image import FillRule
 from stud_perception.markers import MarkDetectorConfig, MarkStatus, _hough_candidates, detect_marks
 from stud_perception.registration import registration_from_marks
-from stud_perception.scene import (Dome, MarkingBoard, Pose2D, SceneSpec, demo_camera, demo_dome_scene, render, view_camera)
+from stud_perception.scene import MarkingBoard, SceneSpec, demo_dome_scene
+from stud_perception.scene_cameras import demo_camera, view_camera
+from stud_perception.scene_render import render
+from stud_perception.scene_solids import Dome, Pose2D
 
 SCENE = demo_dome_scene()
 #: The cell layout of the audit that found these cases (its board and registration station, before the

@@ -1,5 +1,5 @@
 """Lens distortion: raw images of a distorting lens, rectified, register and match as the pinhole
-images would (and without rectification they do not); the maps undo scene.distort_view; models
+images would (and without rectification they do not); the maps undo scene_cameras.distort_view; models
 and coefficient vectors that cannot be used are named."""
 from __future__ import annotations
 
@@ -8,7 +8,9 @@ import pytest
 
 from stud_perception.markers import MarkDetectorConfig
 from stud_perception.rectify import Rectifier, RectifyError, has_distortion, rectifier_for
-from stud_perception.scene import demo_camera, demo_dome_scene, distort_view, render
+from stud_perception.scene import demo_dome_scene
+from stud_perception.scene_cameras import demo_camera, distort_view
+from stud_perception.scene_render import render
 from stud_perception.view_registration import register_view
 from stud_planner.matching.view_targets import PlannerConfig, plan_view
 

@@ -10,27 +10,12 @@ import pytest
 
 from stud_perception.camera_model import CameraModel
 from stud_perception.depth_image import depth_mm_to_m
-from stud_perception.scene import (
-    SURFACE_BOARD,
-    SURFACE_COMPONENT,
-    SURFACE_TABLE,
-    Cylinder,
-    Dome,
-    Plate,
-    Pose2D,
-    SceneError,
-    SceneSpec,
-    demo_camera,
-    demo_dome_scene,
-    grid_stud_scene,
-    load_scene,
-    render,
-    scene_from_dict,
-    scene_to_dict,
-    surface_height,
-    surface_normal,
-    view_camera,
-)
+from stud_perception.scene import (SURFACE_BOARD, SURFACE_COMPONENT, SURFACE_TABLE, SceneSpec, demo_dome_scene,
+                                   grid_stud_scene, surface_height, surface_normal)
+from stud_perception.scene_cameras import demo_camera, view_camera
+from stud_perception.scene_file import load_scene, scene_from_dict, scene_to_dict
+from stud_perception.scene_render import render
+from stud_perception.scene_solids import Cylinder, Dome, Plate, Pose2D, SceneError
 
 
 @pytest.fixture(scope="module")

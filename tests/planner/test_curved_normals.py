@@ -1,7 +1,7 @@
 """Normals on curved parts at any slope: accurate where the paper's parts need them, honest about
 their uncertainty, unbiased by the depth noise, and taken at the stud's own vertical line.
 
-Scenes come from stud_perception.scene (ray-cast, exact truth): domes, horizontal cylinder
+Scenes come from stud_perception.scene_render (ray-cast, exact truth): domes, horizontal cylinder
 sections, concave troughs and tilted plates with slopes from 0 to 35 deg, seen by a yawed and
 tilted camera, with the depth noise, quantisation and holes of a structured-light camera.
 """
@@ -14,7 +14,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stud_perception.scene import Cylinder, Dome, Plate, Pose2D, SceneSpec, Trough, render, view_camera
+from stud_perception.scene import SceneSpec
+from stud_perception.scene_cameras import view_camera
+from stud_perception.scene_render import render
+from stud_perception.scene_solids import Cylinder, Dome, Plate, Pose2D, Trough
 from stud_planner.matching.surface_pose import estimate_surface_poses, tangent_basis
 from stud_planner.matching.view_targets import STATUS_OK, PlannerConfig, plan_view
 

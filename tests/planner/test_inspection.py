@@ -17,8 +17,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from stud_common.rotations import frame_from_normal
-from stud_perception.scene import (Cylinder, Plate, Pose2D, SceneSpec, load_scene, render, surface_height,
-                                   surface_normal, view_camera)
+from stud_perception.scene import SceneSpec, surface_height, surface_normal
+from stud_perception.scene_cameras import view_camera
+from stud_perception.scene_file import load_scene
+from stud_perception.scene_render import render
+from stud_perception.scene_solids import Cylinder, Plate, Pose2D
 from stud_perception.welded_studs import StudCylinder, WeldDefect, parse_weld_defects, welded_stud
 from stud_planner.cell.inspection import InspectionLimits, Verdict, inspect_studs
 from stud_planner.matching.view_targets import plan_view

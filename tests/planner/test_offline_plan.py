@@ -15,7 +15,9 @@ from stud_bag import BagWriter  # noqa: E402
 
 from stud_common import ros_io  # noqa: E402
 from stud_perception.camera_node import shot_messages  # noqa: E402
-from stud_perception.scene import distort_view, load_scene, render, view_camera  # noqa: E402
+from stud_perception.scene_cameras import distort_view, view_camera  # noqa: E402
+from stud_perception.scene_file import load_scene  # noqa: E402
+from stud_perception.scene_render import render  # noqa: E402
 from stud_planner.offline_plan import PlanError, main, plan, read_views  # noqa: E402
 from stud_planner.matching.view_targets import PlannerConfig  # noqa: E402
 

@@ -17,9 +17,11 @@ from rosproc import REPO, ros2_run, wait_for
 from stud_common import ros_io
 from stud_perception import image_io
 from stud_perception.camera_node import camera_pose_from_tool
-from stud_perception.hand_eye import rotation_angle_deg
+from stud_perception.hand_eye_solvers import rotation_angle_deg
 from stud_common.rotations import matrix_to_quaternion, rpy_to_matrix
-from stud_perception.scene import load_scene, render, view_camera
+from stud_perception.scene_cameras import view_camera
+from stud_perception.scene_file import load_scene
+from stud_perception.scene_render import render
 
 SCENE_FILE = REPO / "src" / "stud_perception" / "config" / "dome_scene.json"
 FILE_XYZ, FILE_RPY = [0.0561, -0.0041, -0.0968], [0.9, -0.45, 0.85]

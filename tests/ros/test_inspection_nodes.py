@@ -19,7 +19,8 @@ from rosproc import REPO, ros2_run, wait_for
 from stud_common import ros_io
 from stud_common.rotations import frame_from_normal, matrix_to_quaternion
 from stud_planner.cell.qa_report import empty_row, write_qa_report
-from stud_perception.scene import load_scene, scene_to_dict, surface_height, surface_normal
+from stud_perception.scene import surface_height, surface_normal
+from stud_perception.scene_file import load_scene, scene_to_dict
 
 DEMO_SCENE = REPO / "src" / "stud_perception" / "config" / "shell_scene.json"
 WELDS_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)

@@ -12,7 +12,9 @@ from stud_welding_msgs.msg import Registration, Stud, StudLayout, WeldTargetArra
 from rosproc import REPO, ros2_run, wait_for
 from stud_common import ros_io
 from stud_perception.camera_node import shot_messages
-from stud_perception.scene import load_scene, render, view_camera
+from stud_perception.scene_cameras import view_camera
+from stud_perception.scene_file import load_scene
+from stud_perception.scene_render import render
 
 DEMO_SCENE = REPO / "src" / "stud_perception" / "config" / "dome_scene.json"
 COLOR = "/camera/color/image_raw"

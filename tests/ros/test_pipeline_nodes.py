@@ -12,7 +12,8 @@ from visualization_msgs.msg import MarkerArray
 
 from rosproc import REPO, ros2_run, wait_for
 from stud_common import ros_io
-from stud_perception.scene import load_scene, render
+from stud_perception.scene_file import load_scene
+from stud_perception.scene_render import render
 
 DEMO_DXF = REPO / "src" / "stud_planner" / "data" / "dome_demo.dxf"
 DEMO_SCENE = REPO / "src" / "stud_perception" / "config" / "dome_scene.json"
@@ -72,7 +73,7 @@ def test_targets_from_the_node_graph_match_the_scene_truth(ros_node, procs, tmp_
     scene = load_scene(DEMO_SCENE)
     pose_msg = next(p for p in cam_poses if p.header.stamp == arr.header.stamp)
     camera_pose = ros_io.pose_to_rt(pose_msg.pose)
-    from stud_perception.scene import view_camera
+    from stud_perception.scene_cameras import view_camera
     camera = view_camera((0, 0, 0)).with_pose(*camera_pose)
     truth = render(scene, camera)
     by_id = dict(zip(scene.stud_ids, range(len(scene.stud_ids))))

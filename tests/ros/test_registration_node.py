@@ -15,7 +15,10 @@ from stud_welding_msgs.msg import Registration
 from rosproc import ros2_run, wait_for
 from stud_common import ros_io
 from stud_perception.camera_node import shot_messages
-from stud_perception.scene import MarkingBoard, load_scene, render, view_camera
+from stud_perception.scene import MarkingBoard
+from stud_perception.scene_cameras import view_camera
+from stud_perception.scene_file import load_scene
+from stud_perception.scene_render import render
 from stud_planner.drawing import read_layout
 from stud_planner.msg_convert import layout_to_msg
 

@@ -13,7 +13,8 @@ from stud_welding_msgs.srv import LoadDrawing
 from rosproc import REPO, ros2_run, wait_for
 from stud_common import ros_io
 from stud_perception import image_io
-from stud_perception.scene import load_scene, render
+from stud_perception.scene_file import load_scene
+from stud_perception.scene_render import render
 from stud_planner.drawing import read_layout
 
 DEMO_DXF = REPO / "src" / "stud_planner" / "data" / "dome_demo.dxf"

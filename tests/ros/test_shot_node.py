@@ -18,7 +18,9 @@ from rosproc import ros2_run, wait_for
 from stud_common import ros_io
 from stud_perception.camera_model import nadir_rotation
 from stud_perception.camera_node import camera_pose_from_tool, shot_messages
-from stud_perception.scene import load_scene, render, view_camera
+from stud_perception.scene_cameras import view_camera
+from stud_perception.scene_file import load_scene
+from stud_perception.scene_render import render
 
 from test_sensor_nodes import DEMO_SCENE
 

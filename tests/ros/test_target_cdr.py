@@ -11,7 +11,9 @@ import pytest
 from rclpy.serialization import deserialize_message, serialize_message
 from stud_welding_msgs.msg import WeldTargetArray
 
-from stud_perception.scene import demo_camera, demo_dome_scene, render
+from stud_perception.scene import demo_dome_scene
+from stud_perception.scene_cameras import demo_camera
+from stud_perception.scene_render import render
 from stud_planner.matching.target_cdr import weld_target_array_cdr
 from stud_planner.matching.view_targets import STATUS_OUT_OF_VIEW, plan_view
 

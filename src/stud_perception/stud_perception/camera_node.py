@@ -33,8 +33,12 @@ from stud_perception.camera_model import CameraModel
 from stud_perception.rectify import FISHEYE_MODELS, PINHOLE_MODELS, has_distortion
 from stud_common.ros_io import Param
 from stud_common.rotations import rpy_to_matrix
-from stud_perception.scene import (DEMO_FOV_DISTANCE_M, DEMO_FOV_WIDTH_M, DEMO_IMAGE_SIZE, SceneError, distort_view,
-                                   demo_dome_scene, load_scene, render, view_camera)
+from stud_perception.scene import demo_dome_scene
+from stud_perception.scene_cameras import (DEMO_FOV_DISTANCE_M, DEMO_FOV_WIDTH_M, DEMO_IMAGE_SIZE, distort_view,
+                                           view_camera)
+from stud_perception.scene_file import load_scene
+from stud_perception.scene_render import render
+from stud_perception.scene_solids import SceneError
 from stud_perception.welded_studs import StudCylinder, welded_stud
 
 OPTICAL_FRAME = "camera_color_optical_frame"
@@ -52,7 +56,8 @@ def _three(name: str):
 PARAMS = [
     Param("source", "sim", "where frames come from; only 'sim' here (real cameras: run the vendor driver)",
           choices=("sim",), read_only=True),
-    Param("scene_file", "", "scene description (.json/.yaml, see stud_perception/scene.py); empty: the bundled dome"),
+    Param("scene_file", "", "scene description (.json/.yaml, see stud_perception/scene_file.py); "
+          "empty: the bundled dome"),
     Param("image_width", DEMO_IMAGE_SIZE[0], "image width [px]", min=16, max=8192),
     Param("image_height", DEMO_IMAGE_SIZE[1], "image height [px]", min=16, max=8192),
     Param("fov_width_m", DEMO_FOV_WIDTH_M, "field-of-view width at fov_distance_m [m]", min=0.01, max=10.0),

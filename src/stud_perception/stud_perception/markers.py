@@ -275,6 +275,38 @@ def detect_marks(
     :func:`~stud_perception.depth_image.depth_mm_to_m` first). ``drawing_marks_m``: (3, 2) O, A, B
     in the drawing frame, metres. World points follow Eq. 1 through ``camera``.
     """
+    gray, depth_m = _checked_inputs(color_bgr, depth_m, camera)
+    D = np.asarray(drawing_marks_m, dtype=np.float64)
+    expected = np.array([np.linalg.norm(D[1] - D[0]), np.linalg.norm(D[2] - D[0]), np.linalg.norm(D[2] - D[1])])
+    oa, ob = D[1] - D[0], D[2] - D[0]
+    turn_sign = float(np.sign(oa[0] * ob[1] - oa[1] * ob[0]))
+    found = _find_candidates(gray, camera, config)  # stages 1 and 2
+    if isinstance(found, MarkDetection):
+        return found
+    refined, border_note = found
+    lifted = _lift_candidates(np.array(refined), depth_m, camera, config, border_note)  # stage 3
+    if isinstance(lifted, MarkDetection):
+        return lifted
+    picked = _identify_triple(lifted, expected, turn_sign, config.distance_tol_m, border_note)  # stage 4
+    if isinstance(picked, MarkDetection):
+        return picked
+    sel, err_best = picked
+    marks_uv, marks_w = _corrected_marks(lifted, sel, camera, config.mark_diameter_m / 2)  # stage 5
+    return MarkDetection(
+        status=MarkStatus.OK,
+        message=f"marks found, largest distance error {err_best * 1000:.2f} mm",
+        marks_world_m=marks_w,
+        marks_pixels_uv=marks_uv,
+        depth_rules=lifted.rules[sel].astype(np.int8),
+        distance_error_m=float(err_best),
+        candidates_uv=lifted.uv,
+        candidates_radius_px=lifted.r_eq,
+        candidates_world_m=lifted.world,
+    )
+
+
+def _checked_inputs(color_bgr: np.ndarray, depth_m, camera: CameraModel) -> tuple[np.ndarray, np.ndarray]:
+    """(grey image, float depth) of :func:`detect_marks`'s inputs; ValueError for a wrong type or size."""
     depth_m = np.asarray(depth_m)
     if not np.issubdtype(depth_m.dtype, np.floating):
         raise ValueError(f"depth must be float metres with NaN = no depth, got dtype {depth_m.dtype}; "
@@ -284,18 +316,18 @@ def detect_marks(
         raise ValueError(
             f"colour {gray.shape}, depth {depth_m.shape} and camera ({camera.height}, {camera.width}) sizes differ"
         )
-    D = np.asarray(drawing_marks_m, dtype=np.float64)
-    expected = np.array([np.linalg.norm(D[1] - D[0]), np.linalg.norm(D[2] - D[0]), np.linalg.norm(D[2] - D[1])])
-    oa, ob = D[1] - D[0], D[2] - D[0]
-    turn_sign = float(np.sign(oa[0] * ob[1] - oa[1] * ob[0]))
+    return gray, depth_m
 
+
+def _find_candidates(gray: np.ndarray, camera: CameraModel, config: MarkDetectorConfig):
+    """Stages 1 and 2: (refined candidates [(u, v, r_eq, r_major, contrast)], note on the marks the image
+    border cuts), or the NO_CANDIDATES :class:`MarkDetection` when no mark-like blob is found."""
     # 1. Hough over the radius range the depth range allows (tilted marks image smaller).
     r_m = config.mark_diameter_m / 2
     near, far = config.depth_range_m
     r_min = max(3, int(math.floor(0.7 * camera.fx * r_m / far)))
     r_max = int(math.ceil(1.2 * camera.fx * r_m / near))
     circles = _hough_candidates(gray, r_min, r_max)
-    empty = (np.zeros((0, 2)), np.zeros(0), np.zeros((0, 3)))
 
     # 2. Sub-pixel centres, duplicates merged (strongest Hough response first).
     refined = []
@@ -321,12 +353,33 @@ def detect_marks(
     if not refined:
         return _failure(
             MarkStatus.NO_CANDIDATES,
-            f"no dark circular marks found (Hough radius {r_min}-{r_max} px){border_note}", *empty,
+            f"no dark circular marks found (Hough radius {r_min}-{r_max} px){border_note}",
+            np.zeros((0, 2)), np.zeros(0), np.zeros((0, 3)),
         )
-    cand = np.array(refined)
-    uv, r_eq, r_major = cand[:, :2], cand[:, 2], cand[:, 3]
+    return refined, border_note
 
-    # 3. Depth of the board around each mark: mask the mark discs, let the window grow into the board.
+
+@dataclass(frozen=True, eq=False)
+class _Lifted:
+    """Mark-sized candidates with their board depth (stage 3), and what re-lifting them needs."""
+
+    uv: np.ndarray          # (K, 2) sub-pixel centres
+    r_eq: np.ndarray        # (K,) equivalent-disc radius, px
+    world: np.ndarray       # (K, 3) lifted with the board depth (NaN without)
+    rules: np.ndarray       # (K,) FillRule of that depth
+    has_depth: np.ndarray   # (K,) bool
+    masked: np.ndarray      # the depth image with the mark discs removed
+    max_window: int         # fill_depth_at's window limits for this mark size
+    grow_step_px: int
+
+
+def _lift_candidates(cand: np.ndarray, depth_m: np.ndarray, camera: CameraModel, config: MarkDetectorConfig,
+                     border_note: str):
+    """Stage 3: depth of the board around each candidate (the mark discs masked, the window grown into
+    the board), candidates too small or large for their depth dropped. A :class:`_Lifted`, or the
+    NO_CANDIDATES / NO_DEPTH :class:`MarkDetection` when fewer than three remain."""
+    uv, r_eq, r_major = cand[:, :2], cand[:, 2], cand[:, 3]
+    r_m = config.mark_diameter_m / 2
     masked = np.array(depth_m, dtype=np.float32, copy=True)
     disc = np.zeros(masked.shape, dtype=np.uint8)
     for (u, v), rr in zip(uv, r_major):
@@ -334,9 +387,9 @@ def detect_marks(
     masked[disc.astype(bool)] = np.nan
     reach = int(math.ceil(1.2 * r_major.max() + 2))
     max_window = 2 * int(math.ceil(1.5 * reach)) + 1
+    grow_step_px = max(2, 2 * (reach // 8))
     filled = fill_depth_at(
-        masked, uv[:, 0], uv[:, 1], window=7, max_window=max_window, fallback="plane",
-        grow_step_px=max(2, 2 * (reach // 8)),
+        masked, uv[:, 0], uv[:, 1], window=7, max_window=max_window, fallback="plane", grow_step_px=grow_step_px,
     )
     z = filled.depth_m
     world = camera.pixel_to_world(uv[:, 0], uv[:, 1], z)
@@ -346,28 +399,33 @@ def detect_marks(
         size_ok = np.abs(r_eq / r_expected - 1.0) <= config.radius_tol
     has_depth = np.isfinite(z)
     keep = size_ok | ~has_depth
-    uv, r_eq, world, z, rules = uv[keep], r_eq[keep], world[keep], z[keep], filled.rule[keep]
+    uv, r_eq, world, rules = uv[keep], r_eq[keep], world[keep], filled.rule[keep]
     has_depth = has_depth[keep]
-    cand_info = (uv, r_eq, world)
     n_nodepth = int((~has_depth).sum())
     if len(uv) < 3:
         return _failure(
             MarkStatus.NO_CANDIDATES,
             f"{len(uv)} mark-sized circle(s) found, need 3 (mark diameter {config.mark_diameter_m * 1000:.0f} mm)"
             f"{border_note}",
-            *cand_info,
+            uv, r_eq, world,
         )
-    idx_depth = np.flatnonzero(has_depth)
-    if idx_depth.size < 3:
+    if np.count_nonzero(has_depth) < 3:
         return _failure(
             MarkStatus.NO_DEPTH,
             f"{n_nodepth} of {len(uv)} mark candidates have no depth on the board around them{border_note}",
-            *cand_info,
+            uv, r_eq, world,
         )
+    return _Lifted(uv, r_eq, world, rules, has_depth, masked, max_window, grow_step_px)
 
-    # 4. The triple at the drawing's distances with the drawing's handedness.
-    err, trip, handed = _best_triples(world[idx_depth], expected, turn_sign)
-    tol = config.distance_tol_m
+
+def _identify_triple(lifted: _Lifted, expected: np.ndarray, turn_sign: float, tol: float, border_note: str):
+    """Stage 4: the one triple of candidates with depth at the drawing's distances |OA|, |OB|, |AB| and
+    with its handedness: (candidate indices (3,) O, A, B, its largest distance error), or the
+    MIRRORED / NO_DEPTH / NO_MATCHING_TRIPLE / AMBIGUOUS :class:`MarkDetection`."""
+    cand_info = (lifted.uv, lifted.r_eq, lifted.world)
+    idx_depth = np.flatnonzero(lifted.has_depth)
+    n_nodepth = int((~lifted.has_depth).sum())
+    err, trip, handed = _best_triples(lifted.world[idx_depth], expected, turn_sign)
     best = int(np.argmin(np.where(handed, err, np.inf))) if handed.any() else -1
     if best < 0 or err[best] > tol:
         mirrored = ~handed & (err <= tol)
@@ -397,10 +455,14 @@ def detect_marks(
             "reduce distance_tol_m or clear dark circles of the mark size from the view",
             *cand_info, distance_error_m=float(err[best]),
         )
-    sel = idx_depth[trip[best]]
+    return idx_depth[trip[best]], err[best]
 
-    # 5. Remove the perspective offset of the imaged centres, using the board plane the three
-    # marks span, and lift again (Eq. 1) with the board depth at the corrected pixels.
+
+def _corrected_marks(lifted: _Lifted, sel: np.ndarray, camera: CameraModel, r_m: float):
+    """Stage 5: (marks_uv (3, 2), marks_w (3, 3)) with the perspective offset of the imaged centres
+    removed, using the board plane the three marks span, and lifted again (Eq. 1) with the board depth
+    at the corrected pixels."""
+    uv, world = lifted.uv, lifted.world
     marks_uv = uv[sel]
     normal = np.cross(world[sel[1]] - world[sel[0]], world[sel[2]] - world[sel[0]])
     normal /= np.linalg.norm(normal)
@@ -408,20 +470,10 @@ def detect_marks(
     for _ in range(2):
         marks_uv = uv[sel] - _perspective_bias_px(camera, marks_w, normal, r_m)
         z_marks = fill_depth_at(
-            masked, marks_uv[:, 0], marks_uv[:, 1], window=7, max_window=max_window, fallback="plane",
-            grow_step_px=max(2, 2 * (reach // 8)),
+            lifted.masked, marks_uv[:, 0], marks_uv[:, 1], window=7, max_window=lifted.max_window, fallback="plane",
+            grow_step_px=lifted.grow_step_px,
         )
         marks_w = camera.pixel_to_world(marks_uv[:, 0], marks_uv[:, 1], z_marks.depth_m)
     if not np.isfinite(marks_w).all():  # cannot happen unless the correction left the board
         marks_uv, marks_w = uv[sel], world[sel]
-    return MarkDetection(
-        status=MarkStatus.OK,
-        message=f"marks found, largest distance error {err[best] * 1000:.2f} mm",
-        marks_world_m=marks_w,
-        marks_pixels_uv=marks_uv,
-        depth_rules=rules[sel].astype(np.int8),
-        distance_error_m=float(err[best]),
-        candidates_uv=uv,
-        candidates_radius_px=r_eq,
-        candidates_world_m=world,
-    )
+    return marks_uv, marks_w

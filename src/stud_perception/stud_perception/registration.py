@@ -28,8 +28,9 @@ _PAIR_NAMES = ("|OA|", "|OB|", "|AB|")
 
 
 @dataclass(frozen=True, eq=False)
-class Registration:
-    """A drawing -> world registration with its quality figures.
+class MarkRegistration:
+    """A drawing -> world registration from the marks O, A, B, with its quality figures (not the
+    ``stud_welding_msgs/Registration`` message the registration node publishes from it).
 
     ``M_local2world`` (3, 3): drawing metres -> world metres (Eq. 2). ``marks_world_m`` (3, 3):
     measured O, A, B in world. ``marks_drawing_m`` (3, 2): O, A, B in the drawing (the ideal
@@ -179,8 +180,8 @@ def registration_from_marks(
     method: Literal["eq3", "least_squares"] = "eq3",
     min_separation_m: float = 0.005,
     min_angle_deg: float = 10.0,
-) -> Registration:
-    """Registration from the world positions of marks O, A, B (each (2,) or (3,), metres).
+) -> MarkRegistration:
+    """:class:`MarkRegistration` from the world positions of marks O, A, B (each (2,) or (3,), metres).
 
     ``drawing_marks``: (3, 2) O, A, B in the drawing (metres); then |OA|, |OB|, |AB| measured in
     world (3D when z is given, so a mark lifted with a wrong depth is caught) must agree with the
@@ -191,53 +192,18 @@ def registration_from_marks(
     Raises :class:`RegistrationError` for coincident or collinear marks, a mirrored triangle,
     or distances that disagree with the drawing (measured and expected values in mm).
     """
-    marks = []
-    for name, p in zip("OAB", (O_w, A_w, B_w)):
-        p = np.asarray(p, dtype=np.float64).ravel()
-        if p.shape not in ((2,), (3,)) or not np.isfinite(p).all():
-            raise RegistrationError(f"mark {name} must be a finite (x, y) or (x, y, z) in metres, got {p.tolist()}")
-        marks.append(np.r_[p, 0.0] if p.size == 2 else p)
-    Pw = np.array(marks)
+    Pw = _measured_marks(O_w, A_w, B_w)
     if method not in ("eq3", "least_squares"):
         raise RegistrationError(f"method must be 'eq3' or 'least_squares', got {method!r}")
     _check_triangle(Pw, "measured", min_separation_m, min_angle_deg)
     xy = Pw[:, :2]
     measured = np.array([np.linalg.norm(Pw[1] - Pw[0]), np.linalg.norm(Pw[2] - Pw[0]), np.linalg.norm(Pw[2] - Pw[1])])
     turn_w = _turn(xy[1] - xy[0], xy[2] - xy[0])
-
     if drawing_marks is None:
-        D = np.array([[0.0, 0.0], [measured[0], 0.0], [0.0, measured[1]]])
-        dist_err = np.full(3, np.nan)
-        scale_error = float("nan")
-        if turn_w < 0:
-            raise RegistrationError(
-                "marks are mirrored: seen from above, B lies clockwise of A around O, but the drawing frame "
-                "(x toward A, y toward B) needs it counter-clockwise; is the board upside down, or A and B swapped?"
-            )
+        D, dist_err, scale_error = _paper_drawing(measured, turn_w)
     else:
-        D = np.asarray(drawing_marks, dtype=np.float64)
-        if D.shape != (3, 2) or not np.isfinite(D).all():
-            raise RegistrationError(f"drawing_marks must be a finite (3, 2) array O, A, B, got shape {D.shape}")
-        _check_triangle(D, "drawing", min_separation_m, min_angle_deg)
-        turn_d = _turn(D[1] - D[0], D[2] - D[0])
-        if np.sign(turn_w) != np.sign(turn_d):
-            raise RegistrationError(
-                "marks are mirrored relative to the drawing (the sign of OA x OB differs): "
-                "is the board upside down, or are A and B swapped?"
-            )
-        expected = np.array([np.linalg.norm(D[1] - D[0]), np.linalg.norm(D[2] - D[0]), np.linalg.norm(D[2] - D[1])])
-        dist_err = measured - expected
-        scale_error = float(np.max(np.abs(dist_err) / expected))
-        bad = np.abs(dist_err) > tol_m
-        if bad.any():
-            detail = ", ".join(
-                f"{n} measured {m * 1000:.1f} mm vs {e * 1000:.1f} mm in the drawing"
-                for n, m, e, b in zip(_PAIR_NAMES, measured, expected, bad) if b
-            )
-            raise RegistrationError(
-                f"mark distances disagree with the drawing beyond {tol_m * 1000:.1f} mm: {detail}; "
-                "wrong board, a mis-detected mark, or a mark lifted with a wrong depth"
-            )
+        D, dist_err, scale_error = _checked_drawing(drawing_marks, measured, turn_w, tol_m, min_separation_m,
+                                                    min_angle_deg)
 
     if method == "eq3":
         M = _mark_frame(*xy) @ np.linalg.inv(_mark_frame(*D))
@@ -246,7 +212,7 @@ def registration_from_marks(
     else:
         fit = fit_rigid_2d(D, xy)
         M, residual = fit.M_local2world, fit.rms_m
-    return Registration(
+    return MarkRegistration(
         M_local2world=M,
         marks_world_m=Pw,
         marks_drawing_m=D,
@@ -256,3 +222,56 @@ def registration_from_marks(
         scale_error=scale_error,
         method=method,
     )
+
+
+def _measured_marks(O_w, A_w, B_w) -> np.ndarray:
+    """(3, 3) world O, A, B from three (2,) or (3,) points (z = 0 when not given)."""
+    marks = []
+    for name, p in zip("OAB", (O_w, A_w, B_w)):
+        p = np.asarray(p, dtype=np.float64).ravel()
+        if p.shape not in ((2,), (3,)) or not np.isfinite(p).all():
+            raise RegistrationError(f"mark {name} must be a finite (x, y) or (x, y, z) in metres, got {p.tolist()}")
+        marks.append(np.r_[p, 0.0] if p.size == 2 else p)
+    return np.array(marks)
+
+
+def _paper_drawing(measured: np.ndarray, turn_w: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """(drawing marks, distance errors, scale error) without a drawing: the paper's frame (origin O, x
+    toward A, y toward B) with the measured lengths; the marks must turn counter-clockwise."""
+    D = np.array([[0.0, 0.0], [measured[0], 0.0], [0.0, measured[1]]])
+    if turn_w < 0:
+        raise RegistrationError(
+            "marks are mirrored: seen from above, B lies clockwise of A around O, but the drawing frame "
+            "(x toward A, y toward B) needs it counter-clockwise; is the board upside down, or A and B swapped?"
+        )
+    return D, np.full(3, np.nan), float("nan")
+
+
+def _checked_drawing(drawing_marks, measured: np.ndarray, turn_w: float, tol_m: float, min_separation_m: float,
+                     min_angle_deg: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """(drawing marks (3, 2), measured minus drawing |OA|, |OB|, |AB|, largest relative error) when the
+    measured marks agree with the drawing's triangle: its handedness and distances within ``tol_m``."""
+    D = np.asarray(drawing_marks, dtype=np.float64)
+    if D.shape != (3, 2) or not np.isfinite(D).all():
+        raise RegistrationError(f"drawing_marks must be a finite (3, 2) array O, A, B, got shape {D.shape}")
+    _check_triangle(D, "drawing", min_separation_m, min_angle_deg)
+    turn_d = _turn(D[1] - D[0], D[2] - D[0])
+    if np.sign(turn_w) != np.sign(turn_d):
+        raise RegistrationError(
+            "marks are mirrored relative to the drawing (the sign of OA x OB differs): "
+            "is the board upside down, or are A and B swapped?"
+        )
+    expected = np.array([np.linalg.norm(D[1] - D[0]), np.linalg.norm(D[2] - D[0]), np.linalg.norm(D[2] - D[1])])
+    dist_err = measured - expected
+    scale_error = float(np.max(np.abs(dist_err) / expected))
+    bad = np.abs(dist_err) > tol_m
+    if bad.any():
+        detail = ", ".join(
+            f"{n} measured {m * 1000:.1f} mm vs {e * 1000:.1f} mm in the drawing"
+            for n, m, e, b in zip(_PAIR_NAMES, measured, expected, bad) if b
+        )
+        raise RegistrationError(
+            f"mark distances disagree with the drawing beyond {tol_m * 1000:.1f} mm: {detail}; "
+            "wrong board, a mis-detected mark, or a mark lifted with a wrong depth"
+        )
+    return D, dist_err, scale_error

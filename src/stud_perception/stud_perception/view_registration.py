@@ -13,7 +13,7 @@ import numpy as np
 
 from stud_perception.camera_model import CameraModel
 from stud_perception.markers import MarkDetection, MarkDetectorConfig, detect_marks
-from stud_perception.registration import Registration, RegistrationError, registration_from_marks
+from stud_perception.registration import MarkRegistration, RegistrationError, registration_from_marks
 
 
 @dataclass(frozen=True, eq=False)
@@ -23,7 +23,7 @@ class ViewRegistration:
     ok: bool
     message: str
     detection: MarkDetection
-    registration: Registration | None
+    registration: MarkRegistration | None
 
 
 def register_view(color_bgr: np.ndarray, depth_m: np.ndarray, camera: CameraModel, drawing_marks_m: np.ndarray,

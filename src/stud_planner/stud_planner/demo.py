@@ -28,7 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from stud_perception.scene import load_scene, surface_height, surface_normal
+from stud_perception.scene import surface_height, surface_normal
+from stud_perception.scene_file import load_scene
 from stud_common.strict_json import write_json
 
 

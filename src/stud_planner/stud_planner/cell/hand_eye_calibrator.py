@@ -36,8 +36,9 @@ from stud_welding_msgs.srv import MoveTo
 from stud_common import hand_eye_ros, ros_io
 from stud_perception import image_io
 from stud_common.rotations import transform
-from stud_perception.hand_eye import (BoardShot, HandEyeError, board_points_m, board_pose_from_marks,
-                                      calibrate_hand_eye, check_hand_eye, rotation_angle_deg)
+from stud_perception.hand_eye import (BoardShot, board_points_m, board_pose_from_marks, calibrate_hand_eye,
+                                      check_hand_eye)
+from stud_perception.hand_eye_solvers import HandEyeError, rotation_angle_deg
 from stud_perception.hand_eye_file import calibration_record, check_record, write_yaml
 from stud_perception.markers import MarkDetectorConfig, detect_marks
 from stud_perception.registration_node import layout_marks_m

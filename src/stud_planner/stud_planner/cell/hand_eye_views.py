@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stud_perception.scene import view_camera
+from stud_perception.scene_cameras import view_camera
 
 
 class ViewPlanError(ValueError):
