@@ -156,7 +156,7 @@ class CameraNode(Node):
         if self.p["pose_source"] == "arm":
             self.calibration_topic = hand_eye_ros.CalibrationTopic(self, self.hand_eye)
         self.create_timer(1.0, self.diag.publish)
-        self._arm_tool_pose = None
+        self._arm_tool_pose: tuple[np.ndarray, np.ndarray] | None = None
         self._shots = 0
         self._lock = threading.Lock()
         if self.p["pose_source"] == "arm":

@@ -330,7 +330,7 @@ def _find_candidates(gray: np.ndarray, camera: CameraModel, config: MarkDetector
     circles = _hough_candidates(gray, r_min, r_max)
 
     # 2. Sub-pixel centres, duplicates merged (strongest Hough response first).
-    refined = []
+    refined: list[tuple[float, float, float, float]] = []
     cut_by_border: list[tuple[float, float, float]] = []  # Hough circles of marks the border cuts
     for u0, v0, r in circles:
         res = _refine_centre(gray, u0, v0, r, config.min_contrast)

@@ -48,7 +48,7 @@ class Rectifier:
     model: str
     width: int
     height: int
-    _maps: tuple = field(init=False, repr=False)
+    _maps: tuple[np.ndarray, np.ndarray] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         K = np.asarray(self.K, dtype=np.float64).reshape(3, 3)
@@ -79,7 +79,8 @@ class Rectifier:
     def depth(self, depth_m: np.ndarray) -> np.ndarray:
         """float metres (H, W), NaN = no depth -> the same on the pinhole camera (nearest neighbour)."""
         self._check(depth_m, "depth")
-        return cv2.remap(depth_m, *self._maps, interpolation=cv2.INTER_NEAREST,
+        map_x, map_y = self._maps
+        return cv2.remap(depth_m, map_x, map_y, interpolation=cv2.INTER_NEAREST,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan"))
 
     def color(self, bgr: np.ndarray) -> np.ndarray:

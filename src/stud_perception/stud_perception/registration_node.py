@@ -12,6 +12,7 @@ the next view, ``continuous:=true`` registers every view. A bad view publishes
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -59,7 +60,7 @@ class RegistrationNode(Node):
                                      slop_ns=int(self.p["sync_slop_s"] * 1e9))
         for name, topic, typ in (("color", "/camera/color/image_raw", Image), ("depth", "/camera/depth/image_raw", Image),
                                  ("info", "/camera/color/camera_info", CameraInfo), ("pose", "/camera/pose", PoseStamped)):
-            self.create_subscription(typ, topic, lambda m, n=name: self.sync.add(n, m), ros_io.SENSOR_QOS)
+            self.create_subscription(typ, topic, functools.partial(self.sync.add, name), ros_io.SENSOR_QOS)
         self.create_service(Trigger, "/registration/trigger", self._on_trigger)
         self.get_logger().info("waiting for /drawing/layout and a synchronised RGB-D view")
 
@@ -111,6 +112,7 @@ class RegistrationNode(Node):
             self._publish_invalid(stamp, result.message)
             return
         reg = result.registration
+        assert reg is not None  # an ok result carries its registration
         msg = Registration(valid=True, message=result.message, residual=float(reg.residual_m))
         msg.header.stamp, msg.header.frame_id = stamp, "world"
         msg.m_local2world = [float(v) for v in reg.M_local2world.ravel()]

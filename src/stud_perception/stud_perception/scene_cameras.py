@@ -22,13 +22,13 @@ DEMO_FOV_DISTANCE_M = 0.5
 @lru_cache(maxsize=4)
 def _raw_to_pinhole_maps(K: tuple, D: tuple, fisheye: bool, w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
     """For every raw pixel, the pinhole pixel on its ray (about a second for 1280x960: cached)."""
-    K, D = np.array(K).reshape(3, 3), np.array(D)
+    K_arr, D_arr = np.array(K).reshape(3, 3), np.array(D)
     v, u = np.mgrid[0:h, 0:w]
     raw = np.stack([u, v], axis=-1).reshape(-1, 1, 2).astype(np.float64)
     if fisheye:
-        ideal = cv2.fisheye.undistortPoints(raw, K, D.reshape(4, 1), P=K)
+        ideal = cv2.fisheye.undistortPoints(raw, K_arr, D_arr.reshape(4, 1), P=K_arr)
     else:
-        ideal = cv2.undistortPoints(raw, K, D, P=K, criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-9))
+        ideal = cv2.undistortPoints(raw, K_arr, D_arr, P=K_arr, criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-9))
     return (ideal[:, 0, 0].reshape(h, w).astype(np.float32), ideal[:, 0, 1].reshape(h, w).astype(np.float32))
 
 

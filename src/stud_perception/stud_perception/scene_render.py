@@ -18,7 +18,7 @@ from stud_perception.depth_image import depth_mm_to_m
 from stud_perception.scene import (SURFACE_BOARD, SURFACE_COMPONENT, SURFACE_NONE, SURFACE_OBSTACLE, SURFACE_STUD,
                                    SURFACE_TABLE, SceneSpec, surface_height, surface_normal)
 from stud_perception.scene_sensor import sensor_depth_mm, specular_mask
-from stud_perception.scene_solids import SceneError
+from stud_perception.scene_solids import Component, SceneError
 from stud_perception.welded_studs import StudCylinder
 
 # Appearance (8-bit grey levels before shading, BGR tints). Dark marks on a light board
@@ -226,7 +226,7 @@ def _cast_rays(scene: SceneSpec, camera: CameraModel, welded: tuple[StudCylinder
         t = np.where(dz < 0, -o[2] / dz, np.inf)
     sid = np.where(np.isfinite(t), SURFACE_TABLE, SURFACE_NONE).astype(np.int8)
     wall = np.zeros((h, w), dtype=bool)
-    solids = [(SURFACE_BOARD, scene.board_plate)]
+    solids: list[tuple[int, Component | StudCylinder]] = [(SURFACE_BOARD, scene.board_plate)]
     if scene.component is not None:
         solids.append((SURFACE_COMPONENT, scene.component))
     solids += [(SURFACE_OBSTACLE, ob) for ob in scene.obstacles]
@@ -254,7 +254,7 @@ def _shade(scene: SceneSpec, camera: CameraModel, hits: _Hits, projector_offset_
     shade = np.full((h, w), _AMBIENT + (1 - _AMBIENT) * _LIGHT_DIR_W[2], dtype=np.float32)
     comp_top = (sid == SURFACE_COMPONENT) & ~hits.wall
     specular = np.zeros((h, w), dtype=bool)
-    if comp_top.any():
+    if comp_top.any() and scene.component is not None:
         n = scene.component.top_normal(hits.hit_x[comp_top], hits.hit_y[comp_top])
         shade[comp_top] = _AMBIENT + (1 - _AMBIENT) * np.clip(n @ _LIGHT_DIR_W, 0, 1)
         if scene.specular_lobe_deg > 0:

@@ -12,6 +12,7 @@ driver's topics (depth must be registered/aligned to colour).
 """
 from __future__ import annotations
 
+import functools
 import threading
 
 from geometry_msgs.msg import PoseStamped
@@ -59,7 +60,7 @@ class ShotNode(Node):
         self.sync = ros_io.StampSync(["color", "depth", "info"], self._on_frame,
                                      slop_ns=int(self.p["sync_slop_s"] * 1e9))
         for name, typ in (("color", Image), ("depth", Image), ("info", CameraInfo)):
-            self.create_subscription(typ, self.p[f"input_{name}_topic"], lambda m, n=name: self._add(n, m),
+            self.create_subscription(typ, self.p[f"input_{name}_topic"], functools.partial(self._add, name),
                                      ros_io.SENSOR_QOS, callback_group=group)
         self.create_subscription(ArmState, "/arm/state", self._on_arm, ros_io.RESULT_QOS, callback_group=group)
         self.create_service(Trigger, "/camera/trigger", self._on_trigger, callback_group=group)

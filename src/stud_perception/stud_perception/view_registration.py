@@ -7,6 +7,7 @@ and keep running.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -27,7 +28,8 @@ class ViewRegistration:
 
 
 def register_view(color_bgr: np.ndarray, depth_m: np.ndarray, camera: CameraModel, drawing_marks_m: np.ndarray,
-                  config: MarkDetectorConfig = MarkDetectorConfig(), method: str = "eq3") -> ViewRegistration:
+                  config: MarkDetectorConfig = MarkDetectorConfig(),
+                  method: Literal["eq3", "least_squares"] = "eq3") -> ViewRegistration:
     """Find the marks and register. ``drawing_marks_m`` (3, 2): O, A, B in the drawing (metres);
     ``config.mark_diameter_m`` should be the drawing's mark diameter."""
     detection = detect_marks(color_bgr, depth_m, camera, drawing_marks_m, config)
