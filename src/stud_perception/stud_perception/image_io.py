@@ -12,6 +12,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 from stud_common.ros_io import MessageError, Param, pose_to_rt
 from stud_perception.camera_model import CameraModel
+from stud_perception.depth_image import DepthImageError, depth_image_to_m
 from stud_perception.rectify import Rectifier, rectifier_for
 
 
@@ -112,16 +113,10 @@ def depth_to_metres(msg: Image, rectifier: Rectifier | None = None) -> np.ndarra
 
 
 def _depth_to_metres(msg: Image) -> np.ndarray:
-    arr = image_to_numpy(msg)
-    if msg.encoding in ("16UC1", "mono16"):
-        out = arr.astype(np.float32) * np.float32(0.001)
-        out[arr == 0] = np.nan
-        return out
-    if msg.encoding == "32FC1":
-        out = arr.astype(np.float32, copy=True)
-        out[~np.isfinite(out) | (out <= 0)] = np.nan
-        return out
-    raise MessageError(f"depth encoding '{msg.encoding}' is not supported; expected 16UC1 (mm) or 32FC1 (m)")
+    try:  # the one mm -> m conversion (depth_image), at the message edge
+        return depth_image_to_m(image_to_numpy(msg), msg.encoding)
+    except DepthImageError:
+        raise MessageError(f"depth encoding '{msg.encoding}' is not supported; expected 16UC1 (mm) or 32FC1 (m)") from None
 
 
 def camera_info_to_K(msg: CameraInfo) -> np.ndarray:
