@@ -18,6 +18,7 @@ from std_msgs.msg import Bool
 from stud_welding_msgs.srv import MoveTo, ResolveJournal, ResolveStud
 
 from stud_common import ros_io
+from stud_common.hand_eye_in_use import tool_in_world
 
 from .arm_client import ArmClient, ArmError
 from .journal import Journal
@@ -88,7 +89,7 @@ class DriverServices(Node):
         T_goal = np.eye(4)
         T_goal[:3, :3], T_goal[:3, 3] = R, t
         if camera:
-            T_goal = T_goal @ np.linalg.inv(self._hand_eye())  # camera pose -> weld_tool pose
+            T_goal = tool_in_world(T_goal, self._hand_eye())  # camera pose -> weld_tool pose
         lo, hi = np.asarray(self.p["workspace_min_m"]), np.asarray(self.p["workspace_max_m"])
         if np.any(T_goal[:3, 3] < lo) or np.any(T_goal[:3, 3] > hi):
             return False, f"tool position {np.round(T_goal[:3, 3], 3).tolist()} m is outside the workspace box"

@@ -22,6 +22,7 @@ from sensor_msgs.msg import JointState
 from stud_welding_msgs.msg import ArmState, WeldRecord
 
 from stud_common import ros_io
+from stud_common.hand_eye_in_use import camera_in_world
 
 from .arm_client import ArmClient, ArmError
 from .journal import Journal
@@ -143,7 +144,7 @@ class DriverStatus(Node):
             js.position = [float(v) for v in reading.joints_rad]
             self.pub_joints.publish(js)
             if self.pub_camera is not None:
-                T_cam = T_tool @ self._hand_eye()
+                T_cam = camera_in_world(T_tool, self._hand_eye())
                 cam = PoseStamped()
                 cam.header.stamp = stamp
                 cam.header.frame_id = "world"

@@ -19,7 +19,7 @@ import numpy as np
 import yaml
 
 from stud_common.rotations import (float3, matrix_to_quaternion, matrix_to_rpy, quaternion_to_matrix, rpy_to_matrix,
-                                   transform)
+                                   rigid_inverse, transform)
 
 FORMAT = "stud_welding/hand_eye 1"
 FRAME = "weld_tool"
@@ -110,6 +110,18 @@ class HandEyeInUse:
 
 
 # -- reading ------------------------------------------------------------------------------------------
+def camera_in_world(T_world_tool: np.ndarray, T_tool_cam: np.ndarray) -> np.ndarray:
+    """The camera's optical frame in ``world`` (4x4): the ``weld_tool`` pose in world times the
+    hand-eye (the optical frame in ``weld_tool``). The one place this product is written: the
+    camera and shot nodes, the arm driver and the calibrator pose the camera with it."""
+    return np.asarray(T_world_tool, dtype=np.float64) @ np.asarray(T_tool_cam, dtype=np.float64)
+
+
+def tool_in_world(T_world_cam: np.ndarray, T_tool_cam: np.ndarray) -> np.ndarray:
+    """The inverse question: the ``weld_tool`` pose (4x4) that puts the camera at ``T_world_cam``."""
+    return np.asarray(T_world_cam, dtype=np.float64) @ rigid_inverse(np.asarray(T_tool_cam, dtype=np.float64))
+
+
 def _field(data: dict, dotted: str, path: Path) -> Any:
     node: Any = data
     for key in dotted.split("."):

@@ -32,7 +32,8 @@ from stud_perception import image_io
 from stud_perception.camera_model import CameraModel
 from stud_perception.rectify import FISHEYE_MODELS, PINHOLE_MODELS, has_distortion
 from stud_common.ros_io import Param
-from stud_common.rotations import rpy_to_matrix
+from stud_common.hand_eye_in_use import camera_in_world
+from stud_common.rotations import transform, transform_xyz_rpy
 from stud_perception.scene import demo_dome_scene
 from stud_perception.scene_cameras import (DEMO_FOV_DISTANCE_M, DEMO_FOV_WIDTH_M, DEMO_IMAGE_SIZE, distort_view,
                                            view_camera)
@@ -97,9 +98,9 @@ PARAMS = [
 
 
 def camera_pose_from_tool(R_wt: np.ndarray, t_wt: np.ndarray, hand_eye_xyz_m, hand_eye_rpy_deg):
-    """Optical frame in `world` from the weld-tool pose and the hand-eye transform (tool -> optical)."""
-    R_tc = rpy_to_matrix(*np.radians(hand_eye_rpy_deg))
-    return R_wt @ R_tc, R_wt @ np.asarray(hand_eye_xyz_m, dtype=float) + t_wt
+    """Optical frame in world (R, t) from the tool pose in world and a hand-eye (xyz m, rpy deg)."""
+    T = camera_in_world(transform(R_wt, t_wt), transform_xyz_rpy(hand_eye_xyz_m, hand_eye_rpy_deg))
+    return T[:3, :3], T[:3, 3]
 
 
 def depth_image(view, encoding: str, noise_m: float, seed: int) -> np.ndarray:

@@ -35,6 +35,7 @@ from stud_welding_msgs.srv import MoveTo
 
 from stud_common import hand_eye_ros, ros_io
 from stud_perception import image_io
+from stud_common.hand_eye_in_use import camera_in_world
 from stud_common.rotations import transform
 from stud_perception.hand_eye import (BoardShot, board_points_m, board_pose_from_marks, calibrate_hand_eye,
                                       check_hand_eye)
@@ -271,7 +272,7 @@ class HandEyeCalibrator(Node):
         """World point the views look at: the centre of the marks' bounding box on the board,
         through the hand-eye in use (a few mm off at worst: the views only need the board in view)."""
         board = board_points_m(drawing_marks)
-        T_world_board = shot.T_world_tool @ self.hand_eye.T_tool_cam @ board_pose_from_marks(shot.marks_cam_m, board)
+        T_world_board = camera_in_world(shot.T_world_tool, self.hand_eye.T_tool_cam) @ board_pose_from_marks(shot.marks_cam_m, board)
         centre = np.append((board.min(axis=0) + board.max(axis=0)) / 2.0, 1.0)
         return (T_world_board @ centre)[:3]
 
