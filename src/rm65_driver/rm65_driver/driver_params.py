@@ -13,17 +13,12 @@ from __future__ import annotations
 import os
 
 from stud_common import hand_eye_ros
-from stud_common.ros_io import Param
+from stud_common.ros_io import Param, three_numbers
 
 from . import protocol as P
 from .kinematics import D6_BY_VARIANT
 from .safety import SafetyLimits
 from .weld_job import WeldParams
-
-
-def _vec3(name: str):
-    """A validator: ``name`` must be 3 numbers (x, y, z)."""
-    return lambda v: None if len(v) == 3 else f"{name} needs 3 numbers, got {list(v)}"
 
 
 def default_journal() -> str:
@@ -69,9 +64,9 @@ PARAMS = [
     Param("max_joint_speed_pct", 50, "speed cap for joint moves [%]", min=1, max=100),
     Param("max_linear_speed_pct", 30, "speed cap for linear moves [%]", min=1, max=100),
     Param("workspace_min_m", [-0.70, -0.70, -0.02], "workspace box lower corner, world [m]",
-          validate=_vec3("workspace_min_m")),
+          validate=three_numbers("workspace_min_m")),
     Param("workspace_max_m", [0.70, 0.70, 1.10], "workspace box upper corner, world [m]",
-          validate=_vec3("workspace_max_m")),
+          validate=three_numbers("workspace_max_m")),
     Param("max_tool_tilt_deg", 60.0, "how far this cell's gun may lean from vertical (hose, cable, gun body) -- a "
           "property of the cell: studs are welded along the surface normal at any slope up to it [deg]",
           min=0.0, max=90.0),

@@ -20,14 +20,10 @@ from std_msgs.msg import String
 from stud_common import ros_io
 from stud_common.hand_eye_in_use import HandEyeLimits
 from stud_common.hand_eye_in_use import HandEyeFileError, HandEyeInUse, resolve_hand_eye
-from stud_common.ros_io import Param
+from stud_common.ros_io import Param, three_numbers
 
 TOPIC = "/calibration/hand_eye"
 LIMITS_NS = "hand_eye_limits"
-
-
-def _three(name: str):
-    return lambda v: None if len(v) == 3 else f"{name} needs 3 numbers, got {list(v)}"
 
 
 _LIMIT_TEXT = {
@@ -53,9 +49,9 @@ LIMIT_PARAMS = [Param(f"{LIMITS_NS}.{name}", getattr(_DEFAULTS, name), text, min
 #: Every node that poses the camera from the arm declares these.
 PARAMS = [
     Param("hand_eye_xyz_m", [0.0, 0.0, 0.0], "optical frame origin in the weld-tool frame [m] (the typed "
-          "hand-eye; hand_eye_file replaces it)", validate=_three("hand_eye_xyz_m")),
+          "hand-eye; hand_eye_file replaces it)", validate=three_numbers("hand_eye_xyz_m")),
     Param("hand_eye_rpy_deg", [0.0, 0.0, 0.0], "optical frame orientation in the weld-tool frame, roll-pitch-yaw "
-          "[deg] (the typed hand-eye; hand_eye_file replaces it)", validate=_three("hand_eye_rpy_deg")),
+          "[deg] (the typed hand-eye; hand_eye_file replaces it)", validate=three_numbers("hand_eye_rpy_deg")),
     Param("hand_eye_file", "", "hand-eye calibration file (hand_eye.yaml of `cell --mode calibrate`); empty: "
           "use hand_eye_xyz_m / hand_eye_rpy_deg", read_only=True),
     *LIMIT_PARAMS,

@@ -129,6 +129,11 @@ class Param:
         return None
 
 
+def three_numbers(name: str) -> Callable[[Any], str | None]:
+    """A :class:`Param` validator: ``name`` must hold 3 numbers (an x, y, z or a roll, pitch, yaw)."""
+    return lambda v: None if len(v) == 3 else f"{name} needs 3 numbers, got {list(v)}"
+
+
 def _show(value: Any) -> str:
     return repr(list(value)) if isinstance(value, (list, tuple)) else repr(value)
 

@@ -31,7 +31,7 @@ from stud_common import hand_eye_ros, ros_io
 from stud_perception import image_io
 from stud_perception.camera_model import CameraModel
 from stud_perception.rectify import FISHEYE_MODELS, PINHOLE_MODELS, has_distortion
-from stud_common.ros_io import Param
+from stud_common.ros_io import Param, three_numbers
 from stud_common.hand_eye_in_use import camera_in_world
 from stud_common.rotations import transform, transform_xyz_rpy
 from stud_perception.scene import demo_dome_scene
@@ -48,10 +48,6 @@ OPTICAL_FRAME = "camera_color_optical_frame"
 def _distortion_d(d) -> str | None:
     lengths = (4, 5, 8, 12, 14)
     return None if len(d) in lengths else f"distortion_d needs {' or '.join(map(str, lengths))} numbers, got {list(d)}"
-
-
-def _three(name: str):
-    return lambda v: None if len(v) == 3 else f"{name} needs 3 numbers, got {list(v)}"
 
 
 PARAMS = [
@@ -75,7 +71,7 @@ PARAMS = [
     Param("pose_source", "param", "'param': camera_xyz_m/yaw/tilt; 'arm': /arm/state tool pose x hand-eye",
           choices=("param", "arm")),
     Param("camera_xyz_m", [0.31, -0.03, 0.60], "optical centre in world [m] (pose_source=param)",
-          validate=_three("camera_xyz_m")),
+          validate=three_numbers("camera_xyz_m")),
     Param("camera_yaw_deg", 90.0, "image rotation about the optical axis [deg]", min=-360.0, max=360.0),
     Param("camera_tilt_deg", 0.0, "viewing direction tilt from straight down [deg]", min=0.0, max=60.0),
     Param("camera_tilt_azimuth_deg", 0.0, "azimuth the camera leans toward [deg]", min=-360.0, max=360.0),
@@ -85,10 +81,10 @@ PARAMS = [
     # cell; the image is rendered with the TRUE one, which a real cell never knows.
     *hand_eye_ros.PARAMS,
     Param("true_hand_eye_xyz_m", [math.nan] * 3, "sim only: the camera's TRUE optical frame origin in the tool "
-          "frame, used to render [m]; NaN: the believed hand-eye", validate=_three("true_hand_eye_xyz_m"),
+          "frame, used to render [m]; NaN: the believed hand-eye", validate=three_numbers("true_hand_eye_xyz_m"),
           nan_means="the believed hand-eye"),
     Param("true_hand_eye_rpy_deg", [math.nan] * 3, "sim only: the camera's TRUE orientation in the tool frame, "
-          "roll-pitch-yaw, used to render [deg]; NaN: the believed hand-eye", validate=_three("true_hand_eye_rpy_deg"),
+          "roll-pitch-yaw, used to render [deg]; NaN: the believed hand-eye", validate=three_numbers("true_hand_eye_rpy_deg"),
           nan_means="the believed hand-eye"),
     Param("distortion_model", "plumb_bob", "lens distortion model of the raw images (CameraInfo distortion_model)",
           choices=PINHOLE_MODELS + FISHEYE_MODELS),

@@ -20,11 +20,7 @@ from rclpy.node import Node
 from stud_common import hand_eye_ros, ros_io
 from stud_common.rotations import transform, transform_xyz_rpy
 from stud_perception.hand_eye import rebase_camera_pose
-from stud_common.ros_io import Param
-
-
-def _three(name: str):
-    return lambda v: None if len(v) == 3 else f"{name} needs 3 numbers, got {list(v)}"
+from stud_common.ros_io import Param, three_numbers
 
 
 PARAMS = [
@@ -32,9 +28,9 @@ PARAMS = [
           read_only=True),
     Param("output_topic", "/camera/pose", "the camera poses with the hand-eye in use", read_only=True),
     Param("recorded_hand_eye_xyz_m", [0.0, 0.0, 0.0], "optical frame origin in the weld-tool frame the recording "
-          "was made with [m]", validate=_three("recorded_hand_eye_xyz_m"), read_only=True),
+          "was made with [m]", validate=three_numbers("recorded_hand_eye_xyz_m"), read_only=True),
     Param("recorded_hand_eye_rpy_deg", [0.0, 0.0, 0.0], "optical frame orientation in the weld-tool frame the "
-          "recording was made with, roll-pitch-yaw [deg]", validate=_three("recorded_hand_eye_rpy_deg"),
+          "recording was made with, roll-pitch-yaw [deg]", validate=three_numbers("recorded_hand_eye_rpy_deg"),
           read_only=True),
     *hand_eye_ros.PARAMS,
 ]

@@ -43,14 +43,10 @@ from stud_perception.hand_eye_solvers import HandEyeError, rotation_angle_deg
 from stud_perception.hand_eye_file import calibration_record, check_record, write_yaml
 from stud_perception.markers import MarkDetectorConfig, detect_marks
 from stud_perception.registration_node import layout_marks_m
-from stud_common.ros_io import Param
+from stud_common.ros_io import Param, three_numbers
 from stud_perception.view_registration import config_for_layout
 from stud_planner.cell.hand_eye_views import (CalibrationView, ViewPlanError, plan_calibration_views, plan_check_views,
                                               station_view)
-
-
-def _three(name: str):
-    return lambda v: None if len(v) == 3 else f"{name} needs 3 numbers, got {list(v)}"
 
 
 def _tilts(v) -> str | None:
@@ -64,7 +60,7 @@ PARAMS = [
     Param("exit_when_done", True, "end the process when done (exit 0: accepted / passed, 1: not)"),
     Param("board_station_xyz_m", [0.225, -0.29, 0.285], "camera position over the marking board for the first, "
           "straight-down look that finds the board [m] (the sequencer's registration station)",
-          validate=_three("board_station_xyz_m")),
+          validate=three_numbers("board_station_xyz_m")),
     Param("view_distance_m", 0.30, "camera distance from the board centre in the views [m]", min=0.1, max=1.5),
     Param("view_tilts_deg", [10.0, 20.0, 30.0], "calibration views' tilts from straight down [deg]",
           validate=_tilts),

@@ -38,16 +38,12 @@ from stud_welding_msgs.srv import Inspect, MoveTo
 
 from stud_common import ros_io
 from stud_perception.camera_model import nadir_rotation
-from stud_common.ros_io import Param
+from stud_common.ros_io import Param, three_numbers
 from stud_common.vocabulary import CellState
 from stud_planner.cell import job as cell_job
 from stud_planner.cell.job import DriverLost, InspectionUnavailable, JobAborted, MoveRefused
 from stud_planner.msg_convert import (inspection_extras, inspection_rows, layout_from_msg, registration_from_msg,
                                       target_report_entry)
-
-
-def _three(name):
-    return lambda v: None if len(v) == 3 else f"{name} needs 3 numbers, got {list(v)}"
 
 
 _JOB = cell_job.JobConfig()  # the job's defaults are its own; the parameters expose them
@@ -56,7 +52,7 @@ PARAMS = [
     Param("exit_when_done", False, "end the process when the job ends (exit 0 only if every stud was welded)"),
     Param("report_file", "", "write a JSON report of every stud here at the end (empty: none)"),
     Param("registration_station_xyz_m", list(_JOB.registration_station_xyz_m),
-          "camera position over the marking board [m]", validate=_three("registration_station_xyz_m")),
+          "camera position over the marking board [m]", validate=three_numbers("registration_station_xyz_m")),
     Param("camera_height_m", _JOB.camera_height_m, "camera height of the stations above the working plane [m]",
           min=0.05, max=2.0),
     Param("camera_yaw_deg", _JOB.camera_yaw_deg, "image yaw of the stations [deg]", min=-360.0, max=360.0),
