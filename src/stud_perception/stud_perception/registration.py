@@ -275,3 +275,10 @@ def _checked_drawing(drawing_marks, measured: np.ndarray, turn_w: float, tol_m: 
             "wrong board, a mis-detected mark, or a mark lifted with a wrong depth"
         )
     return D, dist_err, scale_error
+
+
+def layout_marks_m(layout) -> np.ndarray:
+    """(3, 2) marks O, A, B of a stud_welding_msgs/StudLayout message (``mark_o``, ``mark_a``,
+    ``mark_b`` points), drawing frame, metres: what :func:`registration_from_marks` checks against."""
+    return np.array([(m.x, m.y) for m in (layout.mark_o, layout.mark_a, layout.mark_b)], dtype=np.float64)
+

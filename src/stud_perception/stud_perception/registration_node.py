@@ -15,7 +15,6 @@ from __future__ import annotations
 import functools
 import math
 
-import numpy as np
 from geometry_msgs.msg import Point, PoseStamped
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
@@ -25,6 +24,7 @@ from stud_welding_msgs.msg import Registration, StudLayout
 from stud_common import ros_io
 from stud_perception import image_io
 from stud_perception.markers import MarkDetectorConfig
+from stud_perception.registration import layout_marks_m
 from stud_common.ros_io import Param
 from stud_perception.view_registration import config_for_layout, draw_registration_overlay, register_view
 
@@ -133,11 +133,6 @@ class RegistrationNode(Node):
             self.get_logger().warn(f"registration failed: {reason}")
             self._last_reason = reason
         self.diag.set(self.diag.WARN, f"registration failed: {reason}")
-
-
-def layout_marks_m(layout: StudLayout) -> np.ndarray:
-    """(3, 2) O, A, B of a StudLayout message, drawing frame, metres."""
-    return np.array([(m.x, m.y) for m in (layout.mark_o, layout.mark_a, layout.mark_b)], dtype=np.float64)
 
 
 def main(args=None) -> int:

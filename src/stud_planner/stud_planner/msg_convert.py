@@ -12,6 +12,7 @@ import numpy as np
 from geometry_msgs.msg import Point, Pose, PoseArray, Quaternion
 from stud_welding_msgs.msg import Registration, Stud, StudLayout
 
+from stud_perception.registration import layout_marks_m
 from stud_planner import drawing
 
 
@@ -46,7 +47,7 @@ def layout_from_msg(msg: StudLayout) -> LayoutView:
     return LayoutView(
         ids=[s.id for s in msg.studs],
         xy_m=np.array([(s.x, s.y) for s in msg.studs], dtype=np.float64).reshape(-1, 2),
-        marks_m=np.array([(m.x, m.y) for m in (msg.mark_o, msg.mark_a, msg.mark_b)], dtype=np.float64),
+        marks_m=layout_marks_m(msg),
         mark_diameter_m=float(msg.mark_diameter),
         source_file=msg.source_file,
     )

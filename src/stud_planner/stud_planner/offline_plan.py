@@ -282,7 +282,7 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
                         f"values left out, not planned: " + "; ".join(bad[:5])
                         + (f"; ... (+{len(bad) - 5})" if len(bad) > 5 else ""))
     views = read_views(bag, topics, sync_slop_ms, warnings, allow_damaged)
-    marks = np.array([(m.x_m, m.y_m) for m in (layout.mark_o, layout.mark_a, layout.mark_b)])
+    marks = layout.marks_xy_m()
     det_config = config_for_layout(MarkDetectorConfig(), layout.mark_diameter_m)
 
     ids = [s.id for s in layout.studs]

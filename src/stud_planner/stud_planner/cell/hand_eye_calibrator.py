@@ -42,7 +42,7 @@ from stud_perception.hand_eye import (BoardShot, board_points_m, board_pose_from
 from stud_perception.hand_eye_solvers import HandEyeError, rotation_angle_deg
 from stud_perception.hand_eye_file import calibration_record, check_record, write_yaml
 from stud_perception.markers import MarkDetectorConfig, detect_marks
-from stud_perception.registration_node import layout_marks_m
+from stud_perception.registration import layout_marks_m
 from stud_common.ros_io import Param, three_numbers
 from stud_perception.view_registration import config_for_layout
 from stud_planner.cell.hand_eye_views import (CalibrationView, ViewPlanError, plan_calibration_views, plan_check_views,

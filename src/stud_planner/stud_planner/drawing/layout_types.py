@@ -82,6 +82,10 @@ class DrawingLayout:
     def marks(self) -> dict[str, Mark]:
         return {"O": self.mark_o, "A": self.mark_a, "B": self.mark_b}
 
+    def marks_xy_m(self) -> np.ndarray:
+        """(3, 2) float64 marks O, A, B, drawing frame, metres."""
+        return np.array([(m.x_m, m.y_m) for m in (self.mark_o, self.mark_a, self.mark_b)], dtype=np.float64)
+
     def studs_xy_m(self) -> np.ndarray:
         """(N, 2) float64 stud centres, drawing frame, metres, id order."""
         n = len(self.studs)
