@@ -188,6 +188,60 @@ def _plane_fit(vals, du, dv, frac_u, frac_v, min_points: int, min_spread_px: flo
     return depth, ok, n, rms
 
 
+def _check_fill_args(depth_m, window: int, max_window: int, grow_step_px: int, fallback: str) -> np.ndarray:
+    """The depth image of :func:`fill_depth_at` as an array, after checking its parameters."""
+    depth_m = np.asarray(depth_m)
+    if depth_m.ndim != 2:
+        raise DepthImageError(f"depth image must be 2-D (H, W), got shape {depth_m.shape}")
+    if window < 1 or window % 2 == 0 or max_window < window or max_window % 2 == 0:
+        raise DepthImageError(
+            f"windows must be odd with window <= max_window, got window={window}, max_window={max_window}"
+        )
+    if grow_step_px < 2 or grow_step_px % 2:
+        raise DepthImageError(f"grow_step_px must be even and >= 2 (windows stay odd), got {grow_step_px}")
+    if fallback not in ("plane", "grow", "none"):
+        raise DepthImageError(f"fallback must be 'plane', 'grow' or 'none', got {fallback!r}")
+    return depth_m
+
+
+def _fill_pending(depth_m: np.ndarray, pending: np.ndarray, uf, vf, ui, vi, sizes: list[int], fallback: str,
+                  min_valid: int, min_plane_points: int, outs: tuple) -> None:
+    """Rules 2-3 of :func:`fill_depth_at` for the queries ``pending`` (pixels without depth), window
+    size by window size; results into ``outs`` = (depth, rule, n_used, window_px, spread)."""
+    out_depth, out_rule, out_n, out_win, out_spread = outs
+
+    def store(sel, depth, rule, n, size, spread):
+        out_depth[sel] = depth
+        out_rule[sel] = rule
+        out_n[sel] = n
+        out_win[sel] = size
+        out_spread[sel] = spread
+
+    for k, size in enumerate(sizes):
+        if pending.size == 0:
+            break
+        vals, du, dv = _window_samples(depth_m, ui[pending], vi[pending], size)
+        last = k == len(sizes) - 1
+        if k == 0 or fallback == "grow" or last:  # the plane rule uses the mean only at the end
+            mean, n, std = _mean_of_valid(vals)
+        fit_ok = np.zeros(pending.size, dtype=bool)
+        if k == 0:
+            take_mean, rule = n >= min_valid, FillRule.MEAN_WINDOW
+        elif fallback == "grow":
+            take_mean, rule = n >= min_valid, FillRule.GROWN_WINDOW
+        else:
+            frac_u = uf[pending] - ui[pending]
+            frac_v = vf[pending] - vi[pending]
+            z_fit, fit_ok, n_fit, rms = _plane_fit(vals, du, dv, frac_u, frac_v, min_plane_points, 1.0)
+            store(pending[fit_ok], z_fit[fit_ok], FillRule.PLANE_FIT, n_fit[fit_ok], size, rms[fit_ok])
+            # A plane needs more samples than a mean: only the largest window falls back to the mean.
+            take_mean = (~fit_ok & (n >= min_valid)) if last else np.zeros_like(fit_ok)
+            rule = FillRule.GROWN_WINDOW
+        if take_mean.any():
+            store(pending[take_mean], mean[take_mean], rule, n[take_mean], size, std[take_mean])
+        pending = pending[~(fit_ok | take_mean)]
+
+
 def fill_depth_at(
     depth_m: np.ndarray,
     u,
@@ -216,17 +270,7 @@ def fill_depth_at(
        first grown window with ``min_valid`` depths gives their mean (``GROWN_WINDOW``).
     4. ``NONE``: nothing usable; depth NaN.
     """
-    depth_m = np.asarray(depth_m)
-    if depth_m.ndim != 2:
-        raise DepthImageError(f"depth image must be 2-D (H, W), got shape {depth_m.shape}")
-    if window < 1 or window % 2 == 0 or max_window < window or max_window % 2 == 0:
-        raise DepthImageError(
-            f"windows must be odd with window <= max_window, got window={window}, max_window={max_window}"
-        )
-    if grow_step_px < 2 or grow_step_px % 2:
-        raise DepthImageError(f"grow_step_px must be even and >= 2 (windows stay odd), got {grow_step_px}")
-    if fallback not in ("plane", "grow", "none"):
-        raise DepthImageError(f"fallback must be 'plane', 'grow' or 'none', got {fallback!r}")
+    depth_m = _check_fill_args(depth_m, window, max_window, grow_step_px, fallback)
     u_arr, v_arr = np.broadcast_arrays(np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64))
     shape = u_arr.shape
     uf = u_arr.ravel()
@@ -255,44 +299,16 @@ def fill_depth_at(
     out_win[direct] = 1
     out_spread[direct] = 0.0
 
-    def store(sel, depth, rule, n, size, spread):
-        out_depth[sel] = depth
-        out_rule[sel] = rule
-        out_n[sel] = n
-        out_win[sel] = size
-        out_spread[sel] = spread
-
     sizes = [window]
     if fallback != "none":
         sizes += list(range(window + grow_step_px, max_window, grow_step_px))
         if max_window > window:
             sizes.append(max_window)
+    outs = (out_depth, out_rule, out_n, out_win, out_spread)
     todo = np.flatnonzero(~direct & in_img)
     for start in range(0, todo.size, chunk):  # chunks bound the (N, w*w) temporaries
-        pending = todo[start:start + chunk]
-        for k, size in enumerate(sizes):
-            if pending.size == 0:
-                break
-            vals, du, dv = _window_samples(depth_m, ui[pending], vi[pending], size)
-            last = k == len(sizes) - 1
-            if k == 0 or fallback == "grow" or last:  # the plane rule uses the mean only at the end
-                mean, n, std = _mean_of_valid(vals)
-            fit_ok = np.zeros(pending.size, dtype=bool)
-            if k == 0:
-                take_mean, rule = n >= min_valid, FillRule.MEAN_WINDOW
-            elif fallback == "grow":
-                take_mean, rule = n >= min_valid, FillRule.GROWN_WINDOW
-            else:
-                frac_u = uf[pending] - ui[pending]
-                frac_v = vf[pending] - vi[pending]
-                z_fit, fit_ok, n_fit, rms = _plane_fit(vals, du, dv, frac_u, frac_v, min_plane_points, 1.0)
-                store(pending[fit_ok], z_fit[fit_ok], FillRule.PLANE_FIT, n_fit[fit_ok], size, rms[fit_ok])
-                # A plane needs more samples than a mean: only the largest window falls back to the mean.
-                take_mean = (~fit_ok & (n >= min_valid)) if last else np.zeros_like(fit_ok)
-                rule = FillRule.GROWN_WINDOW
-            if take_mean.any():
-                store(pending[take_mean], mean[take_mean], rule, n[take_mean], size, std[take_mean])
-            pending = pending[~(fit_ok | take_mean)]
+        _fill_pending(depth_m, todo[start:start + chunk], uf, vf, ui, vi, sizes, fallback, min_valid,
+                      min_plane_points, outs)
 
     return FilledDepth(
         depth_m=out_depth.reshape(shape),

@@ -1,0 +1,108 @@
+"""The batch matcher's depth look-ups: bilinear samples, holes filled where a sample touches one, steps respected.
+
+The hole rule and the safe bilinear sampler live in :mod:`stud_perception.depth_image`; here only
+the policy for a sample that touches a hole or a depth step, and the per-frame cache of filled pixels.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from stud_perception.depth_image import FillRule, SampleStatus, fill_depth_at, sample_depth_bilinear
+
+
+class _PixelFills:
+    """:func:`fill_depth_at` of integer pixels of one depth image, each pixel computed once.
+
+    A stud whose look-ups touch a hole revisits the same few pixels on every iteration of the
+    batch matcher; filling each once (vectorised over the pixels first seen in a call) keeps the
+    cost of holes to the pixels the studs' samples touch. The pixels met so far are kept sorted by
+    their linear index (a few per stud that touches a hole), looked up by bisection.
+    """
+
+    def __init__(self, depth_m: np.ndarray, window_px: int, max_window_px: int) -> None:
+        self._depth_m, self._window, self._max_window = depth_m, window_px, max_window_px
+        self._keys = np.zeros(0, dtype=np.int64)
+        self._value = np.zeros(0)
+        self._rule = np.zeros(0, dtype=np.int8)
+        self._spread = np.zeros(0)
+
+    def __call__(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(depth_m, FillRule int8, spread_m) at in-image integer pixels (u, v), any shape."""
+        W = self._depth_m.shape[1]
+        lin = v * W + u
+        pos = np.minimum(np.searchsorted(self._keys, lin), max(self._keys.size - 1, 0))
+        known = (self._keys[pos] == lin) if self._keys.size else np.zeros(lin.shape, dtype=bool)
+        new = np.unique(lin[~known])
+        if new.size:
+            flat = self._depth_m.reshape(-1)
+            value = flat[new].astype(np.float64)
+            rule = np.full(new.size, FillRule.DIRECT, dtype=np.int8)
+            spread = np.zeros(new.size)
+            hole = np.flatnonzero(~(value > 0))  # NaN compares False
+            if hole.size:
+                f = fill_depth_at(self._depth_m, new[hole] % W, new[hole] // W, window=self._window,
+                                  max_window=self._max_window, fallback="plane")
+                value[hole], rule[hole], spread[hole] = f.depth_m, f.rule, f.spread_m
+            keys = np.concatenate([self._keys, new])
+            order = np.argsort(keys, kind="stable")
+            self._keys = keys[order]
+            self._value = np.concatenate([self._value, value])[order]
+            self._rule = np.concatenate([self._rule, rule])[order]
+            self._spread = np.concatenate([self._spread, spread])[order]
+            pos = np.searchsorted(self._keys, lin)
+        return self._value[pos], self._rule[pos], self._spread[pos]
+
+
+def _depth_at_subpixel(
+    depth_m: np.ndarray, u: np.ndarray, v: np.ndarray, window_px: int, max_window_px: int, discontinuity_m: float,
+    fills: _PixelFills | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Bilinear depth at sub-pixel (u, v) (n,), in-image, with holes filled and steps respected.
+
+    :func:`sample_depth_bilinear` answers most queries. Where it refuses (a corner has no depth,
+    or the corners straddle a step larger than ``discontinuity_m``), the four corners are filled
+    by :func:`fill_depth_at` (paper 7x7 mean, then plane fit up to ``max_window_px``) -- a fill
+    whose window itself straddles a step (spread > discontinuity_m / 2) is refused -- and only
+    the corners on the nearest corner's side of any step are blended (weights renormalised), so
+    the value is never a mix of part and floor; such samples are flagged.
+    Returns (depth_m (n,), worst FillRule used (n,) int8, on_step (n,) bool).
+    """
+    s = sample_depth_bilinear(depth_m, u, v, max_step_m=discontinuity_m)
+    z = np.array(s.depth_m, dtype=np.float64)
+    rule = np.full(z.shape, FillRule.DIRECT, dtype=np.int8)
+    on_step = np.zeros(z.shape, dtype=bool)
+    redo = np.flatnonzero(s.status != SampleStatus.OK)
+    if redo.size == 0:
+        return z, rule, on_step
+    H, W = depth_m.shape
+    ur, vr = u[redo], v[redo]
+    u0 = np.clip(np.floor(ur), 0, W - 2).astype(np.int64)
+    v0 = np.clip(np.floor(vr), 0, H - 2).astype(np.int64)
+    fu = np.clip(ur - u0, 0.0, 1.0)
+    fv = np.clip(vr - v0, 0.0, 1.0)
+    cu = np.stack([u0, u0 + 1, u0, u0 + 1], axis=1)
+    cv = np.stack([v0, v0, v0 + 1, v0 + 1], axis=1)
+    w = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], axis=1)
+    if fills is None:
+        fills = _PixelFills(depth_m, window_px, max_window_px)
+    d, crule, spread = fills(cu, cv)
+    with np.errstate(invalid="ignore"):
+        straddle = (crule != FillRule.DIRECT) & (crule != FillRule.NONE) & ~(spread <= 0.5 * discontinuity_m)
+    d[straddle] = np.nan
+    # Reference: the heaviest corner that has a depth.
+    ref = np.argmax(np.where(np.isfinite(d), w + 1.0, w), axis=1)
+    rows = np.arange(redo.size)
+    d_ref = d[rows, ref]
+    with np.errstate(invalid="ignore"):
+        consistent = np.isfinite(d) & (np.abs(d - d_ref[:, None]) <= discontinuity_m)
+    wc = np.where(consistent, w, 0.0)
+    wsum = wc.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        zr = np.where(wsum > 0, (wc * np.where(consistent, d, 0.0)).sum(axis=1) / wsum, np.nan)
+    # All consistent corners at zero weight (query exactly on the reference's far edge): take it.
+    zr = np.where((wsum == 0) & np.isfinite(d_ref), d_ref, zr)
+    z[redo] = zr
+    rule[redo] = np.where(np.isfinite(zr), np.where(consistent, crule, 0).max(axis=1), FillRule.NONE)
+    on_step[redo] = (np.isfinite(d) & ~consistent).any(axis=1) | straddle.any(axis=1)
+    return z, rule, on_step
+
