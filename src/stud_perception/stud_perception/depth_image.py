@@ -14,7 +14,9 @@ rule produced the value (:class:`FillRule`) so callers can report it.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from functools import lru_cache
 from enum import IntEnum
 from typing import Literal
 
@@ -112,8 +114,7 @@ def _window_samples(depth_m: np.ndarray, ui: np.ndarray, vi: np.ndarray, window:
     """
     h, w = depth_m.shape
     half = window // 2
-    offs = np.arange(-half, half + 1)
-    dv, du = np.meshgrid(offs, offs, indexing="ij")
+    offs, du, dv = _window_offsets(window)
     vals = np.empty((ui.size, window, window))
     interior = (ui >= half) & (ui < w - half) & (vi >= half) & (vi < h - half)
     if window <= min(h, w):
@@ -130,7 +131,31 @@ def _window_samples(depth_m: np.ndarray, ui: np.ndarray, vi: np.ndarray, window:
         edge = depth_m[np.clip(rows, 0, h - 1)[:, :, None], np.clip(cols, 0, w - 1)[:, None, :]].astype(np.float64)
         edge[~inside] = np.nan
         vals[k] = edge
-    return vals.reshape(ui.size, -1), du.ravel().astype(np.float64), dv.ravel().astype(np.float64)
+    return vals.reshape(ui.size, -1), du, dv
+
+
+@lru_cache(maxsize=None)
+def _window_offsets(window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Offsets of a ``window`` x ``window`` neighbourhood: (offs (w,) int, du (w*w,), dv (w*w,)
+    float64, row-major), built once per size (read-only)."""
+    half = window // 2
+    offs = np.arange(-half, half + 1)
+    dv, du = np.meshgrid(offs, offs, indexing="ij")
+    out = offs, du.ravel().astype(np.float64), dv.ravel().astype(np.float64)
+    for a in out:
+        a.setflags(write=False)
+    return out
+
+
+@lru_cache(maxsize=None)
+def _plane_design(window: int) -> tuple[np.ndarray, np.ndarray]:
+    """The plane fit's design [1, du, dv] (w*w, 3) of a window and its outer products (w*w, 9)."""
+    _, du, dv = _window_offsets(window)
+    A = np.stack([np.ones_like(du), du, dv], axis=1)
+    AA = (A[:, :, None] * A[:, None, :]).reshape(-1, 9)
+    for a in (A, AA):
+        a.setflags(write=False)
+    return A, AA
 
 
 def _mean_of_valid(vals: np.ndarray):
@@ -158,9 +183,9 @@ def _plane_fit(vals, du, dv, frac_u, frac_v, min_points: int, min_spread_px: flo
     inv = np.zeros(vals.shape)
     np.divide(1.0, vals, out=inv, where=valid)
     # Normal equations of [1, du, dv] . p = 1/z, batched over queries.
-    A = np.stack([np.ones_like(du), du, dv], axis=1)                       # (k, 3)
+    A, AA = _plane_design(math.isqrt(du.size))                             # (k, 3), (k, 9)
     # As matrix products (BLAS): sum_k wgt_nk A_ki A_kj and sum_k wgt_nk inv_nk A_ki.
-    AtA = (wgt @ (A[:, :, None] * A[:, None, :]).reshape(-1, 9)).reshape(-1, 3, 3)  # (N, 3, 3)
+    AtA = (wgt @ AA).reshape(-1, 3, 3)                                     # (N, 3, 3)
     Atb = inv @ A                                                          # (N, 3); inv is 0 where invalid
     # Refuse fits whose samples do not spread in both image directions (a line of samples
     # cannot fix a plane): smallest eigenvalue of the (du, dv) scatter, in pixels^2.

@@ -10,6 +10,12 @@ import numpy as np
 from stud_perception.depth_image import FillRule, SampleStatus, fill_depth_at, sample_depth_bilinear
 
 
+#: Up to this many new pixels in one call, the holes around them are filled with them (see
+#: :meth:`_PixelFills._with_holes_around`); beyond, the per-pixel cost of filling dominates.
+PREFETCH_BELOW = 128
+PREFETCH_RADIUS_PX = 2
+
+
 class _PixelFills:
     """:func:`fill_depth_at` of integer pixels of one depth image, each pixel computed once.
 
@@ -26,6 +32,28 @@ class _PixelFills:
         self._rule = np.zeros(0, dtype=np.int8)
         self._spread = np.zeros(0)
 
+    def _with_holes_around(self, new: np.ndarray, flat: np.ndarray, W: int) -> np.ndarray:
+        """``new`` (sorted linear indices) and the hole pixels not yet known within
+        :data:`PREFETCH_RADIUS_PX` of its holes: a stud's next look-ups land a pixel or two away,
+        and filling them now saves a call of :func:`fill_depth_at` (whose fixed cost is what few
+        studs pay). Filled values depend on the pixel alone, so this changes no result."""
+        holes = new[~(flat[new] > 0)]  # NaN compares False
+        if holes.size == 0:
+            return new
+        H = flat.size // W
+        r = np.arange(-PREFETCH_RADIUS_PX, PREFETCH_RADIUS_PX + 1)
+        hu, hv = holes % W, holes // W
+        shape = (holes.size, r.size, r.size)
+        U = np.broadcast_to(hu[:, None, None] + r[None, None, :], shape).ravel()
+        V = np.broadcast_to(hv[:, None, None] + r[None, :, None], shape).ravel()
+        inside = (U >= 0) & (U < W) & (V >= 0) & (V < H)
+        near = V[inside] * W + U[inside]
+        near = np.unique(near[~(flat[near] > 0)])
+        if self._keys.size:
+            pos = np.minimum(np.searchsorted(self._keys, near), self._keys.size - 1)
+            near = near[self._keys[pos] != near]
+        return np.union1d(new, near)
+
     def __call__(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(depth_m, FillRule int8, spread_m) at in-image integer pixels (u, v), any shape."""
         W = self._depth_m.shape[1]
@@ -35,6 +63,8 @@ class _PixelFills:
         new = np.unique(lin[~known])
         if new.size:
             flat = self._depth_m.reshape(-1)
+            if new.size <= PREFETCH_BELOW:
+                new = self._with_holes_around(new, flat, W)
             value = flat[new].astype(np.float64)
             rule = np.full(new.size, FillRule.DIRECT, dtype=np.int8)
             spread = np.zeros(new.size)

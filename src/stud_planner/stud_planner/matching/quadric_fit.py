@@ -180,11 +180,23 @@ def _solve_normal_equations(Mw: np.ndarray, My: np.ndarray, ca: np.ndarray, cb: 
     return np.einsum("nij,nj->ni", A_inv, rhs), A_inv, rhs
 
 
+#: Below this many matrices LAPACK's per-matrix calls cost less than the batch-wide Cholesky's
+#: few hundred numpy operations (a robust pass often refits one or two windows).
+_LAPACK_BELOW = 200
+
+
 def _inverse_spd(A: np.ndarray) -> np.ndarray:
     """Inverses (n, m, m) of symmetric positive (semi-)definite matrices (n, m, m), by a Cholesky
     factorisation written out over the batch: np.linalg.inv pays a per-matrix overhead that
-    dominates at 6x6. A pivot that rounding leaves at or below zero is clamped to a tiny positive
+    dominates at 6x6 for many matrices; for fewer than :data:`_LAPACK_BELOW` positive definite
+    ones, LAPACK's (the same values up to rounding). A pivot that rounding leaves at or below zero is clamped to a tiny positive
     value, so a degenerate window gets a huge (honest) covariance instead of NaN."""
+    if A.shape[0] < _LAPACK_BELOW:
+        try:
+            np.linalg.cholesky(A)  # raises unless every matrix is positive definite
+            return np.linalg.inv(A)
+        except np.linalg.LinAlgError:
+            pass  # a degenerate window: the clamped factorisation below
     m = A.shape[-1]
     a = np.ascontiguousarray(np.moveaxis(A, 0, -1))  # (m, m, n): each entry a contiguous vector
     L: list[list] = [[None] * m for _ in range(m)]
@@ -309,21 +321,24 @@ def _frame_noise_m(moments: BlockMoments, stride: int = 4) -> float:
     """The frame's depth noise (m, 1-sigma): the median RMS of plane fits of 1/z to every
     ``stride``-th block in both directions that has depth in every pixel (curvature is nil over
     a block; a block on an edge is an outlier the median ignores). With all pixels present the
-    design is the same for every block, so the residuals are one product with the projector off
-    the plane's span. NaN if no such block."""
+    design is the same for every block, and its columns 1, u, v are orthogonal over the block: the
+    residual sum of squares is that about the block's mean less the two slopes' shares, two
+    products for all blocks. NaN if no such block."""
     b = BLOCK_PX
     depth = moments.depth_blocks[::stride, :, ::stride, :]  # a view: (rows, b, cols, b)
-    z = np.ascontiguousarray(depth.transpose(0, 2, 1, 3)).reshape(-1, b * b).astype(np.float64)
-    z = z[np.all(z > 0, axis=1)]  # NaN compares False
+    z = np.ascontiguousarray(depth.transpose(0, 2, 1, 3)).reshape(-1, b * b)
+    z = z[np.all(z > 0, axis=1)].astype(np.float64)  # NaN compares False
     if z.shape[0] < _MIN_NOISE_BLOCKS:  # speckled depth: few whole blocks, take three-quarter-full ones
         return _frame_noise_from_sums(moments, stride)
     g = np.arange(b) - (b - 1) / 2.0
-    X = np.column_stack([np.ones(b * b), np.tile(g, b), np.repeat(g, b)])  # 1, u, v of the pixels
-    off_plane = np.eye(b * b) - X @ np.linalg.solve(X.T @ X, X.T)
+    slopes = np.column_stack([np.tile(g, b), np.repeat(g, b)])  # u, v of the pixels, each summing to 0
     y = 1.0 / z
-    r = y @ off_plane
-    var_w = np.einsum("kj,kj->k", r, r) / (b * b - 3)
-    z_mean = 1.0 / y.mean(axis=1)
+    y_mean = y.mean(axis=1)
+    y -= y_mean[:, None]
+    s = y @ slopes
+    rss = np.einsum("kj,kj->k", y, y) - (s * s) @ (1.0 / np.einsum("ji,ji->i", slopes, slopes))
+    var_w = np.maximum(rss, 0.0) / (b * b - 3)
+    z_mean = 1.0 / y_mean
     return float(np.median(np.sqrt(var_w) * z_mean * z_mean))
 
 
