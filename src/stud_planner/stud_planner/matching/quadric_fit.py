@@ -47,6 +47,17 @@ class _InverseDepthFit:
                                 cov=self.cov[k], inliers=None if self.inliers is None else self.inliers[k],
                                 rms_w=self.rms_w[k])
 
+    def without_inliers(self) -> "_InverseDepthFit":
+        """The same fits without the (large) inlier masks."""
+        return self if self.inliers is None else _InverseDepthFit(
+            x0=self.x0, y0=self.y0, scale=self.scale, beta=self.beta, cov=self.cov, inliers=None, rms_w=self.rms_w)
+
+    @staticmethod
+    def concatenate(fits: list["_InverseDepthFit"]) -> "_InverseDepthFit":
+        """The fits of several batches of windows, in order (without inlier masks)."""
+        return _InverseDepthFit(**{f: np.concatenate([getattr(x, f) for x in fits])
+                                   for f in ("x0", "y0", "scale", "beta", "cov", "rms_w")}, inliers=None)
+
     def gradient_map(self, xt: np.ndarray, yt: np.ndarray) -> np.ndarray:
         """(n, 3, 6) linear map beta -> g = (w_x, w_y, w - w_x x~ - w_y y~) at normalised image
         coordinates (xt, yt): the (unnormalised) surface normal in the optical frame there.
@@ -225,6 +236,39 @@ def _evaluate(beta: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
             + beta[:, 3, None, None] * A * A + beta[:, 4, None, None] * A * B + beta[:, 5, None, None] * B * B)
 
 
+def _robust_refits(win: _Windows, rows: np.ndarray, inl: np.ndarray, resid: np.ndarray, beta: np.ndarray,
+                   A_inv: np.ndarray, var: np.ndarray, a: np.ndarray, b: np.ndarray, ca: np.ndarray, cb: np.ndarray,
+                   robust_passes: int, outlier_k: float, floor_w: np.ndarray) -> None:
+    """Up to ``robust_passes`` robust passes over windows ``rows``: drop the samples farther from
+    the fit than max(outlier_k * 1.4826 * MAD, floor_w) and refit, until the inliers stop changing.
+    Updates ``inl``, ``resid``, ``beta``, ``A_inv`` and ``var`` (all windows' arrays) in place."""
+    good = win.good
+    for _ in range(robust_passes):
+        r = resid[rows].reshape(rows.size, -1)
+        g = good[rows].reshape(rows.size, -1)
+        # Median over the valid entries of each row: sort with invalid = +inf, take the middle.
+        mid = np.maximum(g.sum(axis=1) - 1, 0) // 2
+        r_all = np.where(g, r, np.inf)
+        kth = np.unique(mid)  # a partial sort puts these places right (a few rows: a few places)
+        r_sorted = np.partition(r_all, kth, axis=1) if kth.size <= 16 else np.sort(r_all, axis=1)
+        mad = np.take_along_axis(r_sorted, mid[:, None], axis=1)[:, 0]
+        thr = np.maximum(outlier_k * 1.4826 * np.where(np.isfinite(mad), mad, 0.0), floor_w[rows])
+        new_inl = (g & (r <= thr[:, None])).reshape(good[rows].shape)
+        changed = (new_inl != inl[rows]).any(axis=(1, 2))
+        rows, new_inl = rows[changed], new_inl[changed]
+        if rows.size == 0:
+            break
+        inl[rows] = new_inl
+        wr = new_inl.astype(np.float64)
+        Mw_r, My_r = _moments(wr, None, win.grid, 4), _moments(wr, win.inv_z[rows], win.grid, 2)
+        beta[rows], A_inv[rows], rhs_r = _solve_normal_equations(Mw_r, My_r, ca[rows], cb[rows])
+        yy_r = np.einsum("nij,nij,nij->n", wr, win.inv_z[rows], win.inv_z[rows])
+        n_r = new_inl.sum(axis=(1, 2))
+        var[rows] = (np.maximum(yy_r - np.einsum("ni,ni->n", beta[rows], rhs_r), 0.0)
+                     / np.maximum(n_r - len(_TERMS), 1))
+        resid[rows] = np.abs(win.inv_z[rows] - _evaluate(beta[rows], a[rows], b[rows]))
+
+
 def _fit_inverse_depth(win: _Windows, camera: CameraModel, scale: np.ndarray, robust_passes: int, outlier_k: float,
                        floor_w: np.ndarray, trigger_k: float = 4.5) -> _InverseDepthFit:
     """Robust quadric fits of 1/z over the windows' normalised image coordinates.
@@ -258,28 +302,7 @@ def _fit_inverse_depth(win: _Windows, camera: CameraModel, scale: np.ndarray, ro
     rows = np.flatnonzero(worst > np.maximum(trigger_k * np.sqrt(var), floor_w))
     if rows.size and robust_passes > 0:
         inl = good.copy()
-        for _ in range(robust_passes):
-            r = resid[rows].reshape(rows.size, -1)
-            g = good[rows].reshape(rows.size, -1)
-            # Median over the valid entries of each row: sort with invalid = +inf, take the middle.
-            mid = np.maximum(g.sum(axis=1) - 1, 0) // 2
-            r_sorted = np.sort(np.where(g, r, np.inf), axis=1)
-            mad = np.take_along_axis(r_sorted, mid[:, None], axis=1)[:, 0]
-            thr = np.maximum(outlier_k * 1.4826 * np.where(np.isfinite(mad), mad, 0.0), floor_w[rows])
-            new_inl = (g & (r <= thr[:, None])).reshape(good[rows].shape)
-            changed = (new_inl != inl[rows]).any(axis=(1, 2))
-            rows, new_inl = rows[changed], new_inl[changed]
-            if rows.size == 0:
-                break
-            inl[rows] = new_inl
-            wr = new_inl.astype(np.float64)
-            Mw_r, My_r = _moments(wr, None, win.grid, 4), _moments(wr, win.inv_z[rows], win.grid, 2)
-            beta[rows], A_inv[rows], rhs_r = _solve_normal_equations(Mw_r, My_r, ca[rows], cb[rows])
-            yy_r = np.einsum("nij,nij,nij->n", wr, win.inv_z[rows], win.inv_z[rows])
-            n_r = new_inl.sum(axis=(1, 2))
-            var[rows] = (np.maximum(yy_r - np.einsum("ni,ni->n", beta[rows], rhs_r), 0.0)
-                         / np.maximum(n_r - len(_TERMS), 1))
-            resid[rows] = np.abs(win.inv_z[rows] - _evaluate(beta[rows], a[rows], b[rows]))
+        _robust_refits(win, rows, inl, resid, beta, A_inv, var, a, b, ca, cb, robust_passes, outlier_k, floor_w)
     x0 = (win.u0 - camera.cx) / camera.fx
     y0 = (win.v0 - camera.cy) / camera.fy
     return _InverseDepthFit(x0=x0, y0=y0, scale=scale, beta=beta, cov=var[:, None, None] * A_inv, inliers=inl,

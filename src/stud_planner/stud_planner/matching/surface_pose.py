@@ -201,21 +201,27 @@ def estimate_surface_poses(
     limits = _Limits(min_points=max(min_points, _N_TERMS + 2), min_fill_ratio=min_fill_ratio, max_rms_m=max_rms_m,
                      max_outlier_ratio=max_outlier_ratio)
     robust = np.flatnonzero(ok_in)
+    fitted = []  # (idx, fit, z0_w, z_cam, n_in, n_valid, n_window) of each path, stored together at the end
     if fast_fit and robust.size:
-        robust = _fast_path_poses(out, robust, P0, uv, depth, camera, target_xy, window_m, limits,
-                                  gate_ratio=fast_fit_noise_ratio, gate_floor_m=fast_fit_floor_m)
+        batch, robust = _fast_path_fits(robust, P0, uv, depth, camera, window_m, limits,
+                                        gate_ratio=fast_fit_noise_ratio, gate_floor_m=fast_fit_floor_m)
+        fitted.append(batch)
     for start in range(0, robust.size, chunk):
-        _pixel_path_poses(out, robust[start:start + chunk], P0, uv, depth, camera, target_xy, window_m, limits,
-                          max_per_side=int(max_samples_per_side), robust_passes=robust_passes, outlier_k=outlier_k,
-                          outlier_floor_m=outlier_floor_m)
+        fitted.append(_pixel_path_fits(robust[start:start + chunk], P0, uv, depth, camera, window_m,
+                                       max_per_side=int(max_samples_per_side), robust_passes=robust_passes,
+                                       outlier_k=outlier_k, outlier_floor_m=outlier_floor_m))
+    fitted = [b for b in fitted if b[0].size]
+    if fitted:  # one pass for all: its fixed cost is paid once
+        idx, fit, *rest = fitted[0] if len(fitted) == 1 else _concatenate(fitted)
+        _store_poses(out, idx, fit, camera, target_xy[idx], *rest, limits)
     return SurfacePoses(**out)
 
 
-def _fast_path_poses(out: dict, idx: np.ndarray, P0: np.ndarray, uv: np.ndarray, depth: np.ndarray,
-                     camera: CameraModel, target_xy: np.ndarray, window_m: float, limits: "_Limits", *,
-                     gate_ratio: float, gate_floor_m: float) -> np.ndarray:
-    """Poses of studs ``idx`` whose plain fit from block moment sums stands (see
-    :func:`estimate_surface_poses`), into ``out``; returns the studs left for the pixel path."""
+def _fast_path_fits(idx: np.ndarray, P0: np.ndarray, uv: np.ndarray, depth: np.ndarray, camera: CameraModel,
+                    window_m: float, limits: "_Limits", *, gate_ratio: float, gate_floor_m: float):
+    """The plain fits from block moment sums of studs ``idx`` where they stand (see
+    :func:`estimate_surface_poses`): ((idx, fit, z0_w, z_cam, n_in, n_valid, n_window) of those,
+    the studs left for the pixel path)."""
     z_cam = camera.world_to_camera(P0[idx])[:, 2]
     y_ref = 1.0 / float(np.median(z_cam))
     moments = BlockMoments(depth, y_ref)
@@ -228,23 +234,29 @@ def _fast_path_poses(out: dict, idx: np.ndarray, P0: np.ndarray, uv: np.ndarray,
     # elsewhere (a step, an edge, flying pixels, a rough patch) the robust path decides.
     take = eligible & (few | ((rms_m <= gate_m) & (rms_m <= limits.max_rms_m)))
     k = np.flatnonzero(take)
-    _store_poses(out, idx[k], fit if k.size == take.size else fit.take(k), camera, target_xy[idx[k]],
-                 P0[idx[k], 2], z_cam[k], n_valid[k], n_valid[k], n_window[k], limits)
-    return idx[~take]
+    batch = (idx[k], fit if k.size == take.size else fit.take(k), P0[idx[k], 2], z_cam[k], n_valid[k], n_valid[k],
+             n_window[k])
+    return batch, idx[~take]
 
 
-def _pixel_path_poses(out: dict, idx: np.ndarray, P0: np.ndarray, uv: np.ndarray, depth: np.ndarray,
-                      camera: CameraModel, target_xy: np.ndarray, window_m: float, limits: "_Limits", *,
-                      max_per_side: int, robust_passes: int, outlier_k: float, outlier_floor_m: float) -> None:
-    """Poses of studs ``idx`` by the robust fit of their windows' pixels, into ``out``."""
+def _pixel_path_fits(idx: np.ndarray, P0: np.ndarray, uv: np.ndarray, depth: np.ndarray, camera: CameraModel,
+                     window_m: float, *, max_per_side: int, robust_passes: int, outlier_k: float,
+                     outlier_floor_m: float):
+    """The robust fits of the pixels of studs ``idx``' windows: (idx, fit, z0_w, z_cam, n_in, n_valid, n_window)."""
     p_stud = P0[idx]
     z_cam = camera.world_to_camera(p_stud)[:, 2]
     win = _window_blocks(camera, depth, uv[idx], z_cam, window_m, max_per_side)
     scale = 0.5 * window_m / np.maximum(z_cam, 1e-6)
     floor_w = outlier_floor_m / np.maximum(z_cam, 1e-6) ** 2  # 1 mm of depth, in 1/z
     fit = _fit_inverse_depth(win, camera, scale, robust_passes, outlier_k, floor_w)
-    _store_poses(out, idx, fit, camera, target_xy[idx], p_stud[:, 2], z_cam, fit.inliers.sum(axis=(1, 2)),
-                 win.good.sum(axis=(1, 2)), win.n_window, limits)
+    return (idx, fit.without_inliers(), p_stud[:, 2], z_cam, fit.inliers.sum(axis=(1, 2)), win.good.sum(axis=(1, 2)),
+            win.n_window)
+
+
+def _concatenate(batches: list[tuple]) -> tuple:
+    """One (idx, fit, per-stud arrays...) of several, in order."""
+    return (np.concatenate([b[0] for b in batches]), _InverseDepthFit.concatenate([b[1] for b in batches]),
+            *(np.concatenate([b[i] for b in batches]) for i in range(2, len(batches[0]))))
 
 
 @dataclass(frozen=True)
