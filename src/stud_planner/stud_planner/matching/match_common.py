@@ -172,10 +172,23 @@ def line_in_view_z_interval(
     :meth:`CameraModel.world_to_camera`), each image bound ``0 <= u <= W-1``, ``0 <= v <= H-1`` and
     ``z_c >= min_depth_m`` is linear in z. Returns (lo, hi), each (N,); lo > hi means never in view.
     """
+    return _line_z_interval(camera, *camera_line(camera, targets_xy_w), z_min_m, z_max_m, min_depth_m)
+
+
+def camera_line(camera: CameraModel, targets_xy_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B) (N, 3) with P_c(z) = A + z B the optical-frame point of (x_w, y_w, z) on each stud's
+    vertical line (:meth:`CameraModel.world_to_camera`; exact, the map is affine)."""
     xy = np.asarray(targets_xy_w, dtype=np.float64).reshape(-1, 2)
     n = xy.shape[0]
     A = camera.world_to_camera(np.column_stack([xy, np.zeros(n)]))
     B = camera.world_to_camera(np.column_stack([xy, np.ones(n)])) - A
+    return A, B
+
+
+def _line_z_interval(camera: CameraModel, A: np.ndarray, B: np.ndarray, z_min_m: float, z_max_m: float,
+                     min_depth_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`line_in_view_z_interval` of the lines P_c(z) = A + z B (:func:`camera_line`)."""
+    n = A.shape[0]
     lo = np.full(n, float(z_min_m))
     hi = np.full(n, float(z_max_m))
     # (alpha + beta z) >= 0 for each constraint; u = fx x/z + cx >= 0 <=> fx x + cx z >= 0, etc.

@@ -31,8 +31,8 @@ import numpy as np
 from stud_perception.camera_model import CameraModel
 from stud_planner.matching.depth_lookup import _depth_at_subpixel, _PixelFills
 from stud_planner.matching.match_common import (Z_RANGE_MARGIN_M, MatchingError, MatchResult, MatchResults,
-                                                MatchStatus, _check_inputs, _empty_results, line_in_view_z_interval,
-                                                observed_z_range)
+                                                MatchStatus, _check_inputs, _empty_results, _line_z_interval,
+                                                camera_line, line_in_view_z_interval, observed_z_range)
 from stud_planner.matching.paper_baselines import match_bfs, match_fpm, xy_jacobian_at_height
 
 # ---------------------------------------------------------------------------------------------
@@ -85,12 +85,13 @@ def match_batch(
         z_min, z_max, z_mid = observed_z_range(depth, camera)
         z_range_m = z_range_m or (z_min, z_max)
         z_init_m = z_mid if z_init_m is None else z_init_m
-    zlo, zhi = line_in_view_z_interval(camera, xy, z_range_m[0], z_range_m[1])
+    line = camera_line(camera, xy)
+    zlo, zhi = _line_z_interval(camera, *line, z_range_m[0], z_range_m[1], 1e-3)
     in_view = zlo <= zhi
     out["status"][~in_view] = MatchStatus.OUT_OF_VIEW
     active = np.flatnonzero(in_view)
     if active.size:
-        search = _SecantSearch(xy, depth, camera, out, zlo, zhi, tol_m=tol_m, converge_xy_m=converge_xy_m,
+        search = _SecantSearch(xy, depth, camera, line, out, zlo, zhi, tol_m=tol_m, converge_xy_m=converge_xy_m,
                                z_bracket_tol_m=z_bracket_tol_m, hole_window_px=hole_window_px,
                                hole_max_window_px=hole_max_window_px, discontinuity_m=discontinuity_m)
         search.run(active, z_init_m, max_lookups)
@@ -102,8 +103,8 @@ class _SecantSearch:
     ``out`` it fills in, each stud's bracket [lo_b, hi_b] of heights (g > 0 below the surface,
     g < 0 above) with g there, and whether its last sample straddled a depth step."""
 
-    def __init__(self, xy: np.ndarray, depth: np.ndarray, camera: CameraModel, out: dict, zlo: np.ndarray,
-                 zhi: np.ndarray, *, tol_m: float, converge_xy_m: float, z_bracket_tol_m: float, hole_window_px: int,
+    def __init__(self, xy: np.ndarray, depth: np.ndarray, camera: CameraModel, line: tuple, out: dict,
+                 zlo: np.ndarray, zhi: np.ndarray, *, tol_m: float, converge_xy_m: float, z_bracket_tol_m: float, hole_window_px: int,
                  hole_max_window_px: int, discontinuity_m: float) -> None:
         n = xy.shape[0]
         self.xy, self.depth, self.camera, self.out, self.zlo, self.zhi = xy, depth, camera, out, zlo, zhi
@@ -117,6 +118,13 @@ class _SecantSearch:
         self.g_lo = np.full(n, np.nan)  # g at lo_b / hi_b, to measure a jump of g when the bracket collapses
         self.g_hi = np.full(n, np.nan)
         self.on_step = np.zeros(n, dtype=bool)
+        # The pixel of height z on each stud's line is u = (a_u + b_u z) / (a_z + b_z z), the same
+        # for v: projective in z (from P_c(z) = A + z B), each a few operations a look-up.
+        A, B = line
+        fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
+        self.a_u, self.b_u = fx * A[:, 0] + cx * A[:, 2], fx * B[:, 0] + cx * B[:, 2]
+        self.a_v, self.b_v = fy * A[:, 1] + cy * A[:, 2], fy * B[:, 1] + cy * B[:, 2]
+        self.a_z, self.b_z = A[:, 2].copy(), B[:, 2].copy()
 
     def run(self, idx: np.ndarray, z_init_m: float, max_lookups: int) -> None:
         """Search studs ``idx`` from the height ``z_init_m``: a plain fixed-point step first, then
@@ -142,11 +150,10 @@ class _SecantSearch:
         g = height of Eq. 1 there - z; the latest sample with depth is stored in ``out``.
         Returns (g, XY residual, on a step, had depth), each over ``idx``."""
         camera, xy, out = self.camera, self.xy, self.out
-        P = np.column_stack([xy[idx], z])
-        u, v, _ = camera.world_to_pixel(P)
-        # z is inside the in-view interval, so u, v are in the image up to rounding.
-        u = np.clip(u, 0.0, camera.width - 1.0)
-        v = np.clip(v, 0.0, camera.height - 1.0)
+        inv_zc = 1.0 / (self.a_z[idx] + self.b_z[idx] * z)  # > 0: z is inside the in-view interval
+        # ... so u, v are in the image up to rounding.
+        u = np.clip((self.a_u[idx] + self.b_u[idx] * z) * inv_zc, 0.0, camera.width - 1.0)
+        v = np.clip((self.a_v[idx] + self.b_v[idx] * z) * inv_zc, 0.0, camera.height - 1.0)
         d, rule, step = _depth_at_subpixel(self.depth, u, v, self.hole_window_px, self.hole_max_window_px,
                                            self.discontinuity_m, self.fills)
         Q = camera.pixel_to_world(u, v, d)  # Eq. 1 at the sub-pixel
