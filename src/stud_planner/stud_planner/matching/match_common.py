@@ -42,13 +42,26 @@ def observed_z_range(depth_m: np.ndarray, camera: CameraModel, stride: int = 16,
     frame is: a robot base on a pedestal puts the part well below z = 0, a floor-mounted one above.
     An image without any depth gives a range around the camera's own height.
     """
+    return z_range_of(observed_heights(depth_m, camera, stride), camera, margin_m)
+
+
+def observed_heights(depth_m: np.ndarray, camera: CameraModel, stride: int = 16) -> tuple[float, float, float] | None:
+    """(lowest, highest, median) world z of Eq. 1 on every ``stride``-th pixel with depth; None if none."""
     u, v, sub = _depth_samples(depth_m, stride)
     zw = camera.pixel_to_world(u, v, sub)[..., 2]
     zw = zw[np.isfinite(zw)]
     if zw.size == 0:
+        return None
+    return float(zw.min()), float(zw.max()), float(np.median(zw))
+
+
+def z_range_of(heights: tuple[float, float, float] | None, camera: CameraModel,
+               margin_m: float = Z_RANGE_MARGIN_M) -> tuple[float, float, float]:
+    """:func:`observed_z_range` from :func:`observed_heights` (one pass over the image for several margins)."""
+    if heights is None:
         z = float(camera.position_w[2])
         return z - 10.0, z + 10.0, z
-    return float(zw.min()) - margin_m, float(zw.max()) + margin_m, float(np.median(zw))
+    return heights[0] - margin_m, heights[1] + margin_m, heights[2]
 
 
 class MatchStatus(IntEnum):
