@@ -324,11 +324,7 @@ def fill_depth_at(
     out_win[direct] = 1
     out_spread[direct] = 0.0
 
-    sizes = [window]
-    if fallback != "none":
-        sizes += list(range(window + grow_step_px, max_window, grow_step_px))
-        if max_window > window:
-            sizes.append(max_window)
+    sizes = _window_sizes(window, max_window, grow_step_px, fallback)
     outs = (out_depth, out_rule, out_n, out_win, out_spread)
     todo = np.flatnonzero(~direct & in_img)
     for start in range(0, todo.size, chunk):  # chunks bound the (N, w*w) temporaries
@@ -342,6 +338,37 @@ def fill_depth_at(
         window_px=out_win.reshape(shape),
         spread_m=out_spread.reshape(shape),
     )
+
+
+def _window_sizes(window: int, max_window: int, grow_step_px: int, fallback: str) -> list[int]:
+    """The windows :func:`fill_depth_at` tries, in order."""
+    sizes = [window]
+    if fallback != "none":
+        sizes += list(range(window + grow_step_px, max_window, grow_step_px))
+        if max_window > window:
+            sizes.append(max_window)
+    return sizes
+
+
+def fill_holes_at(depth_m: np.ndarray, ui: np.ndarray, vi: np.ndarray, window: int = 7, max_window: int = 31,
+                  min_valid: int = 1, min_plane_points: int = 8, grow_step_px: int = 4, chunk: int = 4096) -> FilledDepth:
+    """:func:`fill_depth_at` (``fallback="plane"``) of integer in-image pixels (ui, vi) (n,) that
+    have no depth, without its general preparation (any shape, sub-pixel, out-of-image and direct
+    queries): the same values, for callers that already know their pixels are holes (a matcher
+    that fills the few a stud touches, a call at a time)."""
+    depth_m = _check_fill_args(depth_m, window, max_window, grow_step_px, "plane")
+    ui = np.asarray(ui, dtype=np.int64).ravel()
+    vi = np.asarray(vi, dtype=np.int64).ravel()
+    n_q = ui.size
+    outs = (np.full(n_q, np.nan), np.full(n_q, FillRule.NONE, dtype=np.int8), np.zeros(n_q, dtype=np.int32),
+            np.zeros(n_q, dtype=np.int32), np.full(n_q, np.nan))
+    sizes = _window_sizes(window, max_window, grow_step_px, "plane")
+    uf, vf = ui.astype(np.float64), vi.astype(np.float64)
+    todo = np.arange(n_q)
+    for start in range(0, n_q, chunk):
+        _fill_pending(depth_m, todo[start:start + chunk], uf, vf, ui, vi, sizes, "plane", min_valid,
+                      min_plane_points, outs)
+    return FilledDepth(*outs)
 
 
 # -- sub-pixel sampling ------------------------------------------------------------------------

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from stud_perception.depth_image import FillRule, SampleStatus, fill_depth_at, sample_depth_bilinear
+from stud_perception.depth_image import FillRule, SampleStatus, fill_holes_at, sample_depth_bilinear
 
 
 #: Up to this many new pixels in one call, the holes around them are filled with them (see
@@ -17,7 +17,7 @@ PREFETCH_RADIUS_PX = 2
 
 
 class _PixelFills:
-    """:func:`fill_depth_at` of integer pixels of one depth image, each pixel computed once.
+    """:func:`~stud_perception.depth_image.fill_depth_at` of integer pixels of one depth image, each computed once.
 
     A stud whose look-ups touch a hole revisits the same few pixels on every iteration of the
     batch matcher; filling each once (vectorised over the pixels first seen in a call) keeps the
@@ -70,8 +70,8 @@ class _PixelFills:
             spread = np.zeros(new.size)
             hole = np.flatnonzero(~(value > 0))  # NaN compares False
             if hole.size:
-                f = fill_depth_at(self._depth_m, new[hole] % W, new[hole] // W, window=self._window,
-                                  max_window=self._max_window, fallback="plane")
+                f = fill_holes_at(self._depth_m, new[hole] % W, new[hole] // W, window=self._window,
+                                  max_window=self._max_window)
                 value[hole], rule[hole], spread[hole] = f.depth_m, f.rule, f.spread_m
             keys = np.concatenate([self._keys, new])
             order = np.argsort(keys, kind="stable")
