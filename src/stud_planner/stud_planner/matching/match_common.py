@@ -201,26 +201,21 @@ def camera_line(camera: CameraModel, targets_xy_w: np.ndarray) -> tuple[np.ndarr
 def _line_z_interval(camera: CameraModel, A: np.ndarray, B: np.ndarray, z_min_m: float, z_max_m: float,
                      min_depth_m: float) -> tuple[np.ndarray, np.ndarray]:
     """:func:`line_in_view_z_interval` of the lines P_c(z) = A + z B (:func:`camera_line`)."""
-    n = A.shape[0]
-    lo = np.full(n, float(z_min_m))
-    hi = np.full(n, float(z_max_m))
     # (alpha + beta z) >= 0 for each constraint; u = fx x/z + cx >= 0 <=> fx x + cx z >= 0, etc.
     fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
     W1, H1 = camera.width - 1, camera.height - 1
-    constraints = [
-        (fx * A[:, 0] + cx * A[:, 2], fx * B[:, 0] + cx * B[:, 2]),  # u >= 0
-        (-(fx * A[:, 0] + (cx - W1) * A[:, 2]), -(fx * B[:, 0] + (cx - W1) * B[:, 2])),  # u <= W-1
-        (fy * A[:, 1] + cy * A[:, 2], fy * B[:, 1] + cy * B[:, 2]),  # v >= 0
-        (-(fy * A[:, 1] + (cy - H1) * A[:, 2]), -(fy * B[:, 1] + (cy - H1) * B[:, 2])),  # v <= H-1
-        (A[:, 2] - min_depth_m, B[:, 2]),  # in front of the camera
-    ]
+    alpha = np.stack([fx * A[:, 0] + cx * A[:, 2],  # u >= 0
+                      -(fx * A[:, 0] + (cx - W1) * A[:, 2]),  # u <= W-1
+                      fy * A[:, 1] + cy * A[:, 2],  # v >= 0
+                      -(fy * A[:, 1] + (cy - H1) * A[:, 2]),  # v <= H-1
+                      A[:, 2] - min_depth_m])  # in front of the camera
+    beta = np.stack([fx * B[:, 0] + cx * B[:, 2], -(fx * B[:, 0] + (cx - W1) * B[:, 2]),
+                     fy * B[:, 1] + cy * B[:, 2], -(fy * B[:, 1] + (cy - H1) * B[:, 2]), B[:, 2]])
     with np.errstate(divide="ignore", invalid="ignore"):
-        for alpha, beta in constraints:
-            root = -alpha / beta
-            lo = np.where(beta > 0, np.maximum(lo, root), lo)
-            hi = np.where(beta < 0, np.minimum(hi, root), hi)
-            never = (beta == 0) & (alpha < 0)
-            lo = np.where(never, np.inf, lo)
+        root = -alpha / beta
+        lo = np.maximum(float(z_min_m), np.max(np.where(beta > 0, root, -np.inf), axis=0))
+        hi = np.minimum(float(z_max_m), np.min(np.where(beta < 0, root, np.inf), axis=0))
+        lo[np.any((beta == 0) & (alpha < 0), axis=0)] = np.inf  # a bound the line never meets
     # Shrink by a hair so rounding never puts an iterate a femtometre outside the image.
     span = hi - lo
     pad = np.where(span > 0, np.minimum(1e-9, 0.25 * span), 0.0)
