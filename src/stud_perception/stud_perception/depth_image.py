@@ -180,8 +180,8 @@ def _plane_fit(vals, du, dv, frac_u, frac_v, min_points: int, min_spread_px: flo
     valid = vals > 0  # NaN compares False
     n = valid.sum(axis=1)
     wgt = valid.astype(np.float64)
-    inv = np.zeros(vals.shape)
-    np.divide(1.0, vals, out=inv, where=valid)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = np.where(valid, 1.0 / vals, 0.0)
     # Normal equations of [1, du, dv] . p = 1/z, batched over queries.
     A, AA = _plane_design(math.isqrt(du.size))                             # (k, 3), (k, 9)
     # As matrix products (BLAS): sum_k wgt_nk A_ki A_kj and sum_k wgt_nk inv_nk A_ki.
@@ -202,13 +202,12 @@ def _plane_fit(vals, du, dv, frac_u, frac_v, min_points: int, min_spread_px: flo
         p = np.linalg.solve(AtA[ok], Atb[ok][:, :, None])[:, :, 0]       # (M, 3)
         inv_at = p[:, 0] + p[:, 1] * frac_u[ok] + p[:, 2] * frac_v[ok]
         with np.errstate(divide="ignore", invalid="ignore"):
-            z_fit = 1.0 / (p[:, 0][:, None] + p[:, 1][:, None] * du + p[:, 2][:, None] * dv)
-            res = vals[ok] - z_fit
-        res[~valid[ok]] = 0.0
+            res = vals[ok] - 1.0 / (p @ A.T)  # the fitted depth at every sample
+        res = np.where(valid[ok], res, 0.0)
         good = inv_at > 0  # an extrapolated plane may pass behind the camera: not a depth
         idx = np.flatnonzero(ok)
         depth[idx[good]] = 1.0 / inv_at[good]
-        rms[idx] = np.sqrt((res**2).sum(axis=1) / n[ok])
+        rms[idx] = np.sqrt(np.einsum("ij,ij->i", res, res) / n[ok])
         ok[idx[~good]] = False
     return depth, ok, n, rms
 
