@@ -181,11 +181,12 @@ class _SecantSearch:
         out, lo_b, hi_b, g_lo, g_hi = self.out, self.lo_b, self.hi_b, self.g_lo, self.g_hi
         g, res, step, got = self.evaluate(idx, z)
         self.on_step[idx] = step
-        out["status"][idx[~got]] = MatchStatus.NO_DEPTH
         done = got & (res < self.converge_xy_m)
-        out["status"][idx[done]] = self.usable(idx[done])
         keep = got & ~done
-        idx, z, g = idx[keep], z[keep], g[keep]
+        if not keep.all():
+            out["status"][idx[~got]] = MatchStatus.NO_DEPTH
+            out["status"][idx[done]] = self.usable(idx[done])
+            idx, z, g = idx[keep], z[keep], g[keep]
         up, down = g > 0, g < 0
         lo_b[idx[up]] = np.maximum(lo_b[idx[up]], z[up])
         g_lo[idx[up]] = np.where(lo_b[idx[up]] == z[up], g[up], g_lo[idx[up]])
@@ -214,12 +215,15 @@ class _SecantSearch:
         # Bracket collapsed without convergence: g jumps over zero -- an occluding edge when the
         # jump is a depth step, else the best we can do on this depth.
         collapsed = bracketed & ~at_border & (np.abs(hi - lo) < self.z_bracket_tol_m)
+        settled = at_border | collapsed
+        if not settled.any():  # the usual case: nobody settles here (skip the bookkeeping)
+            return idx, z_cur, g_cur, z_new_c
         j = idx[at_border]
         out["status"][j] = np.where(out["xy_residual_m"][j] < self.tol_m, self.usable(j), MatchStatus.OUT_OF_VIEW)
         j = idx[collapsed]
         jump = (self.g_lo[j] - self.g_hi[j]) > self.discontinuity_m
         out["status"][j] = np.where(jump, MatchStatus.DEPTH_DISCONTINUITY, self.usable(j))
-        keep = ~(at_border | collapsed)
+        keep = ~settled
         return idx[keep], z_cur[keep], g_cur[keep], z_new_c[keep]
 
 __all__ = ["MatchResult", "MatchResults", "MatchStatus", "MatchingError", "Z_RANGE_MARGIN_M",
