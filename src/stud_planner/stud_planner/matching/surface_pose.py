@@ -26,8 +26,8 @@ and whose x-axis is world X projected onto the tangent plane (world Y when the n
 The fit needs only sums over the window's valid pixels, so most windows take them from
 summed-area tables of per-block moments (one pass over the frame, then constant work per stud:
 :mod:`stud_planner.matching.window_moments`); the robust pixel path is kept for the windows whose plain
-fit is rougher than the frame's noise. Vectorised over studs (the pixel path in chunks, to bound
-memory).
+fit is rougher than the frame's noise (both fits: :mod:`stud_planner.matching.quadric_fit`). Vectorised
+over studs (the pixel path in chunks, to bound memory).
 """
 from __future__ import annotations
 
