@@ -389,7 +389,9 @@ def sample_depth_bilinear(depth_m: np.ndarray, u, v, max_step_m: float = 0.005) 
     """
     depth_m = np.asarray(depth_m)
     h, w = depth_m.shape
-    u_arr, v_arr = np.broadcast_arrays(np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64))
+    u_arr, v_arr = np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64)
+    if u_arr.shape != v_arr.shape:
+        u_arr, v_arr = np.broadcast_arrays(u_arr, v_arr)
     shape = u_arr.shape
     uf = u_arr.ravel()
     vf = v_arr.ravel()
@@ -437,7 +439,7 @@ def sample_depth_bilinear(depth_m: np.ndarray, u, v, max_step_m: float = 0.005) 
         zu = np.where(used & ~bad[:, None], z, np.nan)
         with np.errstate(invalid="ignore"):
             zb = np.where(bad[:, None], 0.0, zu)
-            step = np.nanmax(zb, axis=1) - np.nanmin(zb, axis=1)
+            step = np.fmax.reduce(zb, axis=1) - np.fmin.reduce(zb, axis=1)  # nanmax - nanmin, without copies
         jump = ~bad & (step > max_step_m)
         good = ~bad & ~jump
         val = (np.where(used, z, 0.0) * wt).sum(axis=1)

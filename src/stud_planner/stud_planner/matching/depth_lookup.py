@@ -83,6 +83,10 @@ class _PixelFills:
         return self._value[pos], self._rule[pos], self._spread[pos]
 
 
+_CORNER_DU = np.array([0, 1, 0, 1])
+_CORNER_DV = np.array([0, 0, 1, 1])
+
+
 def _depth_at_subpixel(
     depth_m: np.ndarray, u: np.ndarray, v: np.ndarray, window_px: int, max_window_px: int, discontinuity_m: float,
     fills: _PixelFills | None = None,
@@ -98,7 +102,7 @@ def _depth_at_subpixel(
     Returns (depth_m (n,), worst FillRule used (n,) int8, on_step (n,) bool).
     """
     s = sample_depth_bilinear(depth_m, u, v, max_step_m=discontinuity_m)
-    z = np.array(s.depth_m, dtype=np.float64)
+    z = s.depth_m  # float64, the sample's own array
     rule = np.full(z.shape, FillRule.DIRECT, dtype=np.int8)
     on_step = np.zeros(z.shape, dtype=bool)
     redo = np.flatnonzero(s.status != SampleStatus.OK)
@@ -110,9 +114,10 @@ def _depth_at_subpixel(
     v0 = np.clip(np.floor(vr), 0, H - 2).astype(np.int64)
     fu = np.clip(ur - u0, 0.0, 1.0)
     fv = np.clip(vr - v0, 0.0, 1.0)
-    cu = np.stack([u0, u0 + 1, u0, u0 + 1], axis=1)
-    cv = np.stack([v0, v0, v0 + 1, v0 + 1], axis=1)
-    w = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], axis=1)
+    cu = u0[:, None] + _CORNER_DU  # corners (u0, v0), (u0 + 1, v0), (u0, v0 + 1), (u0 + 1, v0 + 1)
+    cv = v0[:, None] + _CORNER_DV
+    w = (np.where(_CORNER_DU, fu[:, None], (1 - fu)[:, None])
+         * np.where(_CORNER_DV, fv[:, None], (1 - fv)[:, None]))  # bilinear weights
     if fills is None:
         fills = _PixelFills(depth_m, window_px, max_window_px)
     d, crule, spread = fills(cu, cv)
