@@ -26,9 +26,12 @@ may lie at any height in it: the heights searched come from the depth image, :fu
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from stud_perception.camera_model import CameraModel
+from stud_perception.depth_image import FillRule
 from stud_planner.matching.depth_lookup import _depth_at_subpixel, _PixelFills
 from stud_planner.matching.match_common import (Z_RANGE_MARGIN_M, MatchingError, MatchResult, MatchResults,
                                                 MatchStatus, _check_inputs, _empty_results, _line_z_interval,
@@ -98,6 +101,10 @@ def match_batch(
     return MatchResults(**out)
 
 
+#: From this many studs still searching down, :class:`_SecantSearch` takes them one at a time.
+_ONE_BY_ONE = 4
+
+
 class _SecantSearch:
     """The state of :func:`match_batch`'s search over the studs of one frame: the result arrays
     ``out`` it fills in, each stud's bracket [lo_b, hi_b] of heights (g > 0 below the surface,
@@ -133,9 +140,13 @@ class _SecantSearch:
         z_prev = np.clip(z_init_m, zlo[idx], zhi[idx])
         _, idx, z_prev, g_prev = self.step_and_settle(idx, z_prev)
         z_cur = np.clip(z_prev + g_prev, zlo[idx], zhi[idx])  # plain fixed point as the first step
-        for _ in range(max_lookups - 1):
+        for k in range(max_lookups - 1):
             if idx.size == 0:
                 break
+            if idx.size <= _ONE_BY_ONE:  # the last few studs: plain floats, a look-up each costs ~10x less
+                for i, zp, gp, zc in zip(idx.tolist(), z_prev.tolist(), g_prev.tolist(), z_cur.tolist()):
+                    self._finish_one(i, zp, gp, zc, max_lookups - 1 - k)
+                return
             keep, idx, z_cur, g_cur = self.step_and_settle(idx, z_cur)
             z_prev, g_prev = z_prev[keep], g_prev[keep]
             if idx.size == 0:
@@ -144,6 +155,100 @@ class _SecantSearch:
         # Out of look-ups: usable if within the paper's tolerance, unless on a depth step.
         if idx.size:
             self.out["status"][idx] = self.usable(idx)
+
+    # -- the last few studs, one at a time: the same steps as the vectorised ones, on Python floats
+    # (IEEE doubles, the same operations in the same order: the same results), so that a stud that
+    # needs a few more look-ups than the rest does not pay ~90 numpy calls for each.
+    def _finish_one(self, i: int, z_prev: float, g_prev: float, z_cur: float, lookups: int) -> None:
+        """Stud ``i`` from its last (z, g) and next height to settled, in at most ``lookups`` look-ups:
+        :meth:`step_and_settle` and :meth:`secant_step` for one stud."""
+        out, lookup = self.out, self.lookup
+        for _ in range(lookups):
+            lookup += 1
+            g_cur, res, got = self._evaluate_one(i, z_cur, lookup)
+            if not got:
+                out["status"][i] = MatchStatus.NO_DEPTH
+                return
+            if res < self.converge_xy_m:
+                out["status"][i] = self._usable_one(i)
+                return
+            if g_cur > 0 and z_cur >= self.lo_b[i]:
+                self.lo_b[i], self.g_lo[i] = z_cur, g_cur
+            elif g_cur < 0 and z_cur <= self.hi_b[i]:
+                self.hi_b[i], self.g_hi[i] = z_cur, g_cur
+            z_next, settled = self._secant_one(i, z_prev, g_prev, z_cur, g_cur)
+            if settled is not None:
+                out["status"][i] = settled
+                return
+            z_prev, g_prev, z_cur = z_cur, g_cur, z_next
+        out["status"][i] = self._usable_one(i)  # out of look-ups
+
+    def _usable_one(self, i: int) -> int:
+        """:meth:`usable` of one stud."""
+        if self.on_step[i]:
+            return MatchStatus.DEPTH_DISCONTINUITY
+        return MatchStatus.OK if self.out["xy_residual_m"][i] < self.tol_m else MatchStatus.NOT_CONVERGED
+
+    def _evaluate_one(self, i: int, z: float, lookup: int) -> tuple[float, float, bool]:
+        """:meth:`evaluate` of one stud at height z, as look-up number ``lookup``: (g, residual, had depth)."""
+        cam, out = self.camera, self.out
+        inv_zc = 1.0 / (self.a_z[i] + self.b_z[i] * z)
+        u = min(max((self.a_u[i] + self.b_u[i] * z) * inv_zc, 0.0), cam.width - 1.0)
+        v = min(max((self.a_v[i] + self.b_v[i] * z) * inv_zc, 0.0), cam.height - 1.0)
+        d = self._easy_sample(u, v)
+        rule, step = FillRule.DIRECT, False
+        if d is None:  # a hole or a step: the vectorised rule, for this one sample
+            dd, rr, ss = _depth_at_subpixel(self.depth, np.array([u]), np.array([v]), self.hole_window_px,
+                                            self.hole_max_window_px, self.discontinuity_m, self.fills)
+            d, rule, step = float(dd[0]), int(rr[0]), bool(ss[0])
+        self.on_step[i] = step
+        out["iterations"][i] = lookup
+        if not math.isfinite(d):
+            return math.nan, math.nan, False
+        x = (u - cam.cx) * (d / cam.fx)  # Eq. 1, as CameraModel.pixel_to_world
+        y = (v - cam.cy) * (d / cam.fy)
+        R, t = cam.R_wc, cam.t_wc
+        q = [R[k, 0] * x + R[k, 1] * y + R[k, 2] * d + t[k] for k in range(3)]
+        res = float(np.hypot(q[0] - self.xy[i, 0], q[1] - self.xy[i, 1]))
+        out["pixel_uv"][i] = (u, v)
+        out["point_w"][i] = q
+        out["xy_residual_m"][i], out["hole_rule"][i] = res, rule
+        return float(q[2] - z), res, True
+
+    def _easy_sample(self, u: float, v: float) -> float | None:
+        """:func:`sample_depth_bilinear`'s plain case at an in-image (u, v): the bilinear depth when
+        all four corners have depth within the step threshold, else None."""
+        H, W = self.depth.shape
+        u0, v0 = min(int(u), max(W - 2, 0)), min(int(v), max(H - 2, 0))
+        fu, fv = u - u0, v - v0
+        row0, row1 = self.depth[v0], self.depth[min(v0 + 1, H - 1)]
+        u1 = min(u0 + 1, W - 1)
+        z00, z01, z10, z11 = float(row0[u0]), float(row0[u1]), float(row1[u0]), float(row1[u1])
+        if not (z00 > 0 and z01 > 0 and z10 > 0 and z11 > 0):  # NaN compares False
+            return None
+        if not max(z00, z01, z10, z11) - min(z00, z01, z10, z11) <= self.discontinuity_m:
+            return None
+        top = z00 + fu * (z01 - z00)
+        bottom = z10 + fu * (z11 - z10)
+        return top + fv * (bottom - top)
+
+    def _secant_one(self, i: int, z_prev: float, g_prev: float, z_cur: float, g_cur: float):
+        """:meth:`secant_step` of one stud: (next height, None) or (_, the status it settles with)."""
+        denom = g_cur - g_prev
+        secant = z_cur - g_cur * (z_cur - z_prev) / denom if denom != 0 else math.nan
+        z_new = secant if (math.isfinite(secant) and abs(denom) > 1e-12) else z_cur + 0.5 * g_cur
+        lo, hi = float(self.lo_b[i]), float(self.hi_b[i])
+        bracketed = math.isfinite(lo) and math.isfinite(hi)
+        if bracketed and (z_new <= min(lo, hi) or z_new >= max(lo, hi)):
+            z_new = 0.5 * (lo + hi)
+        z_new_c = min(max(z_new, float(self.zlo[i])), float(self.zhi[i]))
+        if z_new_c != z_new and z_new_c == z_cur:  # pushed out of view again from the same border
+            within = self.out["xy_residual_m"][i] < self.tol_m
+            return z_new_c, (self._usable_one(i) if within else MatchStatus.OUT_OF_VIEW)
+        if bracketed and abs(hi - lo) < self.z_bracket_tol_m:  # the bracket collapsed
+            jump = (self.g_lo[i] - self.g_hi[i]) > self.discontinuity_m
+            return z_new_c, (MatchStatus.DEPTH_DISCONTINUITY if jump else self._usable_one(i))
+        return z_new_c, None
 
     def evaluate(self, idx: np.ndarray, z: np.ndarray):
         """One look-up for studs ``idx`` at heights ``z``: the pixel of (x_w, y_w, z), its depth, and
