@@ -114,6 +114,41 @@ def _percentiles(lat) -> str:
             f"p99 {np.percentile(lat, 99):.1f} ms, max {lat.max():.1f} ms")
 
 
+def _camera_publishers(node, scene) -> dict:
+    """Publish the scene's layout and registration (latched); the camera's publishers by name."""
+    layout = StudLayout(studs=[Stud(id=sid, x=float(x), y=float(y), diameter=0.016, layer="STUDS")
+                               for sid, (x, y) in zip(scene.stud_ids, scene.studs_drawing_m)],
+                        mark_a=Point(x=0.13), mark_b=Point(y=0.1), mark_diameter=0.02, source_file="bench")
+    reg = Registration(valid=True, message="truth", m_local2world=[float(v) for v in scene.M_local2world.ravel()])
+    pubs = {k: node.create_publisher(t, topic, ros_io.CAMERA_PUB_QOS) for k, t, topic in (
+        ("color", __import__("sensor_msgs.msg", fromlist=["Image"]).Image, "/camera/color/image_raw"),
+        ("depth", __import__("sensor_msgs.msg", fromlist=["Image"]).Image, "/camera/depth/image_raw"),
+        ("info", __import__("sensor_msgs.msg", fromlist=["CameraInfo"]).CameraInfo, "/camera/color/camera_info"),
+        ("pose", __import__("geometry_msgs.msg", fromlist=["PoseStamped"]).PoseStamped, "/camera/pose"))}
+    node.create_publisher(StudLayout, "/drawing/layout", ros_io.LATCHED_QOS).publish(layout)
+    node.create_publisher(Registration, "/registration/result", ros_io.LATCHED_QOS).publish(reg)
+    return pubs
+
+
+def _report(args, latencies, transport, arrivals, overlays, warmup: int) -> None:
+    """Print the matcher's latency, the bare transport's and their difference."""
+    msg = max(arrivals.items())[1][1]
+    compute = [m.match_time * 1e3 for _, (_, m) in sorted(arrivals.items())[warmup:]]
+    ok = sum(t.status == 0 for t in msg.targets)
+    print(f"matcher latency, {args.algorithm}, {args.studs} studs ({ok} ok in the last frame), 1280x960, "
+          f"{len(latencies)} frames (after {warmup} warm-up), overlay {'on' if args.overlay else 'off'}:")
+    print(f"  depth published -> /weld_targets received:       {_percentiles(latencies)}")
+    if transport:
+        print(f"  bare transport (depth -> plain subscriber -> back): {_percentiles(transport)}")
+        d50 = np.percentile(latencies, 50) - np.percentile(transport, 50)
+        d99 = np.percentile(latencies, 99) - np.percentile(transport, 99)
+        print(f"  ours minus transport: p50 {d50:+.1f} ms, p99 {d99:+.1f} ms   (target: p99 difference <= 3 ms)")
+    if args.overlay:
+        print(f"  overlays received: {len(overlays)} of {args.frames + warmup} frames")
+    print(f"  of which matching alone (match_time): p50 {np.percentile(compute, 50):.2f} ms, "
+          f"p99 {np.percentile(compute, 99):.2f} ms")
+
+
 def main() -> int:
     if "--echo" in sys.argv:
         return echo()
@@ -135,17 +170,7 @@ def main() -> int:
     node = Node("bench_latency")
     procs: list[tuple[subprocess.Popen, str]] = []
     try:
-        layout = StudLayout(studs=[Stud(id=sid, x=float(x), y=float(y), diameter=0.016, layer="STUDS")
-                                   for sid, (x, y) in zip(scene.stud_ids, scene.studs_drawing_m)],
-                            mark_a=Point(x=0.13), mark_b=Point(y=0.1), mark_diameter=0.02, source_file="bench")
-        reg = Registration(valid=True, message="truth", m_local2world=[float(v) for v in scene.M_local2world.ravel()])
-        pubs = {k: node.create_publisher(t, topic, ros_io.CAMERA_PUB_QOS) for k, t, topic in (
-            ("color", __import__("sensor_msgs.msg", fromlist=["Image"]).Image, "/camera/color/image_raw"),
-            ("depth", __import__("sensor_msgs.msg", fromlist=["Image"]).Image, "/camera/depth/image_raw"),
-            ("info", __import__("sensor_msgs.msg", fromlist=["CameraInfo"]).CameraInfo, "/camera/color/camera_info"),
-            ("pose", __import__("geometry_msgs.msg", fromlist=["PoseStamped"]).PoseStamped, "/camera/pose"))}
-        node.create_publisher(StudLayout, "/drawing/layout", ros_io.LATCHED_QOS).publish(layout)
-        node.create_publisher(Registration, "/registration/result", ros_io.LATCHED_QOS).publish(reg)
+        pubs = _camera_publishers(node, scene)
         arrivals: dict[int, tuple[float, WeldTargetArray]] = {}
         echoes: dict[int, tuple[float, WeldTargetArray]] = {}
         for topic, store in (("/weld_targets", arrivals), (ECHO_TOPIC, echoes)):
@@ -187,21 +212,7 @@ def main() -> int:
                       "--log-level", "warn"], "matcher", "/weld_targets", needed):
             return 1
         latencies = _time_frames(node, pubs, template, arrivals, args.frames, warmup)
-        msg = max(arrivals.items())[1][1]
-        compute = [m.match_time * 1e3 for _, (_, m) in sorted(arrivals.items())[warmup:]]
-        ok = sum(t.status == 0 for t in msg.targets)
-        print(f"matcher latency, {args.algorithm}, {args.studs} studs ({ok} ok in the last frame), 1280x960, "
-              f"{len(latencies)} frames (after {warmup} warm-up), overlay {'on' if args.overlay else 'off'}:")
-        print(f"  depth published -> /weld_targets received:       {_percentiles(latencies)}")
-        if transport:
-            print(f"  bare transport (depth -> plain subscriber -> back): {_percentiles(transport)}")
-            d50 = np.percentile(latencies, 50) - np.percentile(transport, 50)
-            d99 = np.percentile(latencies, 99) - np.percentile(transport, 99)
-            print(f"  ours minus transport: p50 {d50:+.1f} ms, p99 {d99:+.1f} ms   (target: p99 difference <= 3 ms)")
-        if args.overlay:
-            print(f"  overlays received: {len(overlays)} of {args.frames + warmup} frames")
-        print(f"  of which matching alone (match_time): p50 {np.percentile(compute, 50):.2f} ms, "
-              f"p99 {np.percentile(compute, 99):.2f} ms")
+        _report(args, latencies, transport, arrivals, overlays, warmup)
         return 0
     finally:
         node.destroy_node()

@@ -368,3 +368,30 @@ def test_bfs_max_pixels_caps_the_scan(scenes, cam_small):
     depth = scenes.render_depth(cam_small, scenes.Plane())
     r = match_bfs(np.array([[0.0, -0.02]]), depth, cam_small, max_pixels=500)  # near the last rows
     assert r[0].status == MatchStatus.NOT_CONVERGED and r[0].iterations == 500
+
+
+# -- the batch matcher's last studs, one at a time ----------------------------------------------------
+@pytest.mark.parametrize("yaw_deg, tilt_deg", [(35.0, 8.0), (-50.0, 12.0)])
+def test_the_last_few_studs_one_at_a_time_give_the_vectorised_search_s_results(monkeypatch, yaw_deg, tilt_deg):
+    """The batch matcher finishes its last few searching studs on plain floats: the same statuses,
+    look-up counts and hole rules as the all-vectorised search, points equal to rounding."""
+    import stud_planner.matching.matchers as matchers
+    from stud_perception.scene import demo_dome_scene, grid_stud_scene, render, view_camera
+
+    scene = grid_stud_scene(300, demo_dome_scene(), extent_m=(0.26, 0.2))
+    c = scene.component.centre_xy_m
+    cam = view_camera((c[0], c[1], 0.0), 0.5, yaw_rad=math.radians(yaw_deg), tilt_rad=math.radians(tilt_deg),
+                      tilt_azimuth_rad=math.radians(60.0))
+    view = render(scene, cam, seed=7, depth_noise_m=0.0005, hole_fraction=0.04)
+    xy = scene.studs_world_xy_m
+    assert matchers._ONE_BY_ONE > 0
+    mixed = match_batch(xy, view.depth_m, view.camera)
+    monkeypatch.setattr(matchers, "_ONE_BY_ONE", 0)
+    vectorised = match_batch(xy, view.depth_m, view.camera)
+    assert vectorised.iterations.max() > 6  # some studs took more look-ups than most: the path ran
+    np.testing.assert_array_equal(mixed.status, vectorised.status)
+    np.testing.assert_array_equal(mixed.iterations, vectorised.iterations)
+    np.testing.assert_array_equal(mixed.hole_rule, vectorised.hole_rule)
+    np.testing.assert_allclose(mixed.point_w, vectorised.point_w, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(mixed.pixel_uv, vectorised.pixel_uv, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(mixed.xy_residual_m, vectorised.xy_residual_m, rtol=0, atol=1e-12)

@@ -14,7 +14,9 @@ rule produced the value (:class:`FillRule`) so callers can report it.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from functools import lru_cache
 from enum import IntEnum
 from typing import Literal
 
@@ -112,8 +114,7 @@ def _window_samples(depth_m: np.ndarray, ui: np.ndarray, vi: np.ndarray, window:
     """
     h, w = depth_m.shape
     half = window // 2
-    offs = np.arange(-half, half + 1)
-    dv, du = np.meshgrid(offs, offs, indexing="ij")
+    offs, du, dv = _window_offsets(window)
     vals = np.empty((ui.size, window, window))
     interior = (ui >= half) & (ui < w - half) & (vi >= half) & (vi < h - half)
     if window <= min(h, w):
@@ -130,7 +131,31 @@ def _window_samples(depth_m: np.ndarray, ui: np.ndarray, vi: np.ndarray, window:
         edge = depth_m[np.clip(rows, 0, h - 1)[:, :, None], np.clip(cols, 0, w - 1)[:, None, :]].astype(np.float64)
         edge[~inside] = np.nan
         vals[k] = edge
-    return vals.reshape(ui.size, -1), du.ravel().astype(np.float64), dv.ravel().astype(np.float64)
+    return vals.reshape(ui.size, -1), du, dv
+
+
+@lru_cache(maxsize=None)
+def _window_offsets(window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Offsets of a ``window`` x ``window`` neighbourhood: (offs (w,) int, du (w*w,), dv (w*w,)
+    float64, row-major), built once per size (read-only)."""
+    half = window // 2
+    offs = np.arange(-half, half + 1)
+    dv, du = np.meshgrid(offs, offs, indexing="ij")
+    out = offs, du.ravel().astype(np.float64), dv.ravel().astype(np.float64)
+    for a in out:
+        a.setflags(write=False)
+    return out
+
+
+@lru_cache(maxsize=None)
+def _plane_design(window: int) -> tuple[np.ndarray, np.ndarray]:
+    """The plane fit's design [1, du, dv] (w*w, 3) of a window and its outer products (w*w, 9)."""
+    _, du, dv = _window_offsets(window)
+    A = np.stack([np.ones_like(du), du, dv], axis=1)
+    AA = (A[:, :, None] * A[:, None, :]).reshape(-1, 9)
+    for a in (A, AA):
+        a.setflags(write=False)
+    return A, AA
 
 
 def _mean_of_valid(vals: np.ndarray):
@@ -155,12 +180,12 @@ def _plane_fit(vals, du, dv, frac_u, frac_v, min_points: int, min_spread_px: flo
     valid = vals > 0  # NaN compares False
     n = valid.sum(axis=1)
     wgt = valid.astype(np.float64)
-    inv = np.zeros(vals.shape)
-    np.divide(1.0, vals, out=inv, where=valid)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = np.where(valid, 1.0 / vals, 0.0)
     # Normal equations of [1, du, dv] . p = 1/z, batched over queries.
-    A = np.stack([np.ones_like(du), du, dv], axis=1)                       # (k, 3)
+    A, AA = _plane_design(math.isqrt(du.size))                             # (k, 3), (k, 9)
     # As matrix products (BLAS): sum_k wgt_nk A_ki A_kj and sum_k wgt_nk inv_nk A_ki.
-    AtA = (wgt @ (A[:, :, None] * A[:, None, :]).reshape(-1, 9)).reshape(-1, 3, 3)  # (N, 3, 3)
+    AtA = (wgt @ AA).reshape(-1, 3, 3)                                     # (N, 3, 3)
     Atb = inv @ A                                                          # (N, 3); inv is 0 where invalid
     # Refuse fits whose samples do not spread in both image directions (a line of samples
     # cannot fix a plane): smallest eigenvalue of the (du, dv) scatter, in pixels^2.
@@ -177,15 +202,68 @@ def _plane_fit(vals, du, dv, frac_u, frac_v, min_points: int, min_spread_px: flo
         p = np.linalg.solve(AtA[ok], Atb[ok][:, :, None])[:, :, 0]       # (M, 3)
         inv_at = p[:, 0] + p[:, 1] * frac_u[ok] + p[:, 2] * frac_v[ok]
         with np.errstate(divide="ignore", invalid="ignore"):
-            z_fit = 1.0 / (p[:, 0][:, None] + p[:, 1][:, None] * du + p[:, 2][:, None] * dv)
-            res = vals[ok] - z_fit
-        res[~valid[ok]] = 0.0
+            res = vals[ok] - 1.0 / (p @ A.T)  # the fitted depth at every sample
+        res = np.where(valid[ok], res, 0.0)
         good = inv_at > 0  # an extrapolated plane may pass behind the camera: not a depth
         idx = np.flatnonzero(ok)
         depth[idx[good]] = 1.0 / inv_at[good]
-        rms[idx] = np.sqrt((res**2).sum(axis=1) / n[ok])
+        rms[idx] = np.sqrt(np.einsum("ij,ij->i", res, res) / n[ok])
         ok[idx[~good]] = False
     return depth, ok, n, rms
+
+
+def _check_fill_args(depth_m, window: int, max_window: int, grow_step_px: int, fallback: str) -> np.ndarray:
+    """The depth image of :func:`fill_depth_at` as an array, after checking its parameters."""
+    depth_m = np.asarray(depth_m)
+    if depth_m.ndim != 2:
+        raise DepthImageError(f"depth image must be 2-D (H, W), got shape {depth_m.shape}")
+    if window < 1 or window % 2 == 0 or max_window < window or max_window % 2 == 0:
+        raise DepthImageError(
+            f"windows must be odd with window <= max_window, got window={window}, max_window={max_window}"
+        )
+    if grow_step_px < 2 or grow_step_px % 2:
+        raise DepthImageError(f"grow_step_px must be even and >= 2 (windows stay odd), got {grow_step_px}")
+    if fallback not in ("plane", "grow", "none"):
+        raise DepthImageError(f"fallback must be 'plane', 'grow' or 'none', got {fallback!r}")
+    return depth_m
+
+
+def _fill_pending(depth_m: np.ndarray, pending: np.ndarray, uf, vf, ui, vi, sizes: list[int], fallback: str,
+                  min_valid: int, min_plane_points: int, outs: tuple) -> None:
+    """Rules 2-3 of :func:`fill_depth_at` for the queries ``pending`` (pixels without depth), window
+    size by window size; results into ``outs`` = (depth, rule, n_used, window_px, spread)."""
+    out_depth, out_rule, out_n, out_win, out_spread = outs
+
+    def store(sel, depth, rule, n, size, spread):
+        out_depth[sel] = depth
+        out_rule[sel] = rule
+        out_n[sel] = n
+        out_win[sel] = size
+        out_spread[sel] = spread
+
+    for k, size in enumerate(sizes):
+        if pending.size == 0:
+            break
+        vals, du, dv = _window_samples(depth_m, ui[pending], vi[pending], size)
+        last = k == len(sizes) - 1
+        if k == 0 or fallback == "grow" or last:  # the plane rule uses the mean only at the end
+            mean, n, std = _mean_of_valid(vals)
+        fit_ok = np.zeros(pending.size, dtype=bool)
+        if k == 0:
+            take_mean, rule = n >= min_valid, FillRule.MEAN_WINDOW
+        elif fallback == "grow":
+            take_mean, rule = n >= min_valid, FillRule.GROWN_WINDOW
+        else:
+            frac_u = uf[pending] - ui[pending]
+            frac_v = vf[pending] - vi[pending]
+            z_fit, fit_ok, n_fit, rms = _plane_fit(vals, du, dv, frac_u, frac_v, min_plane_points, 1.0)
+            store(pending[fit_ok], z_fit[fit_ok], FillRule.PLANE_FIT, n_fit[fit_ok], size, rms[fit_ok])
+            # A plane needs more samples than a mean: only the largest window falls back to the mean.
+            take_mean = (~fit_ok & (n >= min_valid)) if last else np.zeros_like(fit_ok)
+            rule = FillRule.GROWN_WINDOW
+        if take_mean.any():
+            store(pending[take_mean], mean[take_mean], rule, n[take_mean], size, std[take_mean])
+        pending = pending[~(fit_ok | take_mean)]
 
 
 def fill_depth_at(
@@ -216,17 +294,7 @@ def fill_depth_at(
        first grown window with ``min_valid`` depths gives their mean (``GROWN_WINDOW``).
     4. ``NONE``: nothing usable; depth NaN.
     """
-    depth_m = np.asarray(depth_m)
-    if depth_m.ndim != 2:
-        raise DepthImageError(f"depth image must be 2-D (H, W), got shape {depth_m.shape}")
-    if window < 1 or window % 2 == 0 or max_window < window or max_window % 2 == 0:
-        raise DepthImageError(
-            f"windows must be odd with window <= max_window, got window={window}, max_window={max_window}"
-        )
-    if grow_step_px < 2 or grow_step_px % 2:
-        raise DepthImageError(f"grow_step_px must be even and >= 2 (windows stay odd), got {grow_step_px}")
-    if fallback not in ("plane", "grow", "none"):
-        raise DepthImageError(f"fallback must be 'plane', 'grow' or 'none', got {fallback!r}")
+    depth_m = _check_fill_args(depth_m, window, max_window, grow_step_px, fallback)
     u_arr, v_arr = np.broadcast_arrays(np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64))
     shape = u_arr.shape
     uf = u_arr.ravel()
@@ -255,44 +323,12 @@ def fill_depth_at(
     out_win[direct] = 1
     out_spread[direct] = 0.0
 
-    def store(sel, depth, rule, n, size, spread):
-        out_depth[sel] = depth
-        out_rule[sel] = rule
-        out_n[sel] = n
-        out_win[sel] = size
-        out_spread[sel] = spread
-
-    sizes = [window]
-    if fallback != "none":
-        sizes += list(range(window + grow_step_px, max_window, grow_step_px))
-        if max_window > window:
-            sizes.append(max_window)
+    sizes = _window_sizes(window, max_window, grow_step_px, fallback)
+    outs = (out_depth, out_rule, out_n, out_win, out_spread)
     todo = np.flatnonzero(~direct & in_img)
     for start in range(0, todo.size, chunk):  # chunks bound the (N, w*w) temporaries
-        pending = todo[start:start + chunk]
-        for k, size in enumerate(sizes):
-            if pending.size == 0:
-                break
-            vals, du, dv = _window_samples(depth_m, ui[pending], vi[pending], size)
-            last = k == len(sizes) - 1
-            if k == 0 or fallback == "grow" or last:  # the plane rule uses the mean only at the end
-                mean, n, std = _mean_of_valid(vals)
-            fit_ok = np.zeros(pending.size, dtype=bool)
-            if k == 0:
-                take_mean, rule = n >= min_valid, FillRule.MEAN_WINDOW
-            elif fallback == "grow":
-                take_mean, rule = n >= min_valid, FillRule.GROWN_WINDOW
-            else:
-                frac_u = uf[pending] - ui[pending]
-                frac_v = vf[pending] - vi[pending]
-                z_fit, fit_ok, n_fit, rms = _plane_fit(vals, du, dv, frac_u, frac_v, min_plane_points, 1.0)
-                store(pending[fit_ok], z_fit[fit_ok], FillRule.PLANE_FIT, n_fit[fit_ok], size, rms[fit_ok])
-                # A plane needs more samples than a mean: only the largest window falls back to the mean.
-                take_mean = (~fit_ok & (n >= min_valid)) if last else np.zeros_like(fit_ok)
-                rule = FillRule.GROWN_WINDOW
-            if take_mean.any():
-                store(pending[take_mean], mean[take_mean], rule, n[take_mean], size, std[take_mean])
-            pending = pending[~(fit_ok | take_mean)]
+        _fill_pending(depth_m, todo[start:start + chunk], uf, vf, ui, vi, sizes, fallback, min_valid,
+                      min_plane_points, outs)
 
     return FilledDepth(
         depth_m=out_depth.reshape(shape),
@@ -301,6 +337,37 @@ def fill_depth_at(
         window_px=out_win.reshape(shape),
         spread_m=out_spread.reshape(shape),
     )
+
+
+def _window_sizes(window: int, max_window: int, grow_step_px: int, fallback: str) -> list[int]:
+    """The windows :func:`fill_depth_at` tries, in order."""
+    sizes = [window]
+    if fallback != "none":
+        sizes += list(range(window + grow_step_px, max_window, grow_step_px))
+        if max_window > window:
+            sizes.append(max_window)
+    return sizes
+
+
+def fill_holes_at(depth_m: np.ndarray, ui: np.ndarray, vi: np.ndarray, window: int = 7, max_window: int = 31,
+                  min_valid: int = 1, min_plane_points: int = 8, grow_step_px: int = 4, chunk: int = 4096) -> FilledDepth:
+    """:func:`fill_depth_at` (``fallback="plane"``) of integer in-image pixels (ui, vi) (n,) that
+    have no depth, without its general preparation (any shape, sub-pixel, out-of-image and direct
+    queries): the same values, for callers that already know their pixels are holes (a matcher
+    that fills the few a stud touches, a call at a time)."""
+    depth_m = _check_fill_args(depth_m, window, max_window, grow_step_px, "plane")
+    ui = np.asarray(ui, dtype=np.int64).ravel()
+    vi = np.asarray(vi, dtype=np.int64).ravel()
+    n_q = ui.size
+    outs = (np.full(n_q, np.nan), np.full(n_q, FillRule.NONE, dtype=np.int8), np.zeros(n_q, dtype=np.int32),
+            np.zeros(n_q, dtype=np.int32), np.full(n_q, np.nan))
+    sizes = _window_sizes(window, max_window, grow_step_px, "plane")
+    uf, vf = ui.astype(np.float64), vi.astype(np.float64)
+    todo = np.arange(n_q)
+    for start in range(0, n_q, chunk):
+        _fill_pending(depth_m, todo[start:start + chunk], uf, vf, ui, vi, sizes, "plane", min_valid,
+                      min_plane_points, outs)
+    return FilledDepth(*outs)
 
 
 # -- sub-pixel sampling ------------------------------------------------------------------------
@@ -322,7 +389,9 @@ def sample_depth_bilinear(depth_m: np.ndarray, u, v, max_step_m: float = 0.005) 
     """
     depth_m = np.asarray(depth_m)
     h, w = depth_m.shape
-    u_arr, v_arr = np.broadcast_arrays(np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64))
+    u_arr, v_arr = np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64)
+    if u_arr.shape != v_arr.shape:
+        u_arr, v_arr = np.broadcast_arrays(u_arr, v_arr)
     shape = u_arr.shape
     uf = u_arr.ravel()
     vf = v_arr.ravel()
@@ -370,7 +439,7 @@ def sample_depth_bilinear(depth_m: np.ndarray, u, v, max_step_m: float = 0.005) 
         zu = np.where(used & ~bad[:, None], z, np.nan)
         with np.errstate(invalid="ignore"):
             zb = np.where(bad[:, None], 0.0, zu)
-            step = np.nanmax(zb, axis=1) - np.nanmin(zb, axis=1)
+            step = np.fmax.reduce(zb, axis=1) - np.fmin.reduce(zb, axis=1)  # nanmax - nanmin, without copies
         jump = ~bad & (step > max_step_m)
         good = ~bad & ~jump
         val = (np.where(used, z, 0.0) * wt).sum(axis=1)

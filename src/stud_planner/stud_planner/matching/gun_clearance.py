@@ -73,32 +73,59 @@ def _sampled_clearance(p, nrm, depth, camera: CameraModel, gun: GunModel, z_top_
     corners = np.concatenate([p[:, None] + offsets, (p + length[:, None] * nrm)[:, None] + offsets], axis=1)
     u, v, zc = camera.world_to_pixel(corners)
     seen = np.all(np.isfinite(u) & np.isfinite(v), axis=1)
-    u_lo, u_hi = np.clip(np.nanmin(u, axis=1), 0, camera.width - 1), np.clip(np.nanmax(u, axis=1), 0, camera.width - 1)
-    v_lo, v_hi = np.clip(np.nanmin(v, axis=1), 0, camera.height - 1), np.clip(np.nanmax(v, axis=1), 0, camera.height - 1)
+    W, H = camera.width, camera.height
+    u_lo, u_hi = np.clip(np.fmin.reduce(u, axis=1), 0, W - 1), np.clip(np.fmax.reduce(u, axis=1), 0, W - 1)
+    v_lo, v_hi = np.clip(np.fmin.reduce(v, axis=1), 0, H - 1), np.clip(np.fmax.reduce(v, axis=1), 0, H - 1)
     g = np.linspace(0.0, 1.0, k)
     gu, gv = np.meshgrid(g, g)
-    U = np.rint(u_lo[:, None] + gu.ravel()[None, :] * (u_hi - u_lo)[:, None]).astype(np.int64)
-    V = np.rint(v_lo[:, None] + gv.ravel()[None, :] * (v_hi - v_lo)[:, None]).astype(np.int64)
-    d = depth[V, U].astype(np.float64)
+    U = np.rint(u_lo[:, None] + gu.ravel()[None, :] * (u_hi - u_lo)[:, None])
+    V = np.rint(v_lo[:, None] + gv.ravel()[None, :] * (v_hi - v_lo)[:, None])
+    d = np.take(depth.reshape(-1), (V * W + U).astype(np.int64)).astype(np.float64)
     have = seen[:, None] & np.isfinite(d) & (d > 0)
-    X = camera.window_to_world(np.zeros(len(p)), np.zeros(len(p)), U.astype(np.float64), V.astype(np.float64),
-                               np.where(have, d, 0.0), minus_w=p)  # (3, n, M) relative to the weld points
-    s = np.einsum("inm,ni->nm", X, nrm)
-    rho = np.sqrt(np.maximum(np.einsum("inm,inm->nm", X, X) - s * s, 0.0))
+    d[~have] = 0.0
+    s, rho = _axial_radial(camera, U, V, d, p, nrm)  # relative to the weld points
     inside_length = have & (s > gun.margin_m) & (s < gun.length_m)
     # The nearest point counts only with two more beside it: a flying pixel or a noise spike alone
-    # does not block a stud (a wall, a stiffener, a neighbour's body gives many).
-    rho_in = np.where(inside_length, rho, np.inf)
-    third = np.argpartition(rho_in, min(2, rho_in.shape[1] - 1), axis=1)[:, min(2, rho_in.shape[1] - 1)]
-    rows = np.arange(len(p))
-    any_inside = np.isfinite(rho_in[rows, third])
-    k_near = third
-    # Nothing of the part rises beside the stud: the clearance is at least what was seen.
-    farthest = np.max(np.where(have, rho, -np.inf), axis=1)
-    clear = np.where(any_inside, rho[rows, k_near], farthest) - gun.radius_m
+    # does not block a stud (a wall, a stiffener, a neighbour's body gives many). Only the studs
+    # with three points in the gun's length need the third nearest.
+    clear = np.max(np.where(have, rho, -np.inf), axis=1)  # nothing rises beside the stud: at least what was seen
+    along = np.full(len(p), np.nan)
+    kth = min(2, d.shape[1] - 1)
+    crowded = np.flatnonzero(np.count_nonzero(inside_length, axis=1) > kth)
+    if crowded.size:
+        rho_in = np.where(inside_length[crowded], rho[crowded], np.inf)
+        third = np.argpartition(rho_in, kth, axis=1)[:, kth]
+        clear[crowded] = rho[crowded, third]
+        along[crowded] = s[crowded, third]
+    clear -= gun.radius_m
     counted = have.any(axis=1)
-    return (np.where(counted, clear, np.nan), np.where(counted & any_inside, s[rows, k_near], np.nan),
-            have.sum(axis=1))
+    return np.where(counted, clear, np.nan), np.where(counted, along, np.nan), have.sum(axis=1)
+
+
+def _axial_radial(camera: CameraModel, U: np.ndarray, V: np.ndarray, d: np.ndarray, p: np.ndarray, nrm: np.ndarray):
+    """Eq. 1 of pixels (U, V) (n, M) at depths d, relative to the weld points p (n, 3): the height
+    s along each unit axis ``nrm`` (n, 3) and the distance rho from it, (n, M) each. Component by
+    component (the ray is linear in the pixel), no (3, n, M) array."""
+    per_u, per_v = camera.R_wc[:, 0] / camera.fx, camera.R_wc[:, 1] / camera.fy
+    base = camera.R_wc[:, 2] - camera.cx * per_u - camera.cy * per_v  # the ray of pixel (0, 0)
+    origin = camera.t_wc - p  # (n, 3)
+    s = np.zeros(d.shape)
+    xx = np.zeros(d.shape)
+    x = np.empty(d.shape)
+    tmp = np.empty(d.shape)
+    for i in range(3):
+        np.multiply(U, per_u[i], out=x)
+        np.multiply(V, per_v[i], out=tmp)
+        x += tmp
+        x += base[i]
+        x *= d
+        x += origin[:, i, None]
+        np.multiply(x, nrm[:, i, None], out=tmp)
+        s += tmp
+        np.multiply(x, x, out=tmp)
+        xx += tmp
+    xx -= s * s
+    return s, np.sqrt(np.maximum(xx, 0.0, out=xx), out=xx)
 
 
 def gun_clearance(points_w: np.ndarray, normals_w: np.ndarray, depth_m: np.ndarray, camera: CameraModel,

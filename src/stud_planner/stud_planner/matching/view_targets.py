@@ -29,8 +29,8 @@ from stud_perception.camera_model import CameraModel
 from stud_perception.registration import local_to_world
 from stud_common.vocabulary import VIEW_DEPENDENT, TargetStatus
 from stud_planner.matching.gun_clearance import Clearance, GunModel, gun_clearance
-from stud_planner.matching.matchers import (MatchResults, MatchStatus, match_batch, match_bfs, match_fpm,
-                                            observed_z_range)
+from stud_planner.matching.match_common import observed_heights, z_range_of
+from stud_planner.matching.matchers import MatchResults, MatchStatus, match_batch, match_bfs, match_fpm
 from stud_planner.matching.surface_pose import (SurfacePoses, SurfaceStatus, estimate_surface_poses_for_matches,
                                                 offset_along_normal)
 
@@ -149,9 +149,13 @@ class ViewTargets:
 
 
 def match(algorithm: str, targets_xy_w: np.ndarray, depth_m: np.ndarray, camera: CameraModel,
-          config: PlannerConfig) -> MatchResults:
+          config: PlannerConfig, heights: tuple | None | str = "observe") -> MatchResults:
+    """Match with ``algorithm``; ``heights``: the view's :func:`observed_heights` if known (batch only)."""
     if algorithm == "batch":
-        return match_batch(targets_xy_w, depth_m, camera, tol_m=config.tol_m, hole_window_px=config.hole_window_px)
+        z_range = None if isinstance(heights, str) else z_range_of(heights, camera)
+        return match_batch(targets_xy_w, depth_m, camera, tol_m=config.tol_m, hole_window_px=config.hole_window_px,
+                           z_range_m=None if z_range is None else z_range[:2],
+                           z_init_m=None if z_range is None else z_range[2])
     if algorithm == "fpm":
         return match_fpm(targets_xy_w, depth_m, camera, tol_m=config.tol_m, window_px=config.fpm_window_px,
                          hole_window_px=config.hole_window_px)
@@ -165,7 +169,8 @@ def plan_view(ids: list[str], drawing_xy_m: np.ndarray, M_local2world: np.ndarra
     drawing_xy_m = np.asarray(drawing_xy_m, dtype=np.float64).reshape(-1, 2)
     target_xy_w = local_to_world(M_local2world, drawing_xy_m)
     t0 = time.perf_counter()
-    matches = match(config.algorithm, target_xy_w, depth_m, camera, config)
+    heights = observed_heights(depth_m, camera)  # once: the matcher's heights and the gun's top
+    matches = match(config.algorithm, target_xy_w, depth_m, camera, config, heights)
     match_time = time.perf_counter() - t0
     poses = estimate_surface_poses_for_matches(matches, depth_m, camera, window_m=config.normal_window_m,
                                                max_samples_per_side=config.normal_samples_per_side,
@@ -180,7 +185,7 @@ def plan_view(ids: list[str], drawing_xy_m: np.ndarray, M_local2world: np.ndarra
     position = np.where(poses.ok[:, None], poses.position_w, matches.point_w)
     usable = status == STATUS_OK
     if config.check_gun_clearance:
-        z_top = observed_z_range(depth_m, camera, margin_m=0.0)[1]
+        z_top = z_range_of(heights, camera, margin_m=0.0)[1]
         clearance = gun_clearance(position, poses.normal_w, depth_m, camera, config.gun, valid=usable, z_top_w=z_top)
     else:
         clearance = Clearance(np.full(len(ids), np.nan), np.full(len(ids), np.nan), np.zeros(len(ids), np.int64))

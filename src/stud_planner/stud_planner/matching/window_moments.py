@@ -67,6 +67,17 @@ def powers_of(x: np.ndarray, order: int) -> np.ndarray:
 
 
 
+def _binomial_shift(d: np.ndarray, order: int = 4) -> np.ndarray:
+    """(n, order + 1, order + 1) matrices B with B[p, r] = C(p, r) (-d)^(p - r): the moments
+    sum (x - d)^p of a set of points from its moments sum x^r, as B @ moments."""
+    pw = powers_of(-np.asarray(d, dtype=np.float64), order)
+    B = np.zeros(np.shape(d) + (order + 1, order + 1))
+    for p in range(order + 1):
+        for r in range(p + 1):
+            B[..., p, r] = comb(p, r) * pw[..., p - r]
+    return B
+
+
 def _shift(ch: dict, x0: np.ndarray, y0: np.ndarray, terms, order: int) -> dict:
     """Moments about (x0, y0) from moments about the origin: sum (x - x0)^p (y - y0)^q, for the
     (p, q) in ``terms``; ``ch`` maps (p, q) -> (n,) arrays. Binomial expansion, u then v."""
@@ -210,22 +221,36 @@ class BlockMoments:
         kr, kc = int((row1 - row0).max()) * b, int((col1 - col0).max()) * b
         top = np.minimum(row0 * b, self._depth.shape[0] - kr)  # the box stays inside the image
         left = np.minimum(col0 * b, self._depth.shape[1] - kc)
-        pix = np.lib.stride_tricks.sliding_window_view(self._depth, (kr, kc))[top, left]  # (n, kr, kc)
-        valid, y = self._inverse_depth(pix)
+        pix = np.lib.stride_tricks.sliding_window_view(self._depth, (kr, kc))[top, left]  # (n, kr, kc), a copy
+        centre = self._centres(row0, row1, col0, col1)
         rows = top[:, None] + np.arange(kr)  # image row / column of each box row / column
         cols = left[:, None] + np.arange(kc)
-        centre = self._centres(row0, row1, col0, col1)
         in_rows = (rows >= row0[:, None] * b) & (rows < row1[:, None] * b)
         in_cols = (cols >= col0[:, None] * b) & (cols < col1[:, None] * b)
-        # float32 products: offsets from the window's own centre, so no sum cancels another.
-        gv = (powers_of(rows - centre[:, 1:2], 4) * in_rows[:, :, None]).astype(np.float32)  # (n, kr, 5), 0 outside
-        gu = (powers_of(cols - centre[:, 0:1], 4) * in_cols[:, :, None]).astype(np.float32)
-        mw = np.matmul(np.swapaxes(np.matmul(valid.astype(np.float32), gu), 1, 2), gv).astype(np.float64)
-        my = np.matmul(np.swapaxes(np.matmul(y, gu[:, :, :3]), 1, 2), gv[:, :, :3]).astype(np.float64)
-        y *= in_rows[:, :, None]
-        y *= in_cols[:, None, :]
-        yf = y.reshape(n, -1, kc)  # float32 sums of one row each, then float64 over the rows
-        yy = np.einsum("krj,krj->kr", yf, yf).astype(np.float64).sum(axis=1)
+        # Validity and y' of the window's own pixels (0 elsewhere in the box), as two row blocks of
+        # one buffer per window.
+        np.fmin(pix, np.float32(np.inf), out=pix)  # NaN -> inf: 1/z is then 0
+        data = np.empty((n, 2, kr, kc), dtype=np.float32)
+        y = np.divide(np.float32(1.0), pix, out=data[:, 1])
+        valid = (y > 0) & (y < np.inf)  # no depth: NaN, 0 or negative
+        valid &= in_rows[:, :, None]
+        valid &= in_cols[:, None, :]
+        data[:, 0] = valid
+        y -= np.float32(self.y_ref)
+        y *= data[:, 0]
+        yr = y.reshape(-1, kc)  # float32 sums of one row each, then float64 over the rows
+        yy = np.einsum("ij,ij->i", yr, yr).reshape(n, kr).astype(np.float64).sum(axis=1)
+        # Sums over columns then rows of offsets from the box's centre, the same powers for every
+        # box: two plain products (float32 over a row, float64 over the rows), then the binomial
+        # shift to each window's own centre.
+        g_c = powers_of(np.arange(kc) - (kc - 1) / 2.0, 4)  # (kc, 5)
+        g_r = powers_of(np.arange(kr) - (kr - 1) / 2.0, 4)  # (kr, 5)
+        t = (data.reshape(-1, kc) @ g_c.astype(np.float32)).astype(np.float64).reshape(n, 2, kr, 5)
+        m = (np.ascontiguousarray(np.swapaxes(t, 2, 3)).reshape(-1, kr) @ g_r).reshape(n, 2, 5, 5)  # [p, q]
+        du = centre[:, 0] - (left + (kc - 1) / 2.0)  # each window's centre in its box's coordinates
+        dv = centre[:, 1] - (top + (kr - 1) / 2.0)
+        m = np.matmul(np.matmul(_binomial_shift(du)[:, None], m), np.swapaxes(_binomial_shift(dv), 1, 2)[:, None])
+        mw, my = m[:, 0], np.ascontiguousarray(m[:, 1, :3, :3])
         mw[:, np.add.outer(np.arange(5), np.arange(5)) > 4] = 0.0
         my[:, np.add.outer(np.arange(3), np.arange(3)) > 2] = 0.0
         return WindowSums(mw=mw, my=my, yy=yy, centre_uv=centre,

@@ -1,0 +1,222 @@
+"""Shared by every matcher: the result types, the input checks, the heights searched and the in-view interval.
+
+:mod:`stud_planner.matching.matchers` is the public face (it re-exports all of this); the paper's
+baselines live in :mod:`stud_planner.matching.paper_baselines`, ours in ``matchers``. Frames and
+units as there: ``targets_xy_w`` (N, 2) metres in `world`, ``depth_m`` (H, W) float32 metres of
+optical-frame z, NaN = invalid, indexed ``[v, u]``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Iterator
+
+import numpy as np
+
+from stud_perception.camera_model import CameraModel
+from stud_perception.depth_image import FillRule
+from stud_common.vocabulary import TargetStatus
+
+
+#: Margin (m) added around the heights the depth image shows (:func:`observed_z_range`).
+Z_RANGE_MARGIN_M = 0.05
+
+
+def _depth_samples(depth_m: np.ndarray, stride: int = 16) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every ``stride``-th pixel of a depth image: u (1, w), v (h, 1) and depth (h, w), NaN where invalid."""
+    sub = depth_m[::stride, ::stride]
+    sub = np.where(sub > 0, sub, np.nan)  # NaN stays NaN
+    u = np.arange(0, depth_m.shape[1], stride, dtype=np.float64)[None, :]
+    v = np.arange(0, depth_m.shape[0], stride, dtype=np.float64)[:, None]
+    return u, v, sub
+
+
+def observed_z_range(depth_m: np.ndarray, camera: CameraModel, stride: int = 16,
+                     margin_m: float = Z_RANGE_MARGIN_M) -> tuple[float, float, float]:
+    """(z_min, z_max, z_median) in world metres of the surfaces this depth image shows.
+
+    The heights a stud's weld point may have: the range searched along its vertical line, and the
+    range over which "out of view" is decided (perspective makes any vertical line enter the image
+    far enough below the plane, so the range must be finite). Taken from the view itself -- Eq. 1
+    on every ``stride``-th pixel with depth, plus ``margin_m`` -- so it holds wherever the world
+    frame is: a robot base on a pedestal puts the part well below z = 0, a floor-mounted one above.
+    An image without any depth gives a range around the camera's own height.
+    """
+    return z_range_of(observed_heights(depth_m, camera, stride), camera, margin_m)
+
+
+def observed_heights(depth_m: np.ndarray, camera: CameraModel, stride: int = 16) -> tuple[float, float, float] | None:
+    """(lowest, highest, median) world z of Eq. 1 on every ``stride``-th pixel with depth; None if none."""
+    u, v, sub = _depth_samples(depth_m, stride)
+    zw = camera.pixel_to_world(u, v, sub)[..., 2]
+    zw = zw[np.isfinite(zw)]
+    if zw.size == 0:
+        return None
+    return float(zw.min()), float(zw.max()), float(np.median(zw))
+
+
+def z_range_of(heights: tuple[float, float, float] | None, camera: CameraModel,
+               margin_m: float = Z_RANGE_MARGIN_M) -> tuple[float, float, float]:
+    """:func:`observed_z_range` from :func:`observed_heights` (one pass over the image for several margins)."""
+    if heights is None:
+        z = float(camera.position_w[2])
+        return z - 10.0, z + 10.0, z
+    return heights[0] - margin_m, heights[1] + margin_m, heights[2]
+
+
+class MatchStatus(IntEnum):
+    """Per-stud outcome of the matching: the matcher's subset of stud_common.vocabulary.TargetStatus."""
+
+    OK = TargetStatus.OK
+    OUT_OF_VIEW = TargetStatus.OUT_OF_VIEW
+    NO_DEPTH = TargetStatus.NO_DEPTH
+    NOT_CONVERGED = TargetStatus.NOT_CONVERGED
+    DEPTH_DISCONTINUITY = TargetStatus.DEPTH_DISCONTINUITY
+
+
+class MatchingError(ValueError):
+    """Inputs a matcher cannot work with (shapes, sizes), with the offending value."""
+
+
+@dataclass(frozen=True)
+class MatchResult:
+    """One stud's match. ``point_w`` (3,) metres in `world` is Eq. 1 of ``pixel_uv`` with the depth
+    used there; ``xy_residual_m`` = |point_w[:2] - target|; NaN fields when nothing was found."""
+
+    pixel_uv: tuple[float, float]
+    point_w: np.ndarray
+    iterations: int
+    xy_residual_m: float
+    status: MatchStatus
+    hole_rule: FillRule
+
+    @property
+    def ok(self) -> bool:
+        return self.status == MatchStatus.OK
+
+
+@dataclass(frozen=True)
+class MatchResults:
+    """Matches of N studs of one frame, struct-of-arrays; ``results[i]`` is a :class:`MatchResult`.
+
+    - ``pixel_uv`` (N, 2) float64 px, sub-pixel for the batch matcher, NaN if none;
+    - ``point_w`` (N, 3) float64 m, `world`;
+    - ``iterations`` (N,) int64: depth look-ups (batch) or pixels evaluated (BFS/FPM, the paper's count);
+    - ``xy_residual_m`` (N,) float64 m;
+    - ``status`` (N,) int8 :class:`MatchStatus`; ``hole_rule`` (N,) int8 :class:`FillRule`;
+    - ``algorithm``: "bfs", "fpm" or "batch".
+    """
+
+    algorithm: str
+    pixel_uv: np.ndarray
+    point_w: np.ndarray
+    iterations: np.ndarray
+    xy_residual_m: np.ndarray
+    status: np.ndarray
+    hole_rule: np.ndarray
+
+    def __post_init__(self) -> None:
+        for name in ("pixel_uv", "point_w", "iterations", "xy_residual_m", "status", "hole_rule"):
+            getattr(self, name).setflags(write=False)
+
+    def __len__(self) -> int:
+        return int(self.status.shape[0])
+
+    def __getitem__(self, i: int) -> MatchResult:
+        return MatchResult(
+            pixel_uv=(float(self.pixel_uv[i, 0]), float(self.pixel_uv[i, 1])),
+            point_w=self.point_w[i].copy(),
+            iterations=int(self.iterations[i]),
+            xy_residual_m=float(self.xy_residual_m[i]),
+            status=MatchStatus(int(self.status[i])),
+            hole_rule=FillRule(int(self.hole_rule[i])),
+        )
+
+    def __iter__(self) -> Iterator[MatchResult]:
+        return (self[i] for i in range(len(self)))
+
+    @property
+    def ok(self) -> np.ndarray:
+        """(N,) bool: usable matches."""
+        return self.status == MatchStatus.OK
+
+    @property
+    def total_iterations(self) -> int:
+        return int(self.iterations.sum())
+
+
+# ---------------------------------------------------------------------------------------------
+# Input checks and small geometry helpers (no Eq. 1 here: that is CameraModel's)
+# ---------------------------------------------------------------------------------------------
+def _check_inputs(targets_xy_w, depth_m, camera: CameraModel) -> tuple[np.ndarray, np.ndarray]:
+    xy = np.asarray(targets_xy_w, dtype=np.float64)
+    if xy.ndim == 1 and xy.shape == (2,):
+        xy = xy[None, :]
+    if xy.ndim != 2 or xy.shape[1] != 2:
+        raise MatchingError(f"targets_xy_w must have shape (N, 2), got {xy.shape}")
+    depth = np.asarray(depth_m)
+    if depth.shape != (camera.height, camera.width):
+        raise MatchingError(
+            f"depth image shape {depth.shape} does not match the camera's {camera.height}x{camera.width} (HxW)"
+        )
+    if not np.issubdtype(depth.dtype, np.floating):
+        raise MatchingError(f"depth_m must be float metres with NaN = invalid, got dtype {depth.dtype}")
+    return xy, depth
+
+
+def _empty_results(algorithm: str, n: int) -> dict:
+    return dict(
+        algorithm=algorithm,
+        pixel_uv=np.full((n, 2), np.nan),
+        point_w=np.full((n, 3), np.nan),
+        iterations=np.zeros(n, dtype=np.int64),
+        xy_residual_m=np.full(n, np.nan),
+        status=np.full(n, MatchStatus.NOT_CONVERGED, dtype=np.int8),
+        hole_rule=np.full(n, FillRule.NONE, dtype=np.int8),
+    )
+
+
+def line_in_view_z_interval(
+    camera: CameraModel, targets_xy_w: np.ndarray, z_min_m: float, z_max_m: float, min_depth_m: float = 1e-3
+) -> tuple[np.ndarray, np.ndarray]:
+    """Heights z in [z_min_m, z_max_m] at which the vertical line (x_w, y_w, z) projects inside the image.
+
+    View-frustum clipping, exact: with P_c(z) = A + z B (optical frame, from
+    :meth:`CameraModel.world_to_camera`), each image bound ``0 <= u <= W-1``, ``0 <= v <= H-1`` and
+    ``z_c >= min_depth_m`` is linear in z. Returns (lo, hi), each (N,); lo > hi means never in view.
+    """
+    return _line_z_interval(camera, *camera_line(camera, targets_xy_w), z_min_m, z_max_m, min_depth_m)
+
+
+def camera_line(camera: CameraModel, targets_xy_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B) (N, 3) with P_c(z) = A + z B the optical-frame point of (x_w, y_w, z) on each stud's
+    vertical line (:meth:`CameraModel.world_to_camera`; exact, the map is affine)."""
+    xy = np.asarray(targets_xy_w, dtype=np.float64).reshape(-1, 2)
+    n = xy.shape[0]
+    A = camera.world_to_camera(np.column_stack([xy, np.zeros(n)]))
+    B = camera.world_to_camera(np.column_stack([xy, np.ones(n)])) - A
+    return A, B
+
+
+def _line_z_interval(camera: CameraModel, A: np.ndarray, B: np.ndarray, z_min_m: float, z_max_m: float,
+                     min_depth_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`line_in_view_z_interval` of the lines P_c(z) = A + z B (:func:`camera_line`)."""
+    # (alpha + beta z) >= 0 for each constraint; u = fx x/z + cx >= 0 <=> fx x + cx z >= 0, etc.
+    fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
+    W1, H1 = camera.width - 1, camera.height - 1
+    alpha = np.stack([fx * A[:, 0] + cx * A[:, 2],  # u >= 0
+                      -(fx * A[:, 0] + (cx - W1) * A[:, 2]),  # u <= W-1
+                      fy * A[:, 1] + cy * A[:, 2],  # v >= 0
+                      -(fy * A[:, 1] + (cy - H1) * A[:, 2]),  # v <= H-1
+                      A[:, 2] - min_depth_m])  # in front of the camera
+    beta = np.stack([fx * B[:, 0] + cx * B[:, 2], -(fx * B[:, 0] + (cx - W1) * B[:, 2]),
+                     fy * B[:, 1] + cy * B[:, 2], -(fy * B[:, 1] + (cy - H1) * B[:, 2]), B[:, 2]])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        root = -alpha / beta
+        lo = np.maximum(float(z_min_m), np.max(np.where(beta > 0, root, -np.inf), axis=0))
+        hi = np.minimum(float(z_max_m), np.min(np.where(beta < 0, root, np.inf), axis=0))
+        lo[np.any((beta == 0) & (alpha < 0), axis=0)] = np.inf  # a bound the line never meets
+    # Shrink by a hair so rounding never puts an iterate a femtometre outside the image.
+    span = hi - lo
+    pad = np.where(span > 0, np.minimum(1e-9, 0.25 * span), 0.0)
+    return lo + pad, hi - pad
