@@ -103,3 +103,12 @@ def test_colcon_test_collects_each_packages_tests():
     by_root = re.search(r"^(\d+) tests? collected", root.stdout, re.M)
     assert by_root, root.stdout[-3000:] + root.stderr[-3000:]
     assert by_colcon == int(by_root.group(1)) > 0
+
+
+def test_the_packages_pass_the_type_checker():
+    """mypy over the five Python packages, configured in pyproject.toml ([tool.mypy]). Run `mypy` from the
+    repository root (after `source ros2_ws/setup.bash`, for the message classes) to see the findings."""
+    mypy = Path(sys.executable).with_name("mypy")
+    done = subprocess.run([str(mypy), "--no-color-output", "--cache-dir", str(TESTS.parent / ".mypy_cache")],
+                          cwd=TESTS.parent, capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stdout[-6000:] + done.stderr[-3000:]

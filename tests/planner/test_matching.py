@@ -376,7 +376,9 @@ def test_the_last_few_studs_one_at_a_time_give_the_vectorised_search_s_results(m
     """The batch matcher finishes its last few searching studs on plain floats: the same statuses,
     look-up counts and hole rules as the all-vectorised search, points equal to rounding."""
     import stud_planner.matching.matchers as matchers
-    from stud_perception.scene import demo_dome_scene, grid_stud_scene, render, view_camera
+    from stud_perception.scene import demo_dome_scene, grid_stud_scene
+    from stud_perception.scene_cameras import view_camera
+    from stud_perception.scene_render import render
 
     scene = grid_stud_scene(300, demo_dome_scene(), extent_m=(0.26, 0.2))
     c = scene.component.centre_xy_m

@@ -68,6 +68,7 @@ from .kinematics import D6_BY_VARIANT, DHModel, RM65Kinematics
 from .safety import SafetyChecker
 from .weld_job import JobResult, StudTarget
 from .weld_sequence import WeldSequence
+from stud_common import names
 
 WELDS_QOS = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
@@ -130,24 +131,24 @@ class DriverNode(DriverStatus, DriverServices, Node):
         self._connected_logged: bool | None = None
 
         group = ReentrantCallbackGroup()
-        self.pub_state = self.create_publisher(ArmState, "/arm/state", ros_io.RESULT_QOS)
-        self.pub_joints = self.create_publisher(JointState, "/joint_states", 10)
+        self.pub_state = self.create_publisher(ArmState, names.ARM_STATE, ros_io.RESULT_QOS)
+        self.pub_joints = self.create_publisher(JointState, names.JOINT_STATES, 10)
         # Every confirmed weld, for the QA record and the inspection: reliable, and transient local
         # with a deep history so a subscriber that (re)starts mid-job still gets this job's welds.
-        self.pub_welds = self.create_publisher(WeldRecord, "/arm/welds", WELDS_QOS)
-        self.pub_camera = (self.create_publisher(PoseStamped, "/camera/pose", ros_io.CAMERA_PUB_QOS)
+        self.pub_welds = self.create_publisher(WeldRecord, names.ARM_WELDS, WELDS_QOS)
+        self.pub_camera = (self.create_publisher(PoseStamped, names.CAMERA_POSE, ros_io.CAMERA_PUB_QOS)
                            if p["publish_camera_pose"] else None)
         self.diag = ros_io.Diagnostics(self, hardware_id=f"RM65 {p['arm_ip']}:{p['tcp_port']}")
         self.create_timer(1.0, self.diag.publish, callback_group=group)
-        self.create_service(Trigger, "/arm/stop", self._on_stop, callback_group=group)
-        self.create_service(Trigger, "/arm/pause", self._on_pause, callback_group=group)
-        self.create_service(Trigger, "/arm/resume", self._on_resume, callback_group=group)
-        self.create_service(Trigger, "/arm/estop", self._on_estop_srv, callback_group=group)
-        self.create_service(ResolveStud, "/arm/resolve_stud", self._on_resolve, callback_group=group)
-        self.create_service(ResolveJournal, "/arm/resolve_journal", self._on_resolve_journal, callback_group=group)
-        self.create_service(MoveTo, "/arm/move_to", self._on_move_to, callback_group=group)
-        self.create_subscription(Bool, "/arm/estop", self._on_estop_topic, 10, callback_group=group)
-        self.action = ActionServer(self, WeldJob, "/arm/weld_job", execute_callback=self._execute,
+        self.create_service(Trigger, names.ARM_STOP, self._on_stop, callback_group=group)
+        self.create_service(Trigger, names.ARM_PAUSE, self._on_pause, callback_group=group)
+        self.create_service(Trigger, names.ARM_RESUME, self._on_resume, callback_group=group)
+        self.create_service(Trigger, names.ARM_ESTOP, self._on_estop_srv, callback_group=group)
+        self.create_service(ResolveStud, names.ARM_RESOLVE_STUD, self._on_resolve, callback_group=group)
+        self.create_service(ResolveJournal, names.ARM_RESOLVE_JOURNAL, self._on_resolve_journal, callback_group=group)
+        self.create_service(MoveTo, names.ARM_MOVE_TO, self._on_move_to, callback_group=group)
+        self.create_subscription(Bool, names.ARM_ESTOP, self._on_estop_topic, 10, callback_group=group)
+        self.action = ActionServer(self, WeldJob, names.ARM_WELD_JOB, execute_callback=self._execute,
                                    goal_callback=self._on_goal, cancel_callback=self._on_cancel,
                                    callback_group=group)
         self._running = True

@@ -30,6 +30,7 @@ from stud_common.ros_io import Param
 from .kinematics import D6_BY_VARIANT
 from .robot_description import RM65Description, rm65_urdf
 from .urdf_model import RobotModel, UrdfError, parse_urdf
+from stud_common import names
 
 
 PARAMS = [
@@ -41,7 +42,7 @@ PARAMS = [
     *hand_eye_ros.PARAMS,  # weld_tool -> camera_color_optical_frame: the typed hand-eye or hand_eye_file
     Param("publish_camera_frame", True, "include weld_tool -> camera_color_optical_frame (false when the camera "
           "driver publishes its own frames: a frame has one parent)", read_only=True),
-    Param("registration_topic", "/registration/result", "publish world -> drawing from this topic's latest valid "
+    Param("registration_topic", names.REGISTRATION_RESULT, "publish world -> drawing from this topic's latest valid "
           "registration (empty: do not)", read_only=True),
 ]
 
@@ -63,7 +64,7 @@ class StatePublisherNode(Node):
         self._joint_states = 0
 
         # The description and the static frames are latched: a viewer started later gets them.
-        self.pub_description = self.create_publisher(String, "/robot_description", ros_io.LATCHED_QOS)
+        self.pub_description = self.create_publisher(String, names.ROBOT_DESCRIPTION, ros_io.LATCHED_QOS)
         self.pub_description.publish(String(data=self.urdf_text))
         self.calibration = hand_eye_ros.CalibrationTopic(self, self.hand_eye)
         self.static = tf_io.StaticFrames(self)
@@ -71,7 +72,7 @@ class StatePublisherNode(Node):
         stamp = self.get_clock().now().to_msg()
         self.static.set([tf_io.transform_stamped(j.parent, j.child, j.origin, stamp) for j in self.model.fixed_joints])
         # /joint_states as the driver publishes it (reliable, depth 10); a frame is only as old as its message.
-        self.create_subscription(JointState, "/joint_states", self._on_joints, 10)
+        self.create_subscription(JointState, names.JOINT_STATES, self._on_joints, 10)
         if self.p["registration_topic"]:
             self.create_subscription(Registration, self.p["registration_topic"], self._on_registration,
                                      ros_io.LATCHED_QOS)

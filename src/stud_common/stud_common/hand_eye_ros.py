@@ -21,8 +21,9 @@ from stud_common import ros_io
 from stud_common.hand_eye_in_use import HandEyeLimits
 from stud_common.hand_eye_in_use import HandEyeFileError, HandEyeInUse, resolve_hand_eye
 from stud_common.ros_io import Param, three_numbers
+from stud_common import names
 
-TOPIC = "/calibration/hand_eye"
+TOPIC = names.CALIBRATION_HAND_EYE
 LIMITS_NS = "hand_eye_limits"
 
 

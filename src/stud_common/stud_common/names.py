@@ -25,6 +25,7 @@ WELD_TARGETS = "/weld_targets"
 WELD_TARGET_POSES = "/weld_targets/poses"
 WELD_TARGET_MARKERS = "/weld_targets/markers"
 WELD_TARGET_OVERLAY = "/weld_targets/overlay"
+WELD_TARGET_OVERLAY_COMPRESSED = "/weld_targets/overlay/compressed"   # the same as JPEG
 
 # -- arm (RM-65 driver) ----------------------------------------------------------------------------
 ARM_STATE = "/arm/state"

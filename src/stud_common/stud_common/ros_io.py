@@ -25,6 +25,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
                        qos_profile_sensor_data)
 
 from stud_common.rotations import matrix_to_quaternion, quaternion_to_matrix
+from stud_common import names
 
 # -- QoS ------------------------------------------------------------------------------------------
 #: Image/depth/camera-info subscriptions: best effort accepts both best-effort camera drivers
@@ -209,7 +210,7 @@ class Diagnostics:
 
     def __init__(self, node: Node, name: str | None = None, hardware_id: str = ""):
         self._node = node
-        self._pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._pub = node.create_publisher(DiagnosticArray, names.DIAGNOSTICS, 10)
         self.name = name or f"{node.get_name()}"
         self.hardware_id = hardware_id
         self.level = DiagnosticStatus.OK

@@ -15,6 +15,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from tf2_msgs.msg import TFMessage
 
 from stud_common.rotations import matrix_to_quaternion
+from stud_common import names
 
 #: /tf: as tf2_ros.TransformBroadcaster.
 TF_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
@@ -43,7 +44,7 @@ class StaticFrames:
 
     def __init__(self, node: Node):
         self._node = node
-        self._pub = node.create_publisher(TFMessage, "/tf_static", TF_STATIC_QOS)
+        self._pub = node.create_publisher(TFMessage, names.TF_STATIC, TF_STATIC_QOS)
         self._frames: dict[str, TransformStamped] = {}
 
     def set(self, transforms: list[TransformStamped]) -> None:
@@ -60,7 +61,7 @@ class MovingFrames:
     """Publisher of ``/tf``."""
 
     def __init__(self, node: Node):
-        self._pub = node.create_publisher(TFMessage, "/tf", TF_QOS)
+        self._pub = node.create_publisher(TFMessage, names.TF, TF_QOS)
 
     def publish(self, transforms: list[TransformStamped]) -> None:
         if transforms:

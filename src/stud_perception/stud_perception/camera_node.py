@@ -41,6 +41,7 @@ from stud_perception.scene_file import load_scene
 from stud_perception.scene_render import render
 from stud_perception.scene_solids import SceneError
 from stud_perception.welded_studs import StudCylinder, welded_stud
+from stud_common import names
 
 OPTICAL_FRAME = "camera_color_optical_frame"
 
@@ -139,11 +140,11 @@ class CameraNode(Node):
             self.get_logger().fatal(f"cannot load scene_file '{self.p['scene_file']}': {exc}")
             raise SystemExit(2) from None
         q = ros_io.CAMERA_PUB_QOS
-        self.pub_color = self.create_publisher(Image, "/camera/color/image_raw", q)
-        self.pub_depth = self.create_publisher(Image, "/camera/depth/image_raw", q)
-        self.pub_info = self.create_publisher(CameraInfo, "/camera/color/camera_info", q)
-        self.pub_pose = self.create_publisher(PoseStamped, "/camera/pose", q)
-        self.create_service(Trigger, "/camera/trigger", self._on_trigger)
+        self.pub_color = self.create_publisher(Image, names.COLOR_IMAGE, q)
+        self.pub_depth = self.create_publisher(Image, names.DEPTH_IMAGE, q)
+        self.pub_info = self.create_publisher(CameraInfo, names.CAMERA_INFO, q)
+        self.pub_pose = self.create_publisher(PoseStamped, names.CAMERA_POSE, q)
+        self.create_service(Trigger, names.CAMERA_TRIGGER, self._on_trigger)
         self.diag = ros_io.Diagnostics(self, hardware_id="sim_rgbd_camera")
         self.hand_eye = hand_eye_ros.hand_eye_in_use(self, self.p)  # believed: poses /camera/pose
         self.true_hand_eye = (tuple(v if math.isfinite(v) else b for v, b in
@@ -159,7 +160,7 @@ class CameraNode(Node):
         if self.p["pose_source"] == "arm":
             from stud_welding_msgs.msg import ArmState
 
-            self.create_subscription(ArmState, "/arm/state", self._on_arm_state, ros_io.RESULT_QOS)
+            self.create_subscription(ArmState, names.ARM_STATE, self._on_arm_state, ros_io.RESULT_QOS)
         # Studs the arm welds stand in later shots, where the arm welded them (with the scene's weld
         # defects): what a post-weld inspection sees.
         self._welded: dict[str, StudCylinder] = {}
@@ -168,7 +169,7 @@ class CameraNode(Node):
 
             welds_qos = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE,
                                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
-            self.create_subscription(WeldRecord, "/arm/welds", self._on_weld, welds_qos)
+            self.create_subscription(WeldRecord, names.ARM_WELDS, self._on_weld, welds_qos)
         if self.p["rate_hz"] > 0:
             self.create_timer(1.0 / self.p["rate_hz"], self._on_timer)
         self.get_logger().info(

@@ -21,12 +21,13 @@ from stud_common import hand_eye_ros, ros_io
 from stud_common.rotations import transform, transform_xyz_rpy
 from stud_perception.hand_eye import rebase_camera_pose
 from stud_common.ros_io import Param, three_numbers
+from stud_common import names
 
 
 PARAMS = [
-    Param("input_topic", "/camera/pose_recorded", "the recorded camera poses (the bag's /camera/pose, remapped)",
+    Param("input_topic", names.CAMERA_POSE_RECORDED, "the recorded camera poses (the bag's /camera/pose, remapped)",
           read_only=True),
-    Param("output_topic", "/camera/pose", "the camera poses with the hand-eye in use", read_only=True),
+    Param("output_topic", names.CAMERA_POSE, "the camera poses with the hand-eye in use", read_only=True),
     Param("recorded_hand_eye_xyz_m", [0.0, 0.0, 0.0], "optical frame origin in the weld-tool frame the recording "
           "was made with [m]", validate=three_numbers("recorded_hand_eye_xyz_m"), read_only=True),
     Param("recorded_hand_eye_rpy_deg", [0.0, 0.0, 0.0], "optical frame orientation in the weld-tool frame the "

@@ -27,6 +27,7 @@ from stud_perception.markers import MarkDetectorConfig
 from stud_perception.registration import layout_marks_m
 from stud_common.ros_io import Param
 from stud_perception.view_registration import config_for_layout, draw_registration_overlay, register_view
+from stud_common import names
 
 PARAMS = [
     Param("continuous", False, "register every view (true) or once, then on /registration/trigger (false)"),
@@ -50,18 +51,18 @@ class RegistrationNode(Node):
         self.armed = True  # register on the next complete view
         self._pending: dict | None = None  # the last view that came before the layout
         self._last_reason = ""
-        self.pub_result = self.create_publisher(Registration, "/registration/result", ros_io.LATCHED_QOS)
-        self.pub_overlay = self.create_publisher(Image, "/registration/overlay", ros_io.RESULT_QOS)
+        self.pub_result = self.create_publisher(Registration, names.REGISTRATION_RESULT, ros_io.LATCHED_QOS)
+        self.pub_overlay = self.create_publisher(Image, names.REGISTRATION_OVERLAY, ros_io.RESULT_QOS)
         self.diag = ros_io.Diagnostics(self)
         self.diag.set(self.diag.OK, "waiting for /drawing/layout and a view")  # idle: not a warning
         self.create_timer(1.0, self.diag.publish)
-        self.create_subscription(StudLayout, "/drawing/layout", self._on_layout, ros_io.LATCHED_QOS)
+        self.create_subscription(StudLayout, names.DRAWING_LAYOUT, self._on_layout, ros_io.LATCHED_QOS)
         self.sync = ros_io.StampSync(["color", "depth", "info", "pose"], self._on_view,
                                      slop_ns=int(self.p["sync_slop_s"] * 1e9))
-        for name, topic, typ in (("color", "/camera/color/image_raw", Image), ("depth", "/camera/depth/image_raw", Image),
-                                 ("info", "/camera/color/camera_info", CameraInfo), ("pose", "/camera/pose", PoseStamped)):
+        for name, topic, typ in (("color", names.COLOR_IMAGE, Image), ("depth", names.DEPTH_IMAGE, Image),
+                                 ("info", names.CAMERA_INFO, CameraInfo), ("pose", names.CAMERA_POSE, PoseStamped)):
             self.create_subscription(typ, topic, functools.partial(self.sync.add, name), ros_io.SENSOR_QOS)
-        self.create_service(Trigger, "/registration/trigger", self._on_trigger)
+        self.create_service(Trigger, names.REGISTRATION_TRIGGER, self._on_trigger)
         self.get_logger().info("waiting for /drawing/layout and a synchronised RGB-D view")
 
     def _on_layout(self, msg: StudLayout) -> None:

@@ -25,6 +25,7 @@ from stud_welding_msgs.msg import ArmState
 from stud_common import hand_eye_ros, ros_io
 from stud_perception.camera_node import OPTICAL_FRAME, camera_pose_from_tool
 from stud_common.ros_io import Param
+from stud_common import names
 
 
 PARAMS = [
@@ -48,10 +49,10 @@ class ShotNode(Node):
         self.p = ros_io.declare_params(self, PARAMS)
         group = ReentrantCallbackGroup()
         q = ros_io.CAMERA_PUB_QOS
-        self.pub = {"color": self.create_publisher(Image, "/camera/color/image_raw", q),
-                    "depth": self.create_publisher(Image, "/camera/depth/image_raw", q),
-                    "info": self.create_publisher(CameraInfo, "/camera/color/camera_info", q)}
-        self.pub_pose = self.create_publisher(PoseStamped, "/camera/pose", q)
+        self.pub = {"color": self.create_publisher(Image, names.COLOR_IMAGE, q),
+                    "depth": self.create_publisher(Image, names.DEPTH_IMAGE, q),
+                    "info": self.create_publisher(CameraInfo, names.CAMERA_INFO, q)}
+        self.pub_pose = self.create_publisher(PoseStamped, names.CAMERA_POSE, q)
         self._arm: tuple[int, object] | None = None  # (receive time ns, tool pose)
         self._wanted_after_ns: int | None = None
         self._frame: dict | None = None
@@ -62,8 +63,8 @@ class ShotNode(Node):
         for name, typ in (("color", Image), ("depth", Image), ("info", CameraInfo)):
             self.create_subscription(typ, self.p[f"input_{name}_topic"], functools.partial(self._add, name),
                                      ros_io.SENSOR_QOS, callback_group=group)
-        self.create_subscription(ArmState, "/arm/state", self._on_arm, ros_io.RESULT_QOS, callback_group=group)
-        self.create_service(Trigger, "/camera/trigger", self._on_trigger, callback_group=group)
+        self.create_subscription(ArmState, names.ARM_STATE, self._on_arm, ros_io.RESULT_QOS, callback_group=group)
+        self.create_service(Trigger, names.CAMERA_TRIGGER, self._on_trigger, callback_group=group)
         self.diag = ros_io.Diagnostics(self)
         self.hand_eye = hand_eye_ros.hand_eye_in_use(self, self.p)
         self.calibration_topic = hand_eye_ros.CalibrationTopic(self, self.hand_eye)

@@ -31,6 +31,7 @@ import numpy as np
 from stud_perception.scene import surface_height, surface_normal
 from stud_perception.scene_file import load_scene
 from stud_common.strict_json import write_json
+from stud_common import names
 
 
 def share_file(package: str, relative: str) -> Path:
@@ -106,7 +107,7 @@ def export_overlays(bag_dir: Path, out_dir: Path) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
     n = 0
     with open_bag(bag_dir) as bag:
-        for item in bag.messages(["/weld_targets/overlay"]):
+        for item in bag.messages([names.WELD_TARGET_OVERLAY]):
             n += 1
             cv2.imwrite(str(out_dir / f"overlay_{n:02d}.png"), image_io.color_to_bgr(item.message()))
     return n

@@ -35,9 +35,10 @@ from stud_planner.drawing import DrawingError, read_layout
 from stud_planner.matching.gun_clearance import GunModel
 from stud_planner.matching.view_targets import (ALGORITHMS, STATUS_OK, STATUS_OUT_OF_VIEW, STATUS_TEXT, PlannerConfig,
                                                 draw_targets_overlay, plan_view)
+from stud_common import names
 
-DEFAULT_TOPICS = {"color": "/camera/color/image_raw", "depth": "/camera/depth/image_raw",
-                  "info": "/camera/color/camera_info", "pose": "/camera/pose"}
+DEFAULT_TOPICS = {"color": names.COLOR_IMAGE, "depth": names.DEPTH_IMAGE,
+                  "info": names.CAMERA_INFO, "pose": names.CAMERA_POSE}
 
 
 class PlanError(Exception):

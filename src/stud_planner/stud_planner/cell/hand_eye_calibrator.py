@@ -47,6 +47,7 @@ from stud_common.ros_io import Param, three_numbers
 from stud_perception.view_registration import config_for_layout
 from stud_planner.cell.hand_eye_views import (CalibrationView, ViewPlanError, plan_calibration_views, plan_check_views,
                                               station_view)
+from stud_common import names
 
 
 def _tilts(v) -> str | None:
@@ -103,18 +104,18 @@ class HandEyeCalibrator(Node):
         self.arm_state: ArmState | None = None
         self.view: dict | None = None
         self.exit_code: int | None = None
-        self.create_subscription(StudLayout, "/drawing/layout", self._keep("layout"), ros_io.LATCHED_QOS,
+        self.create_subscription(StudLayout, names.DRAWING_LAYOUT, self._keep("layout"), ros_io.LATCHED_QOS,
                                  callback_group=cb)
-        self.create_subscription(ArmState, "/arm/state", self._keep("arm_state"), ros_io.RESULT_QOS,
+        self.create_subscription(ArmState, names.ARM_STATE, self._keep("arm_state"), ros_io.RESULT_QOS,
                                  callback_group=cb)
         self.sync = ros_io.StampSync(["color", "depth", "info", "pose"], self._keep("view"),
                                      slop_ns=int(self.p["sync_slop_s"] * 1e9))
-        for name, topic, typ in (("color", "/camera/color/image_raw", Image), ("depth", "/camera/depth/image_raw", Image),
-                                 ("info", "/camera/color/camera_info", CameraInfo), ("pose", "/camera/pose", PoseStamped)):
+        for name, topic, typ in (("color", names.COLOR_IMAGE, Image), ("depth", names.DEPTH_IMAGE, Image),
+                                 ("info", names.CAMERA_INFO, CameraInfo), ("pose", names.CAMERA_POSE, PoseStamped)):
             self.create_subscription(typ, topic, functools.partial(self._add, name), ros_io.SENSOR_QOS,
                                      callback_group=cb)
-        self.cli_move = self.create_client(MoveTo, "/arm/move_to", callback_group=cb)
-        self.cli_shot = self.create_client(Trigger, "/camera/trigger", callback_group=cb)
+        self.cli_move = self.create_client(MoveTo, names.ARM_MOVE_TO, callback_group=cb)
+        self.cli_shot = self.create_client(Trigger, names.CAMERA_TRIGGER, callback_group=cb)
         self.diag = ros_io.Diagnostics(self)
         self.create_timer(1.0, self.diag.publish, callback_group=cb)
         self._stop = threading.Event()
@@ -242,12 +243,12 @@ class HandEyeCalibrator(Node):
 
     def _procedure(self) -> int:
         p = self.p
-        layout = self._wait_for(lambda: self.layout, "/drawing/layout")
+        layout = self._wait_for(lambda: self.layout, names.DRAWING_LAYOUT)
         drawing_marks = layout_marks_m(layout)
         config = config_for_layout(MarkDetectorConfig(depth_range_m=(p["depth_min_m"], p["depth_max_m"]),
                                                       distance_tol_m=p["distance_tol_m"],
                                                       min_contrast=p["min_contrast"]), layout.mark_diameter)
-        self._wait_for(lambda: self.arm_state, "/arm/state")
+        self._wait_for(lambda: self.arm_state, names.ARM_STATE)
         # Find the board: straight down from the registration station.
         first, _, _ = self._shots([station_view(p["board_station_xyz_m"])], 1, drawing_marks, config)
         if not first:

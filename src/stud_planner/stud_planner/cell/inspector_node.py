@@ -36,6 +36,7 @@ from stud_perception import image_io
 from stud_common.ros_io import Param
 from stud_planner.cell import qa_report, rework
 from stud_planner.cell.inspection import InspectionLimits, Verdict, draw_inspection_overlay, inspect_studs
+from stud_common import names
 
 _LIMITS = InspectionLimits()
 PARAMS = [
@@ -118,19 +119,19 @@ class InspectorNode(Node):
         self._views: OrderedDict[int, tuple] = OrderedDict()  # stamp ns -> (depth m, camera, colour bgr)
         self._cond = threading.Condition()
         cb = ReentrantCallbackGroup()
-        self.pub_result = self.create_publisher(InspectionResult, "/inspection/result", ros_io.LATCHED_QOS)
+        self.pub_result = self.create_publisher(InspectionResult, names.INSPECTION_RESULT, ros_io.LATCHED_QOS)
         self.sync = ros_io.StampSync(["depth", "info", "pose", "color"], self._on_view,
                                      slop_ns=int(self.p["sync_slop_s"] * 1e9))
-        for name, topic, typ in (("depth", "/camera/depth/image_raw", Image), ("color", "/camera/color/image_raw", Image),
-                                 ("info", "/camera/color/camera_info", CameraInfo),
-                                 ("pose", "/camera/pose", PoseStamped)):
+        for name, topic, typ in (("depth", names.DEPTH_IMAGE, Image), ("color", names.COLOR_IMAGE, Image),
+                                 ("info", names.CAMERA_INFO, CameraInfo),
+                                 ("pose", names.CAMERA_POSE, PoseStamped)):
             self.create_subscription(typ, topic, functools.partial(self._on_input, name), ros_io.SENSOR_QOS,
                                      callback_group=cb)
-        self.create_service(Inspect, "/inspection/inspect", self._on_inspect, callback_group=cb)
+        self.create_service(Inspect, names.INSPECTION_INSPECT, self._on_inspect, callback_group=cb)
         self._verdicts: dict[str, str] = {}  # stud id -> its newest verdict (this session's inspections)
         self.rework_file = rework_path(self.p)
-        self.pub_rework = self.create_publisher(ReworkDecision, "/inspection/rework", REWORK_QOS)
-        self.create_service(RecordRework, "/inspection/record_rework", self._on_record_rework, callback_group=cb)
+        self.pub_rework = self.create_publisher(ReworkDecision, names.INSPECTION_REWORK, REWORK_QOS)
+        self.create_service(RecordRework, names.INSPECTION_RECORD_REWORK, self._on_record_rework, callback_group=cb)
         self.diag = ros_io.Diagnostics(self)
         self.diag.set(self.diag.OK, "waiting for an inspection")
         self.create_timer(1.0, self.diag.publish)

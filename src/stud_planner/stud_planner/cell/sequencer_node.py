@@ -44,6 +44,7 @@ from stud_planner.cell import job as cell_job
 from stud_planner.cell.job import DriverLost, InspectionUnavailable, JobAborted, MoveRefused
 from stud_planner.msg_convert import (inspection_extras, inspection_rows, layout_from_msg, registration_from_msg,
                                       target_report_entry)
+from stud_common import names
 
 
 _JOB = cell_job.JobConfig()  # the job's defaults are its own; the parameters expose them
@@ -112,20 +113,20 @@ class CellSequencer(Node):
         self.job: cell_job.CellJob | None = None
         self.exit_code: int | None = None
         self.cell_status = CellStatus(state=CellStatus.STATE_IDLE, state_text="idle", message="waiting for start")
-        self.pub_status = self.create_publisher(CellStatus, "/cell/status", ros_io.LATCHED_QOS)
-        self.create_subscription(StudLayout, "/drawing/layout", self._on_layout, ros_io.LATCHED_QOS, callback_group=cb)
-        self.create_subscription(Registration, "/registration/result", self._on_registration, ros_io.LATCHED_QOS,
+        self.pub_status = self.create_publisher(CellStatus, names.CELL_STATUS, ros_io.LATCHED_QOS)
+        self.create_subscription(StudLayout, names.DRAWING_LAYOUT, self._on_layout, ros_io.LATCHED_QOS, callback_group=cb)
+        self.create_subscription(Registration, names.REGISTRATION_RESULT, self._on_registration, ros_io.LATCHED_QOS,
                                  callback_group=cb)
-        self.create_subscription(WeldTargetArray, "/weld_targets", self._on_targets, ros_io.RESULT_QOS,
+        self.create_subscription(WeldTargetArray, names.WELD_TARGETS, self._on_targets, ros_io.RESULT_QOS,
                                  callback_group=cb)
-        self.create_subscription(ArmState, "/arm/state", self._on_arm_state, ros_io.RESULT_QOS, callback_group=cb)
-        self.cli_move = self.create_client(MoveTo, "/arm/move_to", callback_group=cb)
-        self.cli_shot = self.create_client(Trigger, "/camera/trigger", callback_group=cb)
-        self.cli_register = self.create_client(Trigger, "/registration/trigger", callback_group=cb)
-        self.cli_inspect = self.create_client(Inspect, "/inspection/inspect", callback_group=cb)
+        self.create_subscription(ArmState, names.ARM_STATE, self._on_arm_state, ros_io.RESULT_QOS, callback_group=cb)
+        self.cli_move = self.create_client(MoveTo, names.ARM_MOVE_TO, callback_group=cb)
+        self.cli_shot = self.create_client(Trigger, names.CAMERA_TRIGGER, callback_group=cb)
+        self.cli_register = self.create_client(Trigger, names.REGISTRATION_TRIGGER, callback_group=cb)
+        self.cli_inspect = self.create_client(Inspect, names.INSPECTION_INSPECT, callback_group=cb)
         self.cli_arm = {name: self.create_client(Trigger, f"/arm/{name}", callback_group=cb)
                         for name in ("stop", "pause", "resume")}
-        self.weld_action = ActionClient(self, WeldJob, "/arm/weld_job", callback_group=cb)
+        self.weld_action = ActionClient(self, WeldJob, names.ARM_WELD_JOB, callback_group=cb)
         for name, handler in (("start", self._on_start), ("pause", self._on_pause), ("resume", self._on_resume),
                               ("stop", self._on_stop)):
             self.create_service(Trigger, f"/cell/{name}", handler, callback_group=cb)
@@ -238,7 +239,7 @@ class CellSequencer(Node):
         self.get_logger().warn(text)
 
     def wait_layout(self) -> cell_job.Layout:
-        msg = self._wait_for(lambda: self.layout, self.p["step_timeout_s"], "/drawing/layout")
+        msg = self._wait_for(lambda: self.layout, self.p["step_timeout_s"], names.DRAWING_LAYOUT)
         layout = layout_from_msg(msg)
         return cell_job.Layout(ids=layout.ids, xy_m=layout.xy_m, source_file=layout.source_file)
 
@@ -356,7 +357,7 @@ class CellSequencer(Node):
                               targets=[t.payload for t in targets], welded_ids=list(welded_ids))
         try:
             reply = self._wait_future(self.cli_inspect.call_async(req), self.p["inspect_timeout_s"],
-                                      "/inspection/inspect")
+                                      names.INSPECTION_INSPECT)
         except JobAborted as exc:
             if self._stop.is_set():
                 raise

@@ -18,6 +18,7 @@ from stud_common import ros_io
 from stud_common.ros_io import Param
 from stud_planner.drawing import DrawingError, read_layout
 from stud_planner.msg_convert import layout_poses, layout_to_msg
+from stud_common import names
 
 PARAMS = [
     Param("drawing_file", "", "DXF drawing with stud circles and the marks O, A, B"),
@@ -37,10 +38,10 @@ class DrawingNode(Node):
     def __init__(self) -> None:
         super().__init__("drawing")
         self.p = ros_io.declare_params(self, PARAMS)
-        self.pub_layout = self.create_publisher(StudLayout, "/drawing/layout", ros_io.LATCHED_QOS)
-        self.pub_poses = self.create_publisher(PoseArray, "/drawing/poses", ros_io.LATCHED_QOS)
+        self.pub_layout = self.create_publisher(StudLayout, names.DRAWING_LAYOUT, ros_io.LATCHED_QOS)
+        self.pub_poses = self.create_publisher(PoseArray, names.DRAWING_POSES, ros_io.LATCHED_QOS)
         self.diag = ros_io.Diagnostics(self)
-        self.create_service(LoadDrawing, "/drawing/load", self._on_load)
+        self.create_service(LoadDrawing, names.DRAWING_LOAD, self._on_load)
         self.create_timer(1.0, self.diag.publish)
         if self.p["drawing_file"]:
             self.load(self.p["drawing_file"])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
+from stud_common import names
 
 class Severity(enum.IntEnum):
     WARNING = 1    # needs the operator's attention; the job goes on
@@ -53,7 +54,7 @@ ALARMS: dict[str, AlarmDef] = {d.code: d for d in (
 DIAG_CODE = {1: Code.NODE_WARN, 2: Code.NODE_ERROR, 3: Code.NODE_STALE}
 #: Nodes whose health the HMI reads from a topic of their own, with more detail than their
 #: /diagnostics: their diagnostics raise no second alarm for the same cause.
-STATE_SOURCES = {"rm65_driver": "/arm/state", "cell_sequencer": "/cell/status"}
+STATE_SOURCES = {"rm65_driver": names.ARM_STATE, "cell_sequencer": names.CELL_STATUS}
 
 
 @dataclass

@@ -57,6 +57,7 @@ from stud_common.ros_io import Param
 from stud_planner.hmi.model import STUD_DECISIONS, ArmInfo, ArmMode, CellInfo, CellView, TargetInfo, Timeouts
 from stud_planner.cell.inspector_node import REWORK_QOS
 from stud_planner.hmi.server import INSPECTION_OVERLAY_URL, HmiServer, WebSocketConnection, default_static_dir
+from stud_common import names
 
 PARAMS = [
     Param("port", 8090, "TCP port of the HMI page and its WebSocket (/ws)", min=1, max=65535, read_only=True),
@@ -116,20 +117,20 @@ def _rework_request(msg: dict) -> RecordRework.Request:
 #: Page command -> the services it calls, in this order (all are called; see docs/HMI.md). "ack"
 #: (acknowledge alarms) is the HMI's own and calls none.
 COMMANDS: dict[str, tuple[ServiceCall, ...]] = {
-    "start": (_trigger("/cell/start"),),
-    "pause": (_trigger("/cell/pause"),),
-    "resume": (_trigger("/cell/resume"),),
-    "stop": (_trigger("/cell/stop"), _trigger("/arm/stop")),
-    "estop": (_trigger("/arm/estop"), _trigger("/cell/stop")),
+    "start": (_trigger(names.CELL_START),),
+    "pause": (_trigger(names.CELL_PAUSE),),
+    "resume": (_trigger(names.CELL_RESUME),),
+    "stop": (_trigger(names.CELL_STOP), _trigger(names.ARM_STOP)),
+    "estop": (_trigger(names.ARM_ESTOP), _trigger(names.CELL_STOP)),
     "ack": (),
-    "resolve_stud": (ServiceCall("/arm/resolve_stud", ResolveStud, _resolve_request),),
-    "record_rework": (ServiceCall("/inspection/record_rework", RecordRework, _rework_request),),
+    "resolve_stud": (ServiceCall(names.ARM_RESOLVE_STUD, ResolveStud, _resolve_request),),
+    "record_rework": (ServiceCall(names.INSPECTION_RECORD_REWORK, RecordRework, _rework_request),),
 }
 _PROVIDER = {"/cell": "the cell sequencer (stud_planner cell_sequencer)", "/arm": "the arm driver (rm65_driver driver)",
              "/inspection": "the inspector (stud_planner inspector)"}
 _JOB_STATUS = {GoalStatus.STATUS_SUCCEEDED: "succeeded", GoalStatus.STATUS_CANCELED: "canceled",
                GoalStatus.STATUS_ABORTED: "aborted"}
-WELD_JOB = "/arm/weld_job"
+WELD_JOB = names.ARM_WELD_JOB
 
 
 @dataclass
@@ -182,16 +183,16 @@ class HmiNode(Node):
         self.result_client = self.create_client(WeldJob.Impl.GetResultService, f"{WELD_JOB}/_action/get_result")
         self._wake = self.create_guard_condition(self._drain_commands)
 
-        self.create_subscription(WeldTargetArray, "/weld_targets", self._on_targets, ros_io.RESULT_QOS)
-        self.create_subscription(Image, "/weld_targets/overlay", self._on_overlay, ros_io.RESULT_QOS)
-        self.create_subscription(ArmState, "/arm/state", self._on_arm, ros_io.RESULT_QOS)
-        self.create_subscription(CellStatus, "/cell/status", self._on_cell, ros_io.RESULT_QOS)
-        self.create_subscription(Registration, "/registration/result", self._on_registration, ros_io.LATCHED_QOS)
-        self.create_subscription(StudLayout, "/drawing/layout", self._on_layout, ros_io.LATCHED_QOS)
-        self.create_subscription(InspectionResult, "/inspection/result", self._on_inspection, ros_io.LATCHED_QOS)
-        self.create_subscription(ReworkDecision, "/inspection/rework", self._on_rework, REWORK_QOS)
+        self.create_subscription(WeldTargetArray, names.WELD_TARGETS, self._on_targets, ros_io.RESULT_QOS)
+        self.create_subscription(Image, names.WELD_TARGET_OVERLAY, self._on_overlay, ros_io.RESULT_QOS)
+        self.create_subscription(ArmState, names.ARM_STATE, self._on_arm, ros_io.RESULT_QOS)
+        self.create_subscription(CellStatus, names.CELL_STATUS, self._on_cell, ros_io.RESULT_QOS)
+        self.create_subscription(Registration, names.REGISTRATION_RESULT, self._on_registration, ros_io.LATCHED_QOS)
+        self.create_subscription(StudLayout, names.DRAWING_LAYOUT, self._on_layout, ros_io.LATCHED_QOS)
+        self.create_subscription(InspectionResult, names.INSPECTION_RESULT, self._on_inspection, ros_io.LATCHED_QOS)
+        self.create_subscription(ReworkDecision, names.INSPECTION_REWORK, self._on_rework, REWORK_QOS)
         self.create_subscription(String, hand_eye_ros.TOPIC, self._on_hand_eye, ros_io.LATCHED_QOS)
-        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 50)
+        self.create_subscription(DiagnosticArray, names.DIAGNOSTICS, self._on_diagnostics, 50)
         self.create_subscription(WeldJob.Impl.FeedbackMessage, f"{WELD_JOB}/_action/feedback", self._on_feedback, 10)
         self.create_subscription(GoalStatusArray, f"{WELD_JOB}/_action/status", self._on_job_status,
                                  qos_profile_action_status_default)

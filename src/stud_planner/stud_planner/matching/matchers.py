@@ -200,7 +200,7 @@ class _SecantSearch:
         if d is None:  # a hole or a step: the vectorised rule, for this one sample
             dd, rr, ss = _depth_at_subpixel(self.depth, np.array([u]), np.array([v]), self.hole_window_px,
                                             self.hole_max_window_px, self.discontinuity_m, self.fills)
-            d, rule, step = float(dd[0]), int(rr[0]), bool(ss[0])
+            d, rule, step = float(dd[0]), FillRule(int(rr[0])), bool(ss[0])
         self.on_step[i] = step
         out["iterations"][i] = lookup
         if not math.isfinite(d):

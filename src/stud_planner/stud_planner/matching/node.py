@@ -1,10 +1,21 @@
-"""FPM matcher node: `ros2 run stud_planner matcher`.
+"""Matcher node (weld targets from one view): `ros2 run stud_planner matcher`.
 
 For every synchronised view (depth, camera info, ``/camera/pose``; images with sensor-data QoS so
 best-effort camera drivers work) with a layout (``/drawing/layout``) and a valid registration
-(``/registration/result``): drawing -> world XY (Eq. 2), match each stud
-with the ``algorithm`` parameter (``batch`` default, ``fpm``, ``bfs`` the paper's baselines),
-estimate the surface pose, and publish
+(``/registration/result``), it runs three steps (matching/view_targets.plan_view):
+
+1. drawing -> world XY of every stud (Eq. 2, registration.local_to_world);
+2. matching: the pixel whose back-projection (Eq. 1) lies within ``tolerance_m`` of the stud's
+   world XY, by the ``algorithm`` parameter -- ``batch`` (default, ours: every stud at once, a
+   secant search along each stud's vertical line in the depth image, holes filled only where a
+   stud's samples touch one: matching/matchers.py), or the paper's baselines ``fpm`` (quadrant
+   search from the image centre, then a 25x25 window) and ``bfs`` (pixel by pixel), both in
+   matching/paper_baselines.py;
+3. the weld pose: a quadric fitted to the window around each match (matching/surface_pose.py,
+   summed-area tables of its moments: matching/window_moments.py), its normal and 1-sigma, the
+   lean bound, the gun-clearance check (matching/gun_clearance.py) and each stud's status;
+
+and publishes
 
 * ``/weld_targets`` (WeldTargetArray: every stud of the drawing, in drawing order, with status),
 * ``/weld_targets/poses`` (PoseArray, frame ``world``, same stamp): the poses of the targets whose
@@ -30,12 +41,14 @@ the reason is logged.
 """
 from __future__ import annotations
 
+import functools
 import time
 from collections import OrderedDict, deque
 
 from geometry_msgs.msg import Point, Pose, PoseArray, PoseStamped, Quaternion
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
+from rclpy.subscription import Subscription
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Header
 from stud_welding_msgs.msg import Registration, StudLayout, WeldTargetArray
@@ -45,10 +58,11 @@ from stud_common import ros_io
 from stud_perception import image_io
 from stud_common.ros_io import Param
 from stud_planner.matching.gun_clearance import GunModel
-from stud_planner.msg_convert import layout_from_msg, registration_from_msg
+from stud_planner.msg_convert import LayoutView, layout_from_msg, registration_from_msg
 from stud_planner.matching.target_cdr import weld_target_array_cdr
 from stud_planner.matching.target_markers import target_markers
 from stud_planner.matching.view_targets import ALGORITHMS, PlannerConfig, draw_targets_overlay, plan_view
+from stud_common import names
 
 PARAMS = [
     Param("algorithm", "batch", "matcher: 'batch' (ours), 'fpm' or 'bfs' (the paper's)", choices=ALGORITHMS),
@@ -82,6 +96,10 @@ PARAMS = [
 _ODD = ("fpm_window_px", "hole_window_px")
 
 
+def _odd(name: str, value: int) -> str | None:
+    return None if value % 2 else f"{name}={value}: must be odd"
+
+
 def _put_bounded(items: OrderedDict, key, value, limit: int = 5) -> None:
     """Add an entry, dropping the oldest beyond ``limit`` (views waiting for their other half)."""
     items[key] = value
@@ -93,36 +111,36 @@ class MatcherNode(Node):
     def __init__(self) -> None:
         super().__init__("matcher")
         params = [p if p.name not in _ODD else Param(p.name, p.default, p.description, p.min, p.max,
-                                                     validate=lambda v, n=p.name: None if v % 2 else f"{n}={v}: must be odd")
+                                                     validate=functools.partial(_odd, p.name))
                   for p in PARAMS]
         self.p = ros_io.declare_params(self, params, on_change=lambda _changes: self._update_color_subscription())
         self.layout: StudLayout | None = None
-        self._layout_view = None  # layout_from_msg(self.layout), converted once per layout, not per view
+        self._layout_view: LayoutView | None = None  # layout_from_msg(self.layout), once per layout
         self.registration: Registration | None = None
         self.view_index = 0
         self._pending: dict | None = None  # the last view that came before the layout or registration
         self._arrivals: dict[str, deque] = {k: deque(maxlen=20) for k in ("color", "depth", "info", "pose")}
-        self._color_sub = None  # only while the overlay has a subscriber
+        self._color_sub: Subscription | None = None  # only while the overlay has a subscriber
         self._colors: OrderedDict[int, Image] = OrderedDict()  # stamp ns -> colour image, newest last
         self._overlays_due: OrderedDict[int, tuple] = OrderedDict()  # stamp ns -> (targets, camera, rectifier)
-        self.pub_targets = self.create_publisher(WeldTargetArray, "/weld_targets", ros_io.RESULT_QOS)
-        self.pub_poses = self.create_publisher(PoseArray, "/weld_targets/poses", ros_io.RESULT_QOS)
-        self.pub_markers = self.create_publisher(MarkerArray, "/weld_targets/markers", ros_io.RESULT_QOS)
+        self.pub_targets = self.create_publisher(WeldTargetArray, names.WELD_TARGETS, ros_io.RESULT_QOS)
+        self.pub_poses = self.create_publisher(PoseArray, names.WELD_TARGET_POSES, ros_io.RESULT_QOS)
+        self.pub_markers = self.create_publisher(MarkerArray, names.WELD_TARGET_MARKERS, ros_io.RESULT_QOS)
         self.pub_overlay = self.create_publisher(
-            Image, "/weld_targets/overlay", ros_io.RESULT_QOS,
+            Image, names.WELD_TARGET_OVERLAY, ros_io.RESULT_QOS,
             event_callbacks=PublisherEventCallbacks(matched=lambda _info: self._update_color_subscription()))
         self.pub_overlay_jpeg = self.create_publisher(
-            CompressedImage, "/weld_targets/overlay/compressed", ros_io.RESULT_QOS,
+            CompressedImage, names.WELD_TARGET_OVERLAY_COMPRESSED, ros_io.RESULT_QOS,
             event_callbacks=PublisherEventCallbacks(matched=lambda _info: self._update_color_subscription()))
         self.diag = ros_io.Diagnostics(self)
         self.diag.set(self.diag.OK, "waiting for inputs")  # idle is normal: not a warning on the operator's HMI
         self.create_timer(1.0, self._publish_diagnostics)
-        self.create_subscription(StudLayout, "/drawing/layout", self._on_layout, ros_io.LATCHED_QOS)
-        self.create_subscription(Registration, "/registration/result", self._on_registration, ros_io.LATCHED_QOS)
+        self.create_subscription(StudLayout, names.DRAWING_LAYOUT, self._on_layout, ros_io.LATCHED_QOS)
+        self.create_subscription(Registration, names.REGISTRATION_RESULT, self._on_registration, ros_io.LATCHED_QOS)
         self.sync = ros_io.StampSync(["depth", "info", "pose"], self._on_view, slop_ns=int(self.p["sync_slop_s"] * 1e9))
-        for name, topic, typ in (("depth", "/camera/depth/image_raw", Image),
-                                 ("info", "/camera/color/camera_info", CameraInfo), ("pose", "/camera/pose", PoseStamped)):
-            self.create_subscription(typ, topic, lambda m, n=name: self._on_input(n, m), ros_io.SENSOR_QOS)
+        for name, topic, typ in (("depth", names.DEPTH_IMAGE, Image),
+                                 ("info", names.CAMERA_INFO, CameraInfo), ("pose", names.CAMERA_POSE, PoseStamped)):
+            self.create_subscription(typ, topic, functools.partial(self._on_input, name), ros_io.SENSOR_QOS)
         self._update_color_subscription()
         self.get_logger().info(f"matcher '{self.p['algorithm']}' waiting for /drawing/layout, /registration/result "
                                "and synchronised RGB-D views")
@@ -151,7 +169,7 @@ class MatcherNode(Node):
         wanted = bool(self.p["publish_overlay"]) and (self.pub_overlay.get_subscription_count() > 0
                                                        or self.pub_overlay_jpeg.get_subscription_count() > 0)
         if wanted and self._color_sub is None:
-            self._color_sub = self.create_subscription(Image, "/camera/color/image_raw", self._on_color,
+            self._color_sub = self.create_subscription(Image, names.COLOR_IMAGE, self._on_color,
                                                        ros_io.SENSOR_QOS)
             self.get_logger().info("/weld_targets/overlay has a subscriber: subscribing to /camera/color/image_raw")
         elif not wanted and self._color_sub is not None:
@@ -166,7 +184,8 @@ class MatcherNode(Node):
         stamp = ros_io.stamp_to_ns(msg.header.stamp)
         due = self._pop_near(self._overlays_due, stamp)
         if due is not None:
-            self._publish_overlay(*due, msg)
+            targets, camera, rectifier = due
+            self._publish_overlay(targets, camera, rectifier, msg)
             return
         _put_bounded(self._colors, stamp, msg)
 
@@ -224,6 +243,7 @@ class MatcherNode(Node):
             self.diag.set(self.diag.ERROR, f"unusable view: {exc}")
             return
         layout = self._layout_view
+        assert layout is not None and self.registration is not None  # views wait for both
         targets = plan_view(layout.ids, layout.xy_m, registration_from_msg(self.registration), depth, camera,
                             self.planner_config())
         self._publish(targets, camera, rectifier, stamp)

@@ -29,7 +29,8 @@ def _depth_at_pixel(depth_m: np.ndarray, u: int, v: int, window_px: int, fallbac
     z = float(depth_m[v, u])
     if math.isfinite(z):
         return z, FillRule.DIRECT
-    f = fill_depth_at(depth_m, u, v, window=window_px, max_window=max(window_px, 31), fallback=fallback)
+    f = fill_depth_at(depth_m, u, v, window=window_px, max_window=max(window_px, 31),
+                      fallback=fallback)  # type: ignore[arg-type]  # checked by fill_depth_at
     return float(f.depth_m), FillRule(int(f.rule))
 
 

@@ -212,8 +212,8 @@ def estimate_surface_poses(
                                        outlier_k=outlier_k, outlier_floor_m=outlier_floor_m))
     fitted = [b for b in fitted if b[0].size]
     if fitted:  # one pass for all: its fixed cost is paid once
-        idx, fit, *rest = fitted[0] if len(fitted) == 1 else _concatenate(fitted)
-        _store_poses(out, idx, fit, camera, target_xy[idx], *rest, limits)
+        idx, fit, z0_w, z_cam, n_in, n_valid, n_window = fitted[0] if len(fitted) == 1 else _concatenate(fitted)
+        _store_poses(out, idx, fit, camera, target_xy[idx], z0_w, z_cam, n_in, n_valid, n_window, limits)
     return SurfacePoses(**out)
 
 
@@ -249,6 +249,7 @@ def _pixel_path_fits(idx: np.ndarray, P0: np.ndarray, uv: np.ndarray, depth: np.
     scale = 0.5 * window_m / np.maximum(z_cam, 1e-6)
     floor_w = outlier_floor_m / np.maximum(z_cam, 1e-6) ** 2  # 1 mm of depth, in 1/z
     fit = _fit_inverse_depth(win, camera, scale, robust_passes, outlier_k, floor_w)
+    assert fit.inliers is not None  # a fit of windows keeps its inlier masks
     return (idx, fit.without_inliers(), p_stud[:, 2], z_cam, fit.inliers.sum(axis=(1, 2)), win.good.sum(axis=(1, 2)),
             win.n_window)
 

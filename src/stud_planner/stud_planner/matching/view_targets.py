@@ -232,7 +232,7 @@ def draw_targets_overlay(color_bgr: np.ndarray, targets: ViewTargets, camera: Ca
         if np.all(np.isfinite(n)) and np.all(np.isfinite(p)):
             tip_u, tip_v, _ = camera.world_to_pixel(p + 0.03 * n)
             if np.isfinite(tip_u) and np.isfinite(tip_v):
-                cv2.line(img, centre, (int(round(tip_u)), int(round(tip_v))), colour, 1, cv2.LINE_AA)
+                cv2.line(img, centre, (int(round(float(tip_u))), int(round(float(tip_v)))), colour, 1, cv2.LINE_AA)
         if label:
             text = sid if st == STATUS_OK else f"{sid} {STATUS_TEXT[st]}"
             cv2.putText(img, text, (centre[0] + 8, centre[1] - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.45 * scale, colour, 1,
