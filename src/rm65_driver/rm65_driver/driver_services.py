@@ -8,53 +8,26 @@ latch that refuses new jobs until ``false`` on ``/arm/estop``), not a safety-rat
 """
 from __future__ import annotations
 
-import threading
-from pathlib import Path
-from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from rclpy.node import Node
 from std_msgs.msg import Bool
 from stud_welding_msgs.srv import MoveTo, ResolveJournal, ResolveStud
 
 from stud_common import ros_io
 from stud_common.hand_eye_in_use import tool_in_world
 
-from .arm_client import ArmClient, ArmError
-from .journal import Journal
+from .arm_client import ArmError
+from .driver_base import DriverBase
 from .journal_records import JournalError
 from .journal_repair import ACTION_ACCEPT_INTACT, ACTION_LOAD_BACKUP, repair_journal
-from .kinematics import RM65Kinematics
-from .weld_sequence import WeldSequence
 
 #: ResolveJournal.action -> journal_repair.repair_journal action
 JOURNAL_ACTIONS = {ResolveJournal.Request.ACTION_ACCEPT_INTACT: ACTION_ACCEPT_INTACT,
                    ResolveJournal.Request.ACTION_LOAD_BACKUP: ACTION_LOAD_BACKUP}
 
 
-class DriverServices(Node):
+class DriverServices(DriverBase):
     """Service and e-stop handlers of :class:`~rm65_driver.driver_node.DriverNode` (state lives there)."""
-
-    p: dict[str, Any]
-    client: ArmClient
-    kin: RM65Kinematics
-    journal: Journal | None
-    journal_path: Path
-    sequence: WeldSequence | None
-    _job_lock: threading.Lock
-    _journal_fault: JournalError | None
-    _estop: bool
-    _message: str
-    _last_state: Any
-
-    if TYPE_CHECKING:  # DriverNode's and DriverStatus's
-        @property
-        def tool_T(self) -> np.ndarray: ...
-        @property
-        def journal_fault(self) -> JournalError | None: ...
-        def _fault_text(self, fault: JournalError) -> str: ...
-        def _open_journal(self) -> None: ...
-        def _hand_eye(self) -> np.ndarray: ...
 
     # -- services ---------------------------------------------------------------------------------
     def _stop_now(self, reason: str) -> tuple[bool, str]:

@@ -12,11 +12,10 @@ from __future__ import annotations
 import threading
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
-from rclpy.node import Node
 from rclpy.publisher import Publisher
 from sensor_msgs.msg import JointState
 from stud_welding_msgs.msg import ArmState, WeldRecord
@@ -24,25 +23,16 @@ from stud_welding_msgs.msg import ArmState, WeldRecord
 from stud_common import ros_io
 from stud_common.hand_eye_in_use import camera_in_world
 
-from .arm_client import ArmClient, ArmError
-from .journal import Journal
-from .journal_records import JournalError
+from .arm_client import ArmError
+from .driver_base import DriverBase
 from .journal_scan import JournalCorrupt
-from .kinematics import RM65Kinematics
-from .weld_sequence import WeldSequence
 
 JOINT_NAMES = [f"joint{i}" for i in range(1, 7)]
 
 
-class DriverStatus(Node):
+class DriverStatus(DriverBase):
     """State polling and publishing of :class:`~rm65_driver.driver_node.DriverNode` (state lives there)."""
 
-    p: dict[str, Any]
-    client: ArmClient
-    kin: RM65Kinematics
-    journal: Journal | None
-    journal_path: Path
-    sequence: WeldSequence | None
     hand_eye: Any
     diag: ros_io.Diagnostics
     pub_state: Publisher
@@ -51,17 +41,7 @@ class DriverStatus(Node):
     pub_camera: Publisher | None
     _running: bool
     _wake: threading.Event
-    _estop: bool
-    _message: str
-    _last_state: Any
     _connected_logged: bool | None
-
-    if TYPE_CHECKING:  # DriverNode's
-        @property
-        def tool_T(self) -> np.ndarray: ...
-        @property
-        def journal_fault(self) -> JournalError | None: ...
-        def _fault_text(self, fault: JournalError) -> str: ...
 
     # -- state publishing -------------------------------------------------------------------------
     def _poll_loop(self) -> None:
