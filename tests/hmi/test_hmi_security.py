@@ -238,3 +238,20 @@ def test_with_an_access_token_the_inspection_overlay_needs_it_too(tmp_path):
         assert http_get(srv.port, url + "&token=4711", None) == (200, overlay)
     finally:
         srv.stop()
+
+
+def test_an_overlay_outside_the_inspection_folder_is_refused_even_through_a_link(tmp_path):
+    srv = make_server(tmp_path / "page")
+    try:
+        qa = tmp_path / "out" / "qa"
+        qa.mkdir(parents=True)
+        _png(qa / "inspection_station_01.png")
+        elsewhere = _png(tmp_path / "private.png")  # a PNG, but not the inspector's
+        (qa / "link.png").symlink_to(tmp_path / "private.png")
+        assert srv.expose_png(hmi_server.INSPECTION_OVERLAY_URL, qa / "inspection_station_01.png", within=qa)
+        for bad in (tmp_path / "private.png", qa / ".." / ".." / "private.png", qa / "link.png"):
+            assert srv.expose_png(hmi_server.INSPECTION_OVERLAY_URL, bad, within=qa) is None, bad
+            status, body = http_get(srv.port, hmi_server.INSPECTION_OVERLAY_URL, None)
+            assert status == 404 and body != elsewhere
+    finally:
+        srv.stop()

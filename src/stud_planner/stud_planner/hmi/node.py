@@ -73,6 +73,8 @@ PARAMS = [
           "its extension)"),
     Param("static_dir", "", "folder holding index.html (a custom page); empty: the page shipped with stud_planner",
           read_only=True),
+    Param("inspection_overlay_dir", "", "serve inspection overlays (the PNG an /inspection/result names) only from "
+          "this folder, the inspector's overlay_dir (empty: any PNG file)", read_only=True),
     Param("overlay_max_width", 960, "downscale the overlay to at most this width for the browser [px]",
           min=64, max=8192),
     Param("overlay_rate_hz", 5.0, "send at most this many overlay frames per second to the browsers [Hz]",
@@ -330,10 +332,12 @@ class HmiNode(Node):
         self._table_dirty = True
         # The overlay PNG the inspector wrote: served as the one file at INSPECTION_OVERLAY_URL (the
         # server checks it is a PNG); the page is told its URL, or that there is none to show.
-        url = self.server.expose_png(INSPECTION_OVERLAY_URL, msg.overlay_file) if msg.overlay_file else None
+        within = self.p["inspection_overlay_dir"] or None
+        url = self.server.expose_png(INSPECTION_OVERLAY_URL, msg.overlay_file, within) if msg.overlay_file else None
         if msg.overlay_file and url is None:
+            where = f" in {within}" if within else ""
             self.get_logger().warn(f"/inspection/result station {msg.station}: overlay_file {msg.overlay_file!r} "
-                                   "is not a readable PNG: not shown", throttle_duration_sec=10.0)
+                                   f"is not a readable PNG{where}: not shown", throttle_duration_sec=10.0)
         self.server.publish({"type": "inspection_overlay", "url": url, "station": int(msg.station),
                              "file": os.path.basename(msg.overlay_file), "stamp": ros_io.stamp_to_ns(msg.header.stamp) * 1e-9})
 

@@ -368,7 +368,7 @@ class HmiServer:
         """Send ``message`` to one client, in order with its other replies."""
         conn.send(to_json(message))
 
-    def expose_png(self, url_path: str, file: str | Path) -> str | None:
+    def expose_png(self, url_path: str, file: str | Path, within: str | Path | None = None) -> str | None:
         """Serve the PNG ``file`` at ``url_path`` from now on, in place of the one served there before.
 
         The URL names no file: a request is matched to ``url_path`` exactly and gets ``file``, so no
@@ -377,11 +377,14 @@ class HmiServer:
         every request); anything else withdraws ``url_path`` (404) and returns None. With
         ``access_token`` set the request must carry it, as the WebSocket does (the image shows the
         part, as the camera overlay does). Returns the URL to give the page: ``url_path?v=<n>``, a
-        new ``n`` each call, so that the browser fetches the new image.
+        new ``n`` each call, so that the browser fetches the new image. ``within``: the file must
+        lie in this folder once links are resolved (a message naming any other PNG is refused).
         """
         path = Path(file)
         with self._lock:
             self._exposed.pop(url_path, None)
+        if within is not None and not _inside(path, Path(within)):
+            return None
         if _read_png(path, signature_only=True) is None:
             return None
         with self._lock:
@@ -551,6 +554,14 @@ def _response(status: int, body: bytes, ctype: str, extra: list[tuple[str, str]]
 
 def _text_response(status: int, text: str, extra: list[tuple[str, str]] | None = None) -> Response:
     return _response(status, (text + "\n").encode(), "text/plain; charset=utf-8", extra)
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    """``path`` lies in ``folder`` (both resolved: no ``..`` and no link leads out)."""
+    try:
+        return path.resolve().is_relative_to(folder.resolve())
+    except (OSError, RuntimeError):  # a link loop
+        return False
 
 
 def _read_png(path: Path, signature_only: bool = False) -> bytes | None:
