@@ -281,3 +281,36 @@ def test_stop_closes_clients_with_going_away_and_joins_every_thread(tmp_path):
     wait_until(lambda: set(threading.enumerate()) <= before, 5, "server threads to end")
     with pytest.raises(OSError):
         socket.create_connection(("127.0.0.1", srv.port), timeout=1)
+
+
+def test_a_client_flooding_messages_is_closed_for_policy_and_its_burst_never_all_reaches_the_cell(server):
+    c = connect(server)
+    wait_until(lambda: server.client_count == 1, what="client registered")
+    n = 5 * hmi_server.MAX_MESSAGE_BURST
+    for i in range(n):
+        try:
+            c.send_json({"cmd": "ack", "alarm": "all", "id": i})
+        except OSError:  # the server has closed the connection
+            break
+    while c.recv_message(5.0) is not None:  # replies, then the close frame
+        pass
+    assert c.closed_with == 1008
+    assert hmi_server.MAX_MESSAGE_BURST <= len(server.commands) < n
+    c.close()
+    # a client at a person's pace is not affected
+    d = connect(server)
+    d.send_json({"cmd": "start", "id": 1})
+    assert d.recv_message()["id"] == 1
+    d.close()
+
+
+def test_the_message_rate_refills_at_its_rate_up_to_its_burst():
+    from stud_planner.hmi.guards import MessageRate
+
+    now = [0.0]
+    rate = MessageRate(per_s=2.0, burst=3, clock=lambda: now[0])
+    assert [rate.allow() for _ in range(4)] == [True, True, True, False]
+    now[0] += 0.5  # one token back
+    assert [rate.allow(), rate.allow()] == [True, False]
+    now[0] += 100.0  # never more than the burst
+    assert sum(rate.allow() for _ in range(10)) == 3

@@ -62,6 +62,7 @@ from websockets.http11 import Request, Response
 from websockets.protocol import State
 
 from stud_common.strict_json import dumps, json_safe
+from stud_planner.hmi.guards import MAX_MESSAGE_BURST, MAX_MESSAGES_PER_S, MessageRate, inside_folder, read_png
 
 __all__ = ["HmiServer", "WebSocketConnection", "WebSocketError", "json_safe", "to_json", "json_depth"]
 _log = logging.getLogger(__name__)
@@ -79,9 +80,6 @@ CLOSE_TIMEOUT_S = 2.0
 SERVER_HEADER = "stud-hmi/1"
 #: Where the latest inspection overlay is served (the PNG an InspectionResult names in overlay_file).
 INSPECTION_OVERLAY_URL = "/inspection/overlay.png"
-PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-#: Largest file served from outside the page's folder [bytes] (an overlay is a few MB).
-MAX_EXPOSED_BYTES = 64 * 1024 * 1024
 
 
 class WebSocketError(Exception):
@@ -119,6 +117,7 @@ class WebSocketConnection:
         self.ws = ws
         self.peer = _address_text(ws.remote_address)
         self.may_command = may_command  # False: view only (bound beyond loopback without a token)
+        self.rate = MessageRate()       # how fast this browser may send
         self._loop = asyncio.get_running_loop()
         self._lock = threading.Lock()
         self._latest: OrderedDict[str, str] = OrderedDict()  # retained type -> newest text
@@ -383,9 +382,9 @@ class HmiServer:
         path = Path(file)
         with self._lock:
             self._exposed.pop(url_path, None)
-        if within is not None and not _inside(path, Path(within)):
+        if within is not None and not inside_folder(path, Path(within)):
             return None
-        if _read_png(path, signature_only=True) is None:
+        if read_png(path, signature_only=True) is None:
             return None
         with self._lock:
             self._exposed[url_path] = path
@@ -406,6 +405,9 @@ class HmiServer:
                 try:
                     if isinstance(message, bytes):
                         raise WebSocketError(CloseCode.UNSUPPORTED_DATA, "binary messages are not supported")
+                    if not conn.rate.allow():
+                        raise WebSocketError(CloseCode.POLICY_VIOLATION, f"more than {MAX_MESSAGES_PER_S:g} "
+                                             f"messages a second (burst {MAX_MESSAGE_BURST})")
                     self._on_text(conn, message)
                 except WebSocketError as exc:
                     _log.warning("WebSocket %s: %s", conn.peer, exc)
@@ -516,7 +518,7 @@ class HmiServer:
         if not self.token_ok(request.path, _header(request.headers, "Authorization") or None):
             _log.warning("refused %s from %s: missing or wrong access token", path, _address_text(ws.remote_address))
             return _text_response(403, "access token missing or wrong (open the page with ?token=...)")
-        data = _read_png(file)
+        data = read_png(file)
         if data is None:  # replaced or removed since it was exposed
             return _text_response(404, f"not found: {path} (its file is gone or no longer a PNG)")
         return _response(200, data, "image/png")
@@ -554,28 +556,6 @@ def _response(status: int, body: bytes, ctype: str, extra: list[tuple[str, str]]
 
 def _text_response(status: int, text: str, extra: list[tuple[str, str]] | None = None) -> Response:
     return _response(status, (text + "\n").encode(), "text/plain; charset=utf-8", extra)
-
-
-def _inside(path: Path, folder: Path) -> bool:
-    """``path`` lies in ``folder`` (both resolved: no ``..`` and no link leads out)."""
-    try:
-        return path.resolve().is_relative_to(folder.resolve())
-    except (OSError, RuntimeError):  # a link loop
-        return False
-
-
-def _read_png(path: Path, signature_only: bool = False) -> bytes | None:
-    """The bytes of ``path`` (only its first 8 with ``signature_only``) if it is a regular file of at
-    most ``MAX_EXPOSED_BYTES`` that starts with the PNG signature; None otherwise (missing, a
-    folder, a device, too big, not a PNG)."""
-    try:
-        if not path.is_file() or path.stat().st_size > MAX_EXPOSED_BYTES:
-            return None
-        with path.open("rb") as f:
-            data = f.read(len(PNG_SIGNATURE) if signature_only else MAX_EXPOSED_BYTES)
-    except (OSError, ValueError):
-        return None
-    return data if data.startswith(PNG_SIGNATURE) else None
 
 
 def _header(headers: Headers, name: str) -> str:
