@@ -27,6 +27,10 @@ MM_PER_M = 1000.0
 _MAX_DEPTH_MM = np.iinfo(np.uint16).max
 
 
+#: What fills a hole when no window holds valid depth (fill_depth_at).
+Fallback = Literal["plane", "grow", "none"]
+
+
 class DepthImageError(ValueError):
     """A depth image or query that cannot be used (wrong encoding, shape, parameter)."""
 
@@ -272,7 +276,7 @@ def fill_depth_at(
     v,
     window: int = 7,
     max_window: int = 31,
-    fallback: Literal["plane", "grow", "none"] = "plane",
+    fallback: Fallback = "plane",
     min_valid: int = 1,
     min_plane_points: int = 8,
     grow_step_px: int = 4,
@@ -302,11 +306,8 @@ def fill_depth_at(
     n_q = uf.size
     h, w = depth_m.shape
 
-    out_depth = np.full(n_q, np.nan)
-    out_rule = np.full(n_q, FillRule.NONE, dtype=np.int8)
-    out_n = np.zeros(n_q, dtype=np.int32)
-    out_win = np.zeros(n_q, dtype=np.int32)
-    out_spread = np.full(n_q, np.nan)
+    outs = _no_fill(n_q)
+    out_depth, out_rule, out_n, out_win, out_spread = outs
 
     finite = np.isfinite(uf) & np.isfinite(vf)
     ui = np.where(finite, np.rint(np.where(finite, uf, 0.0)), -(10**9)).astype(np.int64)
@@ -324,7 +325,6 @@ def fill_depth_at(
     out_spread[direct] = 0.0
 
     sizes = _window_sizes(window, max_window, grow_step_px, fallback)
-    outs = (out_depth, out_rule, out_n, out_win, out_spread)
     todo = np.flatnonzero(~direct & in_img)
     for start in range(0, todo.size, chunk):  # chunks bound the (N, w*w) temporaries
         _fill_pending(depth_m, todo[start:start + chunk], uf, vf, ui, vi, sizes, fallback, min_valid,
@@ -337,6 +337,12 @@ def fill_depth_at(
         window_px=out_win.reshape(shape),
         spread_m=out_spread.reshape(shape),
     )
+
+
+def _no_fill(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """FilledDepth's arrays (depth_m, rule, n_used, window_px, spread_m) for ``n`` queries, none filled."""
+    return (np.full(n, np.nan), np.full(n, FillRule.NONE, dtype=np.int8), np.zeros(n, dtype=np.int32),
+            np.zeros(n, dtype=np.int32), np.full(n, np.nan))
 
 
 def _window_sizes(window: int, max_window: int, grow_step_px: int, fallback: str) -> list[int]:
@@ -359,8 +365,7 @@ def fill_holes_at(depth_m: np.ndarray, ui: np.ndarray, vi: np.ndarray, window: i
     ui = np.asarray(ui, dtype=np.int64).ravel()
     vi = np.asarray(vi, dtype=np.int64).ravel()
     n_q = ui.size
-    outs = (np.full(n_q, np.nan), np.full(n_q, FillRule.NONE, dtype=np.int8), np.zeros(n_q, dtype=np.int32),
-            np.zeros(n_q, dtype=np.int32), np.full(n_q, np.nan))
+    outs = _no_fill(n_q)
     sizes = _window_sizes(window, max_window, grow_step_px, "plane")
     uf, vf = ui.astype(np.float64), vi.astype(np.float64)
     todo = np.arange(n_q)

@@ -17,20 +17,19 @@ import math
 import numpy as np
 
 from stud_perception.camera_model import CameraModel
-from stud_perception.depth_image import FillRule, fill_depth_at
+from stud_perception.depth_image import Fallback, FillRule, fill_depth_at
 from stud_planner.matching.match_common import (MatchingError, MatchResults, MatchStatus, _check_inputs,
                                                 _depth_samples, _empty_results, line_in_view_z_interval,
                                                 observed_z_range)
 
 
-def _depth_at_pixel(depth_m: np.ndarray, u: int, v: int, window_px: int, fallback: str) -> tuple[float, FillRule]:
+def _depth_at_pixel(depth_m: np.ndarray, u: int, v: int, window_px: int, fallback: Fallback) -> tuple[float, FillRule]:
     """Depth (m) at one integer pixel for the per-pixel baselines: the pixel's own depth, else
     :func:`fill_depth_at` (the paper's 7x7 mean; ``fallback`` "plane"/"none")."""
     z = float(depth_m[v, u])
     if math.isfinite(z):
         return z, FillRule.DIRECT
-    f = fill_depth_at(depth_m, u, v, window=window_px, max_window=max(window_px, 31),
-                      fallback=fallback)  # type: ignore[arg-type]  # checked by fill_depth_at
+    f = fill_depth_at(depth_m, u, v, window=window_px, max_window=max(window_px, 31), fallback=fallback)
     return float(f.depth_m), FillRule(int(f.rule))
 
 
