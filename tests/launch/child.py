@@ -21,7 +21,12 @@ def main() -> int:
     ap.add_argument("--code", type=int, default=0, help="exit code for --exit-after")
     ap.add_argument("--lines", type=int, default=1, help="lines printed at start")
     ap.add_argument("--grandchild", action="store_true", help="start a sleeping process of our own")
+    ap.add_argument("--dump-stacks", action="store_true", help="arm stud_common.stacks, as our nodes do")
     args = ap.parse_args()
+    if args.dump_stacks:
+        sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "src" / "stud_common"))
+        from stud_common.stacks import dump_stacks_on_signal
+        dump_stacks_on_signal()
     state = args.state_dir
     with open(state / f"{args.name}.pids", "a") as f:  # one line per instance (respawns)
         f.write(f"{os.getpid()}\n")

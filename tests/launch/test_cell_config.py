@@ -2,6 +2,7 @@
 parameter files and the one-line errors (exit code 2)."""
 from __future__ import annotations
 
+import signal
 import textwrap
 
 import pytest
@@ -9,7 +10,7 @@ import yaml
 
 from rosproc import REPO
 from stud_planner.cell import launch as cell_launch
-from stud_planner.cell.launch import CellConfigError, load_config, plan_cell, write_params_file
+from stud_planner.cell.launch import CellConfigError, child_specs, load_config, plan_cell, write_params_file
 
 CELL_YAML = REPO / "src" / "stud_planner" / "config" / "cell.yaml"
 
@@ -146,6 +147,16 @@ def test_params_file_is_a_ros2_params_file_with_types_kept(cfg, tmp_path):
     cmd = nodes["camera"].command(str(path))
     assert cmd[-3:] == ["--ros-args", "--params-file", str(path)]
     assert nodes["hmi"].command(None) == nodes["hmi"].argv  # no parameters: no --ros-args at all
+
+
+def test_only_our_executables_are_asked_for_their_stacks(cfg, tmp_path):
+    """SIGUSR1 prints a stuck node's stacks (stud_common.stacks); to a command of another package
+    (ros2 bag) it would be a kill, so it is not sent there."""
+    replay, _ = plan(cfg, "replay", cli_vars={"bag": "/bags/run1"})
+    specs = {s.name: s for s in child_specs(list(replay.values()), tmp_path)}
+    assert specs["bag_play"].stack_dump_signal is None
+    assert specs["matcher"].stack_dump_signal == signal.SIGUSR1
+    assert specs["pose_rebase"].stack_dump_signal == signal.SIGUSR1
 
 
 def test_remaps_become_ros_args(tmp_path):

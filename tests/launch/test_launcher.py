@@ -149,6 +149,23 @@ def test_child_ignoring_only_sigint_is_stopped_by_sigterm(launch):
     assert "did not stop on SIGINT within 0.5 s" in run.output()
 
 
+def test_a_child_stuck_after_sigint_is_asked_for_its_stacks_before_sigterm(launch):
+    """Where a node waits when it does not stop is in the launch log (stud_common.stacks), and the
+    dump does not stop it: SIGTERM still follows."""
+    s = launch.state
+    run = launch([child("stuck", s, "--ignore-sigint", "--dump-stacks", stack_dump_signal=int(signal.SIGUSR1)),
+                  child("plain", s, "--ignore-sigint")], sigint_timeout_s=0.5)
+    run.wait_ready("stuck", "plain")
+    run.popen.send_signal(signal.SIGINT)
+    assert run.wait() == 1
+    assert run.signals("stuck") == ["SIGINT", "SIGTERM"]  # alive after the dump, stopped by SIGTERM
+    log = (run.out / "launch.log").read_text()
+    assert "stuck did not stop on SIGINT within 0.5 s; its threads:" in log
+    assert "stuck | " in log and "child.py" in log and "in main" in log  # the main thread's frames
+    assert "plain did not stop on SIGINT within 0.5 s\n" in log  # no stack signal: not asked
+    assert "plain | " not in log
+
+
 def test_required_child_dying_stops_everything_with_its_exit_code_and_last_lines(launch):
     s = launch.state
     run = launch([child("registration", s, "--lines", "30", "--exit-after", "0.3", "--code", "3", required=True),

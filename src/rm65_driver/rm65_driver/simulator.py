@@ -52,6 +52,7 @@ from .sim_controller import N_IO, N_TOOL_IO, ControllerCommands, DOEvent
 from .sim_faults import Fault, FaultInjection
 from .sim_motion import Motion, plan_motion, trajectory_msg
 from .sim_server import Connection, TcpServer
+from stud_common.stacks import dump_stacks_on_signal
 
 _log = logging.getLogger(__name__)
 
@@ -420,6 +421,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--pretty", action="store_true", help="send pretty-printed replies")
     parser.add_argument("-v", "--verbose", action="store_true")
     args = parser.parse_args(argv)
+    dump_stacks_on_signal()
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(levelname)s %(message)s")
     if args.host not in ("127.0.0.1", "localhost", "::1"):

@@ -26,6 +26,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
 
 from stud_common.rotations import matrix_to_quaternion, quaternion_to_matrix
 from stud_common import names
+from stud_common.stacks import dump_stacks_on_signal
 
 # -- QoS ------------------------------------------------------------------------------------------
 #: Image/depth/camera-info subscriptions: best effort accepts both best-effort camera drivers
@@ -298,6 +299,7 @@ def spin_node(node_factory: Callable[[], AnyNode], args: list[str] | None = None
                                    SingleThreadedExecutor)
 
     keep_freed_memory()
+    dump_stacks_on_signal()
     rclpy.init(args=args if args is not None else sys.argv)
     node = None
     executor: Executor | None = None

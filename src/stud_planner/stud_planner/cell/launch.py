@@ -33,6 +33,7 @@ from typing import Any, NoReturn, Sequence
 
 import yaml
 
+from stud_common.stacks import STACK_DUMP_SIGNAL
 from stud_planner.cell.launcher import ChildSpec, LaunchError, Launcher
 
 TOP_KEYS = {"launch", "vars", "nodes", "modes"}
@@ -44,6 +45,8 @@ MODE_KEYS = {"nodes", "needs", "vars", "params", "remaps"}
 VAR_OPTIONS = {"bag": "--bag DIR", "drawing": "--drawing FILE", "out": "--out DIR"}
 DRIVER_NODE = "arm_driver"   # --respawn-driver
 HMI_NODE = "hmi"             # --no-hmi
+#: Packages whose executables arm ``stud_common.stacks`` (a stuck one is asked for its stacks).
+OUR_PACKAGES = frozenset({"stud_planner", "stud_perception", "rm65_driver"})
 _SUBST_RE = re.compile(r"\$\{([^}]*)\}")
 _PARAM_SCALARS = (bool, int, float, str)
 
@@ -265,6 +268,7 @@ class PlannedNode:
     start_after: tuple[str, ...] = ()
     start_timeout_s: float = 30.0
     skip: str | None = None
+    package: str | None = None  # None: a ``cmd`` node
 
     def command(self, params_file: str | None) -> list[str]:
         """The full command; the ROS arguments only when there are parameters or remappings."""
@@ -384,7 +388,8 @@ def plan_cell(cfg: dict, mode: str, *, out_dir: str, cli_vars: dict | None = Non
             respawn=node.get("respawn", False) or (respawn_driver and name == DRIVER_NODE),
             max_respawns=int(node.get("max_respawns", 3)), respawn_delay_s=float(node.get("respawn_delay_s", 1.0)),
             exit_on=node.get("exit_on", False), ready=node.get("ready"), start_after=_names(node.get("start_after")),
-            start_timeout_s=float(node.get("start_timeout_s", 30.0)), skip=skip))
+            start_timeout_s=float(node.get("start_timeout_s", 30.0)), skip=skip,
+            package=None if "cmd" in node else node["package"]))
     running = {p.name for p in planned if p.skip is None}  # wait only for nodes of this launch
     return [PlannedNode(**{**p.__dict__, "start_after": tuple(n for n in p.start_after if n in running)})
             for p in planned], notes
@@ -419,7 +424,8 @@ def child_specs(plan: Sequence[PlannedNode], out_dir: Path) -> list[ChildSpec]:
             name=node.name, argv=node.command(str(params_file) if params_file else None),
             env={**env_all, **node.env}, required=node.required, respawn=node.respawn,
             max_respawns=node.max_respawns, respawn_delay_s=node.respawn_delay_s, exit_on=node.exit_on,
-            ready_pattern=node.ready, start_after=node.start_after or None, start_timeout_s=node.start_timeout_s))
+            ready_pattern=node.ready, start_after=node.start_after or None, start_timeout_s=node.start_timeout_s,
+            stack_dump_signal=STACK_DUMP_SIGNAL if node.package in OUR_PACKAGES else None))
     return specs
 
 

@@ -65,6 +65,9 @@ class ChildSpec:
     marks the child ready. ``start_after``: the name(s) of children whose ready lines this one waits
     for before it starts (at most ``start_timeout_s`` seconds; then it starts anyway, with a warning;
     a child without a ``ready_pattern`` counts as ready once it has been started).
+    ``stack_dump_signal``: a signal that makes the child print its threads' stacks and go on
+    (``stud_common.stacks``: SIGUSR1 for our nodes); sent when it outlives its SIGINT grace period,
+    so the log shows where it is stuck. ``None``: the child does not have one (SIGUSR1 would kill it).
     """
 
     name: str
@@ -79,6 +82,7 @@ class ChildSpec:
     ready_pattern: str | None = None
     start_after: str | Sequence[str] | None = None
     start_timeout_s: float = 30.0
+    stack_dump_signal: int | None = None
 
     def __post_init__(self) -> None:
         if not _NAME_RE.match(self.name or ""):
@@ -461,6 +465,30 @@ class Launcher:
                     self._signals.clear()
                     break
                 time.sleep(self.tick_s)
+            if sig == signal.SIGINT:
+                self._report_stuck([c for c in alive if c.state == "running"])
+
+    def _report_stuck(self, stuck: list[_Child], wait_s: float = 1.0) -> None:
+        """Children still running after the SIGINT grace period: ask those that can for their
+        threads' stacks, and put what they print into the launch log before escalating."""
+        asked = [c for c in stuck if c.spec.stack_dump_signal is not None]
+        for child in stuck:
+            self._say(f"{child.spec.name} did not stop on SIGINT within {self.sigint_timeout_s:g} s"
+                      + ("; its threads:" if child in asked else ""))
+        first = {}
+        for child in asked:
+            first[child.spec.name] = child.seq
+            try:
+                os.kill(child.process.pid, child.spec.stack_dump_signal)  # type: ignore[arg-type]
+            except (ProcessLookupError, PermissionError):
+                pass
+        if asked:
+            time.sleep(wait_s)
+        for child in asked:
+            with self._cond:
+                lines = [text for seq, text in child.ring if seq >= first[child.spec.name]]
+            for line in lines:
+                self._say(f"  {child.spec.name} | {line}")
 
     def _signal_group(self, child: _Child, sig: int) -> None:
         try:

@@ -37,6 +37,7 @@ from stud_welding_msgs.msg import ArmState, CellStatus, Registration, StudLayout
 from stud_welding_msgs.srv import Inspect, MoveTo
 
 from stud_common import ros_io
+from stud_common.stacks import dump_stacks_on_signal
 from stud_perception.camera_model import nadir_rotation
 from stud_common.ros_io import Param, three_numbers
 from stud_common.vocabulary import CellState
@@ -443,6 +444,7 @@ class CellSequencer(Node):
 
 
 def main(args=None) -> int:
+    dump_stacks_on_signal()
     rclpy.init(args=args)
     node = CellSequencer()
     executor = MultiThreadedExecutor(num_threads=4)
