@@ -14,6 +14,7 @@ import subprocess
 
 import numpy as np
 import pytest
+import yaml
 
 from stud_common.rotations import transform_xyz_rpy
 from stud_perception.hand_eye_solvers import rotation_angle_deg
@@ -75,10 +76,15 @@ def test_verify_passes_with_the_calibration_and_fails_with_the_believed_value(ca
     code, text = run_cell(tmp_path / "verify_cal", "--mode", "verify", *TRUE_VARS,
                           "--var", f"hand_eye_file={out / 'hand_eye.yaml'}")
     assert code == 0 and "hand-eye check PASS" in text, text[-4000:]
+    good = yaml.safe_load((tmp_path / "verify_cal" / "hand_eye_check.yaml").read_text())["hand_eye_from_shots"]
+    assert good["difference_mm"] < 0.5 and good["difference_deg"] < 0.15, good  # the 5 shots' own hand-eye
     code, text = run_cell(tmp_path / "verify_typed", "--mode", "verify", *TRUE_VARS)
     assert code == 1 and "hand-eye check FAIL for the typed hand_eye_xyz_m" in text, text[-4000:]
-    check = (tmp_path / "verify_typed" / "hand_eye_check.yaml").read_text()
-    assert "passed: false" in check
+    check = yaml.safe_load((tmp_path / "verify_typed" / "hand_eye_check.yaml").read_text())
+    assert check["passed"] is False
+    # the typed value is (6, -4, 3) mm and (1.0, -0.5, 0.8) deg from the truth: the shots measure it
+    wrong = check["hand_eye_from_shots"]
+    assert 6.0 < wrong["difference_mm"] < 9.0 and 1.2 < wrong["difference_deg"] < 1.6, wrong
 
 
 def _job(out, *args: str) -> dict:

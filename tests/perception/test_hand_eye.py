@@ -169,6 +169,48 @@ def test_rendered_shots_at_half_a_mm_depth_noise_recover_the_true_hand_eye(direc
     assert not wrong.passed and wrong.max_mm > 1.0, wrong.problems
 
 
+# -- the daily check (verify) -----------------------------------------------------------------------
+def _rotated_about_camera_axis(X: np.ndarray, axis, deg: float) -> np.ndarray:
+    out = X.copy()
+    out[:3, :3] = X[:3, :3] @ true_hand_eye([0.0, 0.0, 0.0], axis, deg)[:3, :3]
+    return out
+
+
+@pytest.mark.parametrize("axis", [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]], ids=["optical axis", "x"])
+def test_a_check_measures_the_hand_eye_error_itself_even_about_the_optical_axis(axis):
+    """A hand-eye turned 0.3 deg about the optical axis moves the marks near the image centre by
+    hundredths of a mm and the five views' orientation residuals by less than the three marks'
+    noise: the residuals alone pass it. The hand-eye the check's shots give names the error."""
+    X_true = true_hand_eye([5.0, 0.0, 0.0], [1.0, 0.0, 0.0], 0.5)
+    checked = _rotated_about_camera_axis(X_true, axis, 0.3)
+    check = check_hand_eye(synthetic_shots(X_true, reachable_tool_poses("verify")[:5], 7), checked, DRAWING)
+    assert not check.passed
+    assert check.difference_deg == pytest.approx(0.3, abs=0.05) and check.difference_mm < 0.2
+    assert check.problems[-1].startswith("the check's shots put the hand-eye")
+    if axis[2]:
+        assert check.rms_mm < 0.2 and check.rms_deg < 0.2, "the residuals would have passed it"
+        assert len(check.problems) == 1
+
+
+def test_a_check_of_good_calibrations_passes_with_the_error_it_measures_near_zero():
+    X_true = true_hand_eye([5.0, 0.0, 0.0], [1.0, 0.0, 0.0], 0.5)
+    differences = []
+    for seed in range(12):
+        result = calibrate_hand_eye(synthetic_shots(X_true, reachable_tool_poses(), seed), DRAWING)
+        check = check_hand_eye(synthetic_shots(X_true, reachable_tool_poses("verify")[:5], 100 + seed),
+                               result.T_tool_cam, DRAWING)
+        assert check.passed, (seed, check.problems)
+        differences.append((check.difference_mm, check.difference_deg))
+    mm, deg = np.max(differences, axis=0)
+    assert mm < 0.25 and deg < 0.08, (mm, deg)  # well inside 0.5 mm / 0.15 deg
+
+
+def test_a_check_whose_views_turn_about_one_axis_does_not_guess_the_hand_eye():
+    views = _views([(t, a, 0.0) for t in (10.0, 20.0) for a in (90.0, 270.0)])
+    check = check_hand_eye(synthetic_shots(X_OFF, _tool_poses_of(views), 3), X_OFF, DRAWING)
+    assert check.passed and check.T_tool_cam_shots is None and math.isnan(check.difference_deg)
+
+
 # -- refusals -------------------------------------------------------------------------------------
 X_OFF = true_hand_eye([6.0, -4.0, 3.0], [1.0, -0.5, 0.8], 1.4)
 

@@ -38,7 +38,8 @@ class HandEyeLimits:
     ``mark_angle_tol_deg``: a shot's measured |OA|, |OB| and angle AOB against the drawing's.
     ``max_reprojection_px``: above it the intrinsics need attention (a warning, not a refusal).
     ``methods_agree_mm`` / ``methods_agree_deg``: closed-form methods within this of the refined
-    result agree (reported, not a refusal).
+    result agree (reported, not a refusal). ``check_max_mm`` / ``check_max_deg``: a check
+    (``verify``) fails when the hand-eye its own shots give is farther than this from the one checked.
     """
 
     min_poses: int = 12
@@ -52,6 +53,8 @@ class HandEyeLimits:
     max_reprojection_px: float = 0.5
     methods_agree_mm: float = 2.0
     methods_agree_deg: float = 0.3
+    check_max_mm: float = 0.5
+    check_max_deg: float = 0.15
 
     def __post_init__(self) -> None:
         for f in fields(self):

@@ -269,7 +269,9 @@ def _rms(a: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(a)))) if len(a) else float("nan")
 
 
-def _residual_problems(res: _Residuals, limits: HandEyeLimits) -> list[str]:
+def _residual_problems(res: _Residuals, limits: HandEyeLimits, orientation_rms: bool = True) -> list[str]:
+    """Residuals beyond the limits. ``orientation_rms``: also the RMS of the board orientation residual
+    (a calibration's many shots; a check of a few tests the hand-eye they give instead)."""
     problems = []
     rms_mm, rms_deg = _rms(res.shot_mm), _rms(res.shot_deg)
     worst = int(np.argmax(res.shot_mm))
@@ -278,7 +280,7 @@ def _residual_problems(res: _Residuals, limits: HandEyeLimits) -> list[str]:
         problems.append(f"residual RMS {rms_mm:.3f} mm exceeds {limits.max_rms_mm:g} mm")
     if res.shot_mm[worst] > limits.max_shot_mm:
         problems.append(f"shot {worst + 1}: residual {res.shot_mm[worst]:.3f} mm exceeds {limits.max_shot_mm:g} mm")
-    if rms_deg > limits.max_rms_deg:
+    if orientation_rms and rms_deg > limits.max_rms_deg:
         problems.append(f"orientation residual RMS {rms_deg:.3f} deg exceeds {limits.max_rms_deg:g} deg")
     if res.shot_deg[worst_deg] > limits.max_shot_deg:
         problems.append(f"shot {worst_deg + 1}: orientation residual {res.shot_deg[worst_deg]:.3f} deg exceeds "
@@ -363,6 +365,10 @@ def _shot_problems(shots, drawing_marks_m, limits) -> tuple[list[str], list[Mark
 #: noisier than the sub-pixel centre (about 0.01 mm at 0.3 m), measured on rendered shots.
 RAY_WEIGHT = 0.2
 
+#: A check solves the hand-eye from its own shots only when their orientations spread this much about
+#: two axes (``rotation_spread_deg``); the cell's check views spread 30-60 deg.
+CHECK_MIN_SPREAD_DEG = 15.0
+
 
 def calibrate_hand_eye(shots: list[BoardShot], drawing_marks_m, limits: HandEyeLimits = HandEyeLimits(),
                        ray_weight: float = RAY_WEIGHT) -> HandEyeResult:
@@ -416,6 +422,11 @@ class HandEyeCheck:
     reprojection_rms_px: float
     T_world_board: np.ndarray
     problems: tuple[str, ...]
+    #: The hand-eye the check's own shots give (solved from them alone), and how far the one checked
+    #: is from it: (mm, deg). None / NaN when the shots' rotations cannot determine it.
+    T_tool_cam_shots: np.ndarray | None = None
+    difference_mm: float = float("nan")
+    difference_deg: float = float("nan")
 
     @property
     def passed(self) -> bool:
@@ -440,10 +451,19 @@ class HandEyeCheck:
 
 def check_hand_eye(shots: list[BoardShot], T_tool_cam: np.ndarray, drawing_marks_m,
                    limits: HandEyeLimits = HandEyeLimits()) -> HandEyeCheck:
-    """How well ``T_tool_cam`` explains a few shots of the board: the board pose is fitted (it may
-    have been moved since the calibration), the hand-eye is held. A wrong hand-eye shows as shots
-    that disagree about where the board is. Needs two shots at least (more, at different tilts,
-    see more)."""
+    """How well ``T_tool_cam`` explains a few shots of the board. Two tests:
+
+    * the residuals: the board pose is fitted (it may have been moved since the calibration), the
+      hand-eye is held; a wrong hand-eye makes the shots disagree about where the board is. The
+      marks' residuals (``max_rms_mm``, ``max_shot_mm``) and each shot's board orientation
+      (``max_shot_deg``) are checked.
+    * the difference: the hand-eye is solved from the check's shots alone and compared with the one
+      checked (``check_max_mm``, ``check_max_deg``). This sees what the residuals hardly show: a
+      rotation about the optical axis moves marks near the image centre little, and the few views'
+      orientation residuals carry it at a fraction of its size, under the three marks' noise.
+      It needs rotations about two axes (``CHECK_MIN_SPREAD_DEG``); with fewer, it is skipped.
+
+    Needs two shots at least (more, at different tilts, see more)."""
     shots = list(shots)
     if len(shots) < 2:
         raise HandEyeError(f"a check needs at least 2 shots, got {len(shots)}")
@@ -456,8 +476,16 @@ def check_hand_eye(shots: list[BoardShot], T_tool_cam: np.ndarray, drawing_marks
     _, T_world_board = _refine(X, _mean_pose(T_world_tool @ X @ T_cam_board), T_world_tool, marks, board_pts,
                                solve_x=False, ray_weight=RAY_WEIGHT)
     res = _residuals(X, T_world_board, shots, board_pts)
-    problems += _residual_problems(res, limits)
-    return HandEyeCheck(res.shot_mm, res.shot_deg, res.reprojection_px, T_world_board, tuple(problems))
+    problems += _residual_problems(res, limits, orientation_rms=False)
+    X_shots, mm, deg = None, float("nan"), float("nan")
+    if len(shots) >= 3 and rotation_spread_deg(T_world_tool[:, :3, :3])[1] >= CHECK_MIN_SPREAD_DEG:
+        X_shots, _ = _refine(X, T_world_board, T_world_tool, marks, board_pts, ray_weight=RAY_WEIGHT)
+        mm, deg = _difference(X, X_shots)
+        if mm > limits.check_max_mm or deg > limits.check_max_deg:
+            problems.append(f"the check's shots put the hand-eye {mm:.2f} mm / {deg:.3f} deg from the one checked "
+                            f"(limits {limits.check_max_mm:g} mm / {limits.check_max_deg:g} deg)")
+    return HandEyeCheck(res.shot_mm, res.shot_deg, res.reprojection_px, T_world_board, tuple(problems),
+                        X_shots, mm, deg)
 
 
 

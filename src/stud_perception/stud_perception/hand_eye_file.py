@@ -101,6 +101,9 @@ def check_record(check: HandEyeCheck, in_use: HandEyeInUse, *, date: str | None 
             "residuals": {"position_rms_mm": _num(check.rms_mm), "position_max_mm": _num(check.max_mm),
                           "rotation_rms_deg": _num(check.rms_deg), "rotation_max_deg": _num(check.max_deg),
                           "reprojection_rms_px": _num(check.reprojection_rms_px, 3)},
+            "hand_eye_from_shots": None if check.T_tool_cam_shots is None else {
+                "difference_mm": _num(check.difference_mm), "difference_deg": _num(check.difference_deg),
+                "transform": _pose(check.T_tool_cam_shots)},
             "board_in_world": _pose(check.T_world_board), "problems": list(check.problems),
             "shots": [{"residual_mm": _num(mm), "residual_deg": _num(deg)}
                       for mm, deg in zip(check.shot_residual_mm, check.shot_residual_deg)]}

@@ -316,9 +316,13 @@ class HandEyeCalibrator(Node):
                           "hand-eye check (cell --mode verify), written by hand_eye_calibrator")
         what = (f"{self.hand_eye.path} ({self.hand_eye.date})" if self.hand_eye.source == "file"
                 else "the typed hand_eye_xyz_m / hand_eye_rpy_deg")
-        line = (f"{check.rms_mm:.3f} mm RMS (max {check.max_mm:.3f}, limit {self.limits.max_rms_mm:g} / "
-                f"{self.limits.max_shot_mm:g}), {check.rms_deg:.4f} deg RMS (max {check.max_deg:.4f}) over "
-                f"{len(shots)} shots")
+        lim = self.limits
+        line = (f"{check.rms_mm:.3f} mm RMS (max {check.max_mm:.3f}, limit {lim.max_rms_mm:g} / {lim.max_shot_mm:g}), "
+                f"{check.rms_deg:.4f} deg RMS (max {check.max_deg:.4f}) over {len(shots)} shots; ")
+        line += (f"their own hand-eye is {check.difference_mm:.3f} mm / {check.difference_deg:.4f} deg from it "
+                 f"(limit {lim.check_max_mm:g} mm / {lim.check_max_deg:g} deg)" if check.T_tool_cam_shots is not None
+                 else "their rotations do not determine a hand-eye of their own (about one axis), "
+                      "only the residuals were checked")
         if check.passed:
             self.get_logger().info(f"hand-eye check PASS for {what}: {line}; {path}")
             return 0
