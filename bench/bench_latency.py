@@ -62,7 +62,7 @@ def echo() -> int:
         pub.publish(out)
     node.create_subscription(Image, "/camera/depth/image_raw", answer, ros_io.SENSOR_QOS)
     try:
-        rclpy.spin(node)
+        ros_io.spin_until_shutdown(node)
     except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
         pass
     finally:

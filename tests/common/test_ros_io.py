@@ -104,3 +104,46 @@ def test_raw_images_are_rectified_and_rectified_ones_use_p():
     info.distortion_model = "kannala_brandt"
     with pytest.raises(ValueError, match=r"distortion model 'kannala_brandt' is not supported"):
         image_io.camera_rectifier(info)
+
+
+# -- spinning until a shutdown ------------------------------------------------------------------
+_IDLE_NODE = """
+import sys, threading, time
+sys.path.insert(0, {src!r})
+import rclpy
+from rclpy.node import Node
+from std_msgs.msg import String
+from stud_common import ros_io
+
+rclpy.init()
+node = Node("idle_probe")  # no timer, and nothing is published on its topic: idle
+node.create_subscription(String, "/nobody_publishes_this", lambda _m: None, 10)
+# What rclpy's signal thread does on SIGINT once it has woken the executors: rcl_shutdown, which
+# wakes no one (the Python context's on_shutdown callbacks are not called).
+threading.Timer(0.5, node.context.handle.shutdown).start()
+t0 = time.monotonic()
+if {bounded}:
+    ros_io.spin_until_shutdown(node)
+else:
+    rclpy.spin(node)
+print(f"returned after {{time.monotonic() - t0:.2f}} s", flush=True)
+"""
+
+
+@pytest.mark.parametrize("bounded", [True, False], ids=["spin_until_shutdown", "rclpy.spin"])
+def test_an_idle_node_notices_a_shutdown_that_wakes_no_one(bounded):
+    """The rare Ctrl-C hang of idle nodes: rclpy.spin waits for ever once the context is shut
+    down behind its back; spin_until_shutdown (and so every node's spin_node) notices it within
+    SPIN_WAKE_S."""
+    code = _IDLE_NODE.format(src=str(REPO / "src" / "stud_common"), bounded=bounded)
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        out, _ = proc.communicate(timeout=5.0 if bounded else 3.0)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, _ = proc.communicate()
+        assert not bounded, f"spin_until_shutdown did not return: {out}"
+        return  # rclpy.spin: still waiting after 2.5 s -- the hazard is real
+    assert bounded, f"rclpy.spin returned after a shutdown that woke no one; the guard may be obsolete: {out}"
+    seconds = float(out.split("returned after ")[1].split()[0])
+    assert 0.5 <= seconds < 0.5 + 0.1 + 1.0, out

@@ -14,6 +14,8 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from stud_welding_msgs import msg as m
 from stud_welding_msgs.action import WeldJob
 
+from stud_common import ros_io
+
 TYPES = [m.Stud, m.StudLayout, m.Registration, m.WeldTarget, m.WeldTargetArray, m.ArmState]
 QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
@@ -43,7 +45,7 @@ def main() -> int:
     ActionServer(node, WeldJob, "/rt/weld_job", execute)
     print("echo ready", flush=True)
     try:
-        rclpy.spin(node)
+        ros_io.spin_until_shutdown(node)
     except KeyboardInterrupt:
         pass
     return 0

@@ -287,12 +287,44 @@ def keep_freed_memory(max_block_bytes: int = 32 << 20) -> bool:
 AnyNode = TypeVar("AnyNode", bound=Node)
 
 
+#: Longest wait of a node's executor for work (s): how late an idle node notices a shutdown.
+SPIN_WAKE_S = 0.1
+
+
+def spin_until_shutdown(executor_or_node, until: Callable[[], int | None] | None = None) -> int | None:
+    """``rclpy.spin`` without its unbounded wait: spin until the context shuts down (returns None),
+    or until ``until()`` returns a value (returned).
+
+    On SIGINT rclpy's signal thread wakes the executors first and shuts the context down after
+    (rclpy signal_handler.cpp, Jazzy and later). An executor that looks in between finds the
+    context still valid and waits again -- in ``rclpy.spin``, for ever if the node is idle (no
+    timer, nothing arriving): the node never stops. Waiting at most :data:`SPIN_WAKE_S` at a time,
+    the next turn sees the shutdown."""
+    import rclpy
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+    executor = executor_or_node
+    if isinstance(executor_or_node, Node):
+        executor = SingleThreadedExecutor(context=executor_or_node.context)
+        executor.add_node(executor_or_node)
+    try:
+        while rclpy.ok(context=executor.context):
+            executor.spin_once(timeout_sec=SPIN_WAKE_S)
+            done = until() if until is not None else None
+            if done is not None:
+                return done
+    except ExternalShutdownException:  # the shutdown, seen from inside a wait
+        pass
+    return None
+
+
 def spin_node(node_factory: Callable[[], AnyNode], args: list[str] | None = None, multithreaded: bool = False,
               until: Callable[[AnyNode], int | None] | None = None) -> int:
     """`main()` body shared by our nodes: init, spin (``multithreaded`` for nodes whose service
     callbacks wait on their own subscriptions), clean shutdown on Ctrl-C (no traceback).
 
-    ``until(node)``: the exit code once the node is done (None: not yet), checked every 0.1 s.
+    ``until(node)``: the exit code once the node is done (None: not yet), checked every
+    :data:`SPIN_WAKE_S` at least.
     A node with a ``shutdown()`` method has it called before its callbacks are drained."""
     import rclpy
     from rclpy.executors import (Executor, ExternalShutdownException, MultiThreadedExecutor,
@@ -310,18 +342,10 @@ def spin_node(node_factory: Callable[[], AnyNode], args: list[str] | None = None
         # the collector's sight, so a full collection -- triggered at random while a callback
         # allocates messages -- does not walk a few hundred thousand objects (tens of ms).
         gc.freeze()
-        executor = MultiThreadedExecutor(num_threads=4) if multithreaded else None
-        if until is None:
-            rclpy.spin(node, executor=executor)
-        else:
-            executor = executor or SingleThreadedExecutor()
-            executor.add_node(node)
-            while rclpy.ok():
-                executor.spin_once(timeout_sec=0.1)
-                done = until(node)
-                if done is not None:
-                    code = done
-                    break
+        executor = MultiThreadedExecutor(num_threads=4) if multithreaded else SingleThreadedExecutor()
+        executor.add_node(node)
+        done = spin_until_shutdown(executor, None if until is None else lambda: until(node))
+        code = done if done is not None else 0
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except SystemExit as exc:
