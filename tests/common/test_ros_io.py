@@ -147,3 +147,25 @@ def test_an_idle_node_notices_a_shutdown_that_wakes_no_one(bounded):
     assert bounded, f"rclpy.spin returned after a shutdown that woke no one; the guard may be obsolete: {out}"
     seconds = float(out.split("returned after ")[1].split()[0])
     assert 0.5 <= seconds < 0.5 + 0.1 + 1.0, out
+
+
+def test_stamp_sync_says_which_views_it_drops_and_what_they_lacked():
+    from types import SimpleNamespace
+
+    from builtin_interfaces.msg import Time
+    from stud_common import ros_io
+
+    def msg(sec):
+        return SimpleNamespace(header=SimpleNamespace(stamp=Time(sec=sec)))
+
+    views, drops = [], []
+    sync = ros_io.StampSync(["depth", "info", "pose"], views.append, max_sets=2,
+                            on_drop=lambda stamp, missing: drops.append((stamp // 10**9, missing)))
+    sync.add("depth", msg(1))
+    sync.add("info", msg(1))  # view 1 waits for its pose ...
+    for name in ("depth", "info", "pose"):
+        sync.add(name, msg(2))  # ... and view 2 completes first: view 1 is given up
+    assert len(views) == 1 and drops == [(1, ["pose"])]
+    for sec in (3, 4, 5):  # three views that only ever get a depth: the oldest beyond max_sets goes
+        sync.add("depth", msg(sec))
+    assert drops[-1] == (3, ["info", "pose"]) and sync.dropped == 2

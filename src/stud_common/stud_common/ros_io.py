@@ -237,15 +237,20 @@ class StampSync:
 
     Our camera publishes colour, depth, camera info and pose with one shared stamp (one
     triggered shot); a real driver's streams may differ by a little, hence the slop. Calls
-    ``callback(dict name -> msg)`` once per complete set; incomplete sets older than
-    ``max_sets`` newer ones are dropped.
+    ``callback(dict name -> msg)`` once per complete set. An incomplete set is dropped when a
+    newer set completes, or when more than ``max_sets`` newer ones wait; ``on_drop(stamp_ns,
+    missing names)`` hears of each (a view lost on the way: a best-effort sample, a stream that
+    stopped), and ``dropped`` counts them.
     """
 
-    def __init__(self, names: list[str], callback: Callable[[dict], None], slop_ns: int = 0, max_sets: int = 10):
+    def __init__(self, names: list[str], callback: Callable[[dict], None], slop_ns: int = 0, max_sets: int = 10,
+                 on_drop: Callable[[int, list[str]], None] | None = None):
         self.names = list(names)
         self.callback = callback
         self.slop_ns = slop_ns
         self.max_sets = max_sets
+        self.on_drop = on_drop
+        self.dropped = 0
         self._sets: OrderedDict[int, dict] = OrderedDict()
 
     def add(self, name: str, msg: Any) -> None:
@@ -256,10 +261,24 @@ class StampSync:
         if len(entry) == len(self.names):
             del self._sets[key]
             for older in [k for k in self._sets if k < key]:  # a newer complete set supersedes them
-                del self._sets[older]
+                self._drop(older, self._sets.pop(older))
             self.callback(entry)
         while len(self._sets) > self.max_sets:
-            self._sets.popitem(last=False)
+            self._drop(*self._sets.popitem(last=False))
+
+    def _drop(self, stamp_ns: int, entry: dict) -> None:
+        self.dropped += 1
+        if self.on_drop is not None:
+            self.on_drop(stamp_ns, [n for n in self.names if n not in entry])
+
+
+def warn_dropped(node: Node, what: str = "view") -> Callable[[int, list[str]], None]:
+    """A :class:`StampSync` ``on_drop`` that says so in the node's log (at most every 5 s)."""
+    def on_drop(stamp_ns: int, missing: list[str]) -> None:
+        node.get_logger().warn(f"dropped an incomplete {what} stamped {stamp_ns * 1e-9:.3f} s: its "
+                               f"{', '.join(missing)} never arrived (a lost best-effort sample, or a stream that "
+                               "stopped)", throttle_duration_sec=5.0)
+    return on_drop
 
 
 def keep_freed_memory(max_block_bytes: int = 32 << 20) -> bool:

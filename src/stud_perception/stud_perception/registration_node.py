@@ -58,7 +58,7 @@ class RegistrationNode(Node):
         self.create_timer(1.0, self.diag.publish)
         self.create_subscription(StudLayout, names.DRAWING_LAYOUT, self._on_layout, ros_io.LATCHED_QOS)
         self.sync = ros_io.StampSync(["color", "depth", "info", "pose"], self._on_view,
-                                     slop_ns=int(self.p["sync_slop_s"] * 1e9))
+                                     slop_ns=int(self.p["sync_slop_s"] * 1e9), on_drop=ros_io.warn_dropped(self, "view"))
         for name, topic, typ in (("color", names.COLOR_IMAGE, Image), ("depth", names.DEPTH_IMAGE, Image),
                                  ("info", names.CAMERA_INFO, CameraInfo), ("pose", names.CAMERA_POSE, PoseStamped)):
             self.create_subscription(typ, topic, functools.partial(self.sync.add, name), ros_io.SENSOR_QOS)

@@ -109,7 +109,7 @@ class HandEyeCalibrator(Node):
         self.create_subscription(ArmState, names.ARM_STATE, self._keep("arm_state"), ros_io.RESULT_QOS,
                                  callback_group=cb)
         self.sync = ros_io.StampSync(["color", "depth", "info", "pose"], self._keep("view"),
-                                     slop_ns=int(self.p["sync_slop_s"] * 1e9))
+                                     slop_ns=int(self.p["sync_slop_s"] * 1e9), on_drop=ros_io.warn_dropped(self, "view"))
         for name, topic, typ in (("color", names.COLOR_IMAGE, Image), ("depth", names.DEPTH_IMAGE, Image),
                                  ("info", names.CAMERA_INFO, CameraInfo), ("pose", names.CAMERA_POSE, PoseStamped)):
             self.create_subscription(typ, topic, functools.partial(self._add, name), ros_io.SENSOR_QOS,

@@ -121,7 +121,7 @@ class InspectorNode(Node):
         cb = ReentrantCallbackGroup()
         self.pub_result = self.create_publisher(InspectionResult, names.INSPECTION_RESULT, ros_io.LATCHED_QOS)
         self.sync = ros_io.StampSync(["depth", "info", "pose", "color"], self._on_view,
-                                     slop_ns=int(self.p["sync_slop_s"] * 1e9))
+                                     slop_ns=int(self.p["sync_slop_s"] * 1e9), on_drop=ros_io.warn_dropped(self, "view"))
         for name, topic, typ in (("depth", names.DEPTH_IMAGE, Image), ("color", names.COLOR_IMAGE, Image),
                                  ("info", names.CAMERA_INFO, CameraInfo),
                                  ("pose", names.CAMERA_POSE, PoseStamped)):

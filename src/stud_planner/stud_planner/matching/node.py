@@ -137,7 +137,7 @@ class MatcherNode(Node):
         self.create_timer(1.0, self._publish_diagnostics)
         self.create_subscription(StudLayout, names.DRAWING_LAYOUT, self._on_layout, ros_io.LATCHED_QOS)
         self.create_subscription(Registration, names.REGISTRATION_RESULT, self._on_registration, ros_io.LATCHED_QOS)
-        self.sync = ros_io.StampSync(["depth", "info", "pose"], self._on_view, slop_ns=int(self.p["sync_slop_s"] * 1e9))
+        self.sync = ros_io.StampSync(["depth", "info", "pose"], self._on_view, slop_ns=int(self.p["sync_slop_s"] * 1e9), on_drop=ros_io.warn_dropped(self, "view"))
         for name, topic, typ in (("depth", names.DEPTH_IMAGE, Image),
                                  ("info", names.CAMERA_INFO, CameraInfo), ("pose", names.CAMERA_POSE, PoseStamped)):
             self.create_subscription(typ, topic, functools.partial(self._on_input, name), ros_io.SENSOR_QOS)
