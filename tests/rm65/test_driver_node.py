@@ -163,6 +163,31 @@ def test_driver_node_runs_a_weld_job_and_publishes_state(sim, probe, tmp_path):
         assert proc.stop() == 0, proc.output()
 
 
+@pytest.mark.parametrize("signs, expect", [([0, 0, 0, 0, 0, 0], -1), ([0, 0, 1, 0, 1, 0], 1)],
+                         ids=["nearest", "preferred branch"])
+def test_move_to_takes_the_preferred_branch(sim, probe, tmp_path, signs, expect):
+    """/arm/move_to over DDS to a camera pose over the marking board that the arm reaches with
+    J3, J5 of either sign: from the test's home pose (J3, J5 negative) the nearest stays negative;
+    with preferred_joint_signs asking for positive the controller is sent the positive one."""
+    from stud_perception.camera_model import nadir_rotation
+    from stud_welding_msgs.srv import MoveTo
+
+    proc = NodeProc(sim.port, tmp_path, preferred_joint_signs=signs, hand_eye_xyz_m=[0.05, 0.0, -0.10])
+    try:
+        move = probe.create_client(MoveTo, "/arm/move_to")
+        req = MoveTo.Request(frame=MoveTo.Request.FRAME_CAMERA)
+        req.pose.position.x, req.pose.position.y, req.pose.position.z = 0.225, -0.29, 0.285
+        x, y, z, w = matrix_to_quat_xyzw(nadir_rotation(0.0))
+        req.pose.orientation.x, req.pose.orientation.y, req.pose.orientation.z, req.pose.orientation.w = x, y, z, w
+        r = call(probe, move, req, proc)
+        assert r.success, r.message + proc.output()
+        q = sim.joints
+        assert np.sign(q[2]) == expect and np.sign(q[4]) == expect, np.degrees(q)
+    finally:
+        code = proc.stop()
+    assert code == 0, proc.log_path.read_text()[-3000:]
+
+
 def test_estop_stop_latency_and_resolve_over_ros(sim, probe, tmp_path):
     (tmp_path / "journal.jsonl").write_text(json.dumps({"t": "x", "event": "started", "stud": "U1"}) + "\n")
     sim.time_scale = 1.0  # real-time motion: the job is mid-move when we stop it

@@ -86,6 +86,28 @@ def test_ik_with_a_tool_and_a_far_seed_uses_restarts():
     np.testing.assert_allclose(KIN.fk(res.q, tool)[:3, 2], [0, 0, -1], atol=1e-5)
 
 
+def test_ik_takes_the_preferred_branch_over_the_nearer_one():
+    """A camera pose over the marking board has an elbow-and-wrist-up and a down solution. From a
+    start pose with J3, J5 positive the nearest is up; the cell's stations are reached down, so a
+    cell that prefers J3, J5 negative gets the down one, and keeps the nearest when it has no such one."""
+    tool = np.eye(4)
+    tool[2, 3] = 0.15
+    T = tool_pose_facing([0.25, -0.29, 0.19], [0, 0, 1])
+    start = np.radians([0, 0, 90, 0, 90, 0])
+    nearest = KIN.ik(T, q_seed=start, tool=tool)
+    assert nearest.success and nearest.q[2] > 0 and nearest.q[4] > 0
+    down = KIN.ik(T, q_seed=start, tool=tool, prefer_signs=[0, 0, -1, 0, -1, 0])
+    assert down.success and down.q[2] < 0 and down.q[4] < 0
+    np.testing.assert_allclose(KIN.fk(down.q, tool)[:3, 3], T[:3, 3], atol=1e-5)
+    # no solution has J3 and J5 of opposite signs here: the preference gives way to the nearest
+    impossible = KIN.ik(T, q_seed=start, tool=tool, prefer_signs=[0, 0, 1, 0, -1, 0])
+    assert impossible.success and np.sign(impossible.q[2]) == np.sign(impossible.q[4])
+    either = KIN.ik(T, q_seed=start, tool=tool, prefer_signs=[0, 0, 0, 0, 0, 0])
+    np.testing.assert_allclose(either.q, nearest.q, atol=1e-9)
+    with pytest.raises(ValueError, match="prefer_signs must hold -1, 0 or 1"):
+        KIN.ik(T, q_seed=start, tool=tool, prefer_signs=[0, 0, -2, 0, 0, 0])
+
+
 def test_unreachable_pose_fails_with_a_reason():
     T = tool_pose_facing([0.9, 0.0, 0.0], [0, 0, 1])
     res = KIN.ik(T, q_seed=np.zeros(6))

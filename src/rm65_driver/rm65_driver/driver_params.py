@@ -52,6 +52,11 @@ PARAMS = [
     Param("pulse_s", 0.2, "trigger pulse length [s]", min=0.0, max=5.0),
     Param("dwell_s", 0.5, "hold still after the pulse while the gun completes the weld [s]", min=0.0, max=10.0),
     Param("joint_speed_pct", 30, "joint-move speed [% of max]", min=1, max=100),
+    Param("preferred_joint_signs", [0, 0, 0, 0, 0, 0], "the arm's working branch for /arm/move_to (camera "
+          "stations, registration): the sign wanted of each joint J1..J6, -1 / +1, 0 = either; a solution in it "
+          "wins over a nearer one in another (e.g. [0, 0, -1, 0, -1, 0]: J3 and J5 negative). All 0: the nearest",
+          validate=lambda v: None if len(v) == 6 and all(x in (-1, 0, 1) for x in v)
+          else f"preferred_joint_signs needs 6 of -1, 0, 1, got {list(v)}"),
     Param("linear_speed_pct", 10, "linear-move speed [% of max]", min=1, max=100),
     Param("final_approach_m", 0.01, "the slow controlled final move: this last stretch before the contact at "
           "linear_speed_pct; the rest of the standoff and the retract at approach_speed_pct (0: the whole "

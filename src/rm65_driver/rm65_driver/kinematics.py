@@ -333,6 +333,7 @@ class RM65Kinematics:
         tol_rotation_rad: float = 1e-5,
         damping: float = 0.02,
         rng_seed: int = 0,
+        prefer_signs=None,
     ) -> IKResult:
         """Damped-least-squares IK for the flange (or ``tool``) pose ``T_target`` (4x4, base frame).
 
@@ -340,6 +341,10 @@ class RM65Kinematics:
         ``restarts`` fixed and pseudo-random seeds. Joint limits are enforced by clipping at every
         step; of the converged solutions the one closest to ``q_seed`` wins (J6's ±360° range
         means q6 ± 2π can be the same pose: the copy nearest the seed is kept). Deterministic.
+
+        ``prefer_signs`` (6,) of -1, 0, +1: the branch wanted (an industrial controller's
+        configuration flags), e.g. J3 and J5 negative: ``[0, 0, -1, 0, -1, 0]`` (0: either sign).
+        Solutions in that branch win over nearer ones; without one, the nearest is taken.
         """
         T_target = np.asarray(T_target, dtype=np.float64)
         lo, hi = self.limits_rad[:, 0], self.limits_rad[:, 1]
@@ -352,6 +357,7 @@ class RM65Kinematics:
         e_pos = e_rot = np.full(len(q), np.inf)  # (no iteration: nothing converged)
         it = 0
         first_converged = None
+        in_branch = _branch_test(prefer_signs)
         for it in range(1, max_iterations + 1):
             J, T = self.jacobian(q, tool)
             e_p = p_t - T[:, :3, 3]
@@ -364,7 +370,8 @@ class RM65Kinematics:
                 first_converged = it
             # Stop when the seed from the current joints converged, when every seed did, or a
             # few iterations after the first one did (others get a short chance to be closer).
-            if done[0] or not active.any() or (first_converged is not None and it - first_converged >= 10):
+            seed_done = done[0] and in_branch(q[:1])[0]
+            if seed_done or not active.any() or (first_converged is not None and it - first_converged >= 10):
                 break
             e = np.concatenate([e_p, e_r], axis=1)[active]
             Ja = J[active]
@@ -383,6 +390,9 @@ class RM65Kinematics:
             better = (np.abs(alt - q0) < np.abs(q - q0)) & (alt >= lo) & (alt <= hi)
             q = np.where(better, alt, q)
         dist = np.linalg.norm(q - q0, axis=1)
+        wanted = converged & in_branch(q)
+        if wanted.any():
+            converged = wanted
         if converged.any():
             idx = int(np.flatnonzero(converged)[np.argmin(dist[converged])])
             return IKResult(True, q[idx].copy(), float(e_pos[idx]), float(e_rot[idx]), it)
@@ -428,6 +438,17 @@ class RM65Kinematics:
             path.append(q)
         return np.array(path), ""
 
+
+
+def _branch_test(prefer_signs):
+    """``test(q (N, 6)) -> (N,) bool``: the joints have the signs ``prefer_signs`` asks for (0: any)."""
+    if prefer_signs is None:
+        return lambda q: np.ones(len(q), dtype=bool)
+    signs = np.asarray(prefer_signs, dtype=np.int64).reshape(6)
+    if not np.all(np.isin(signs, (-1, 0, 1))):
+        raise ValueError(f"prefer_signs must hold -1, 0 or 1 for each joint, got {signs.tolist()}")
+    ask = signs != 0
+    return lambda q: np.all(np.sign(q[:, ask]) == signs[ask], axis=1)
 
 def _rotvec_to_matrix(rv: np.ndarray) -> np.ndarray:
     """Rodrigues' formula (3,) -> 3x3."""
