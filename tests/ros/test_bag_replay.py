@@ -22,8 +22,10 @@ def test_replayed_bag_gives_the_ground_truth_targets(ros_node, procs, tmp_path):
     ros_node.create_subscription(WeldTargetArray, "/weld_targets", arrays.append, ros_io.RESULT_QOS)
     wait_for(lambda: ros_node.count_subscribers("/camera/depth/image_raw") >= 2
              and ros_node.count_publishers("/weld_targets") >= 1, 30, spin=ros_node.spin, what="nodes up")
-    # both nodes subscribe to every topic of the bag: wait until each topic has them matched
-    play = Proc(["ros2", "bag", "play", str(BAG), "--wait-for-subscribers", "2"], tmp_path / "play.log")
+    # both nodes subscribe to depth, camera info and pose; colour only the registration (the matcher
+    # while an overlay is wanted): wait until each topic has its subscribers matched
+    play = Proc(["ros2", "bag", "play", str(BAG), "--wait-for-subscribers", "2", "/camera/color/image_raw=1"],
+                tmp_path / "play.log")
     procs.append(play)
     logs = lambda: "\n".join(p.output()[-2000:] for p in procs)  # noqa: E731
     wait_for(lambda: len(arrays) >= 2, 60, spin=ros_node.spin, what=f"targets of the station views\n{logs()}")

@@ -277,6 +277,8 @@ def test_usage_errors_exit_2_and_refusals_exit_1(tmp_path, shared_bag):
     _one_line_error(ros2("bag"), 2, "verb")
     _one_line_error(ros2("bag", "info"), 2, "bag_path")
     _one_line_error(ros2("bag", "play", str(tmp_path), "--rate", "0"), 2, "--rate")
+    _one_line_error(ros2("bag", "play", str(tmp_path), "--wait-for-subscribers", "/a=two"), 2,
+                    "--wait-for-subscribers '/a=two': expected N or TOPIC=N")
     _one_line_error(ros2("bag", "record", "-o", str(tmp_path / "x")), 2, "--topics")
     _one_line_error(ros2("bag", "record", "-a", "--compression-format", "zstd", "-o", str(tmp_path / "y")), 2,
                     "compression format")
@@ -363,6 +365,7 @@ def _play_and_listen(bag_dir: Path, tmp: Path, *play_args: str) -> list[dict]:
                               capture_output=True, text=True, timeout=60)
         assert play.returncode == 0, play.stderr
         assert f"Played {expected} messages on 3 topics" in play.stderr
+        assert "Playing although" not in play.stderr, play.stderr  # every wanted subscriber was matched
         wait_for(lambda: "received" in listener.output(), 30, what="listener results")
     finally:
         listener.stop()
@@ -401,8 +404,11 @@ def test_play_republishes_the_recording_with_its_timing_and_stamps(recorded, tmp
 
 
 def test_play_at_rate_2_takes_half_the_time(recorded, tmp_path):
+    """Also: topic counts of --wait-for-subscribers beat the count for all (one listener, which a
+    count of 3 for every topic alone would wait 10 s for in vain)."""
     bag_dir, sent, _ = recorded
-    duration = _assert_replayed(_play_and_listen(bag_dir, tmp_path, "--rate", "2"), bag_dir, sent, rate=2.0)
+    counts = ["--wait-for-subscribers", "3", f"{TEXT}=1", f"{DEPTH}=1", f"{LAYOUT}=1"]
+    duration = _assert_replayed(_play_and_listen(bag_dir, tmp_path, "--rate", "2", *counts), bag_dir, sent, rate=2.0)
     with BagReader(bag_dir) as bag:
         assert duration == pytest.approx(bag.duration_ns / 2e9, abs=0.1)
 

@@ -190,9 +190,9 @@ def cmd_play(argv: list[str]) -> int:
     parser.add_argument("-d", "--delay", type=_non_negative_float, default=0.0, help="sleep before play, s")
     parser.add_argument("--start-offset", type=_non_negative_float, default=0.0,
                         help="start this many seconds into the bag")
-    parser.add_argument("--wait-for-subscribers", type=int, default=0, metavar="N",
-                        help="before playing, wait (up to 10 s) until every topic has N matched subscribers "
-                             "(not in rosbag2)")
+    parser.add_argument("--wait-for-subscribers", nargs="+", default=[], metavar="N|TOPIC=N",
+                        help="before playing, wait (up to 10 s) until every topic has N matched subscribers; "
+                             "TOPIC=N sets one topic's own count, e.g. 2 /camera/color/image_raw=1 (not in rosbag2)")
     parser.add_argument("-m", "--remap", nargs="+", default=[], metavar="REMAP",
                         help='topics to be remapped: in the form "old_topic1:=new_topic1 old_topic2:=new_topic2"')
     args = parser.parse_args(argv)
@@ -202,14 +202,15 @@ def cmd_play(argv: list[str]) -> int:
         if not sep or not old or not new:
             raise _UsageError(f"ros2 bag play: error: --remap '{rule}': expected old_topic:=new_topic")
         remap["/" + old.lstrip("/")] = "/" + new.lstrip("/")
+    wait_all, wait_topics = _subscriber_counts(args.wait_for_subscribers)
     reader = BagReader(args.bag_path)
     try:
         for note in reader.notes:
             print(f"[WARN] [ros2bag]: {note}", file=sys.stderr)
         options = PlayOptions(rate=args.rate, loop=args.loop, topics=args.topics, exclude_topics=args.exclude_topics,
                               regex=args.regex, exclude_regex=args.exclude_regex, start_offset_s=args.start_offset,
-                              delay_s=args.delay, clock_hz=args.clock, wait_for_subscribers=args.wait_for_subscribers,
-                              remap=remap)
+                              delay_s=args.delay, clock_hz=args.clock, wait_for_subscribers=wait_all,
+                              wait_for_topic=wait_topics, remap=remap)
         return Player(reader, options).run()
     finally:
         reader.close()
@@ -217,6 +218,25 @@ def cmd_play(argv: list[str]) -> int:
 
 # -- entry --------------------------------------------------------------------------------------------
 VERBS = {"info": cmd_info, "record": cmd_record, "play": cmd_play}
+
+
+def _subscriber_counts(values: list[str]) -> tuple[int, dict[str, int]]:
+    """``--wait-for-subscribers`` values: ``N`` for every topic, ``TOPIC=N`` for one."""
+    every, per_topic = 0, {}
+    for value in values:
+        topic, sep, count = value.rpartition("=")
+        try:
+            n = int(count)
+        except ValueError:
+            n = -1
+        if n < 0 or (sep and not topic):
+            raise _UsageError(f"ros2 bag play: error: --wait-for-subscribers '{value}': expected N or TOPIC=N "
+                              "(N a whole number >= 0)")
+        if sep:
+            per_topic["/" + topic.lstrip("/")] = n
+        else:
+            every = n
+    return every, per_topic
 
 
 def main(argv: list[str]) -> int:

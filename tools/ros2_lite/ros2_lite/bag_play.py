@@ -47,6 +47,7 @@ class PlayOptions:
     delay_s: float = 0.0
     clock_hz: float = 0.0  # 0: no /clock
     wait_for_subscribers: int = 0  # our addition: wait until each topic has this many matched subscribers
+    wait_for_topic: dict[str, int] = field(default_factory=dict)  # ... or its own count (recorded or played name)
     wait_timeout_s: float = 10.0
     remap: dict[str, str] = field(default_factory=dict)  # recorded topic -> the name it is published under
 
@@ -162,27 +163,38 @@ class Player:
         """Give discovery a moment so the first messages are not sent before subscribers are matched:
         until every subscriber the graph shows is matched (at least 0.3 s, at most 2 s), or, with
         ``--wait-for-subscribers N``, until each topic has N matched subscribers -- a ``--remap``ped
-        topic one: it is remapped to feed an adapter (the cell's pose_rebase)."""
+        topic one: it is remapped to feed an adapter (the cell's pose_rebase) -- and a topic given
+        as ``TOPIC=N`` its own N."""
         start = time.monotonic()
+        per_topic = self.options.wait_for_topic
         need = self.options.wait_for_subscribers
-        timeout = self.options.wait_timeout_s if need else 2.0
-        remapped = {t for t in publishers if "/" + t.lstrip("/") in self.options.remap}
+        remap = self.options.remap
 
         def needed(topic: str) -> int:
-            return min(need, 1) if topic in remapped else need
+            recorded = "/" + topic.lstrip("/")
+            for name in (recorded, remap.get(recorded)):
+                if name in per_topic:
+                    return per_topic[name]
+            return min(need, 1) if recorded in remap else need
+
+        counted = {t: needed(t) for t in publishers}
+        need = max(counted.values(), default=0)
+        timeout = self.options.wait_timeout_s if need else 2.0
 
         while not self._stop.is_set():
             elapsed = time.monotonic() - start
             if need:
-                if all(p.get_subscription_count() >= needed(t) for t, p in publishers.items()):
+                if all(p.get_subscription_count() >= counted[t] for t, p in publishers.items()):
                     return
             elif elapsed >= 0.3 and all(p.get_subscription_count() >= node.count_subscribers(t)
                                         for t, p in publishers.items()):
                 return
             if elapsed >= timeout:
                 if need:
-                    short = [t for t, p in publishers.items() if p.get_subscription_count() < needed(t)]
-                    log("WARN", f"Playing although {', '.join(short)} did not get {need} subscriber(s) in {timeout:g} s")
+                    short = [f"{t} ({p.get_subscription_count()} of {counted[t]})" for t, p in publishers.items()
+                             if p.get_subscription_count() < counted[t]]
+                    log("WARN", f"Playing although not every topic got its matched subscribers in {timeout:g} s: "
+                                f"{', '.join(short)}")
                 return
             time.sleep(0.02)
 
