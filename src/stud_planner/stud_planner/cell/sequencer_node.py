@@ -450,12 +450,11 @@ def main(args=None) -> int:
     executor = MultiThreadedExecutor(num_threads=4)
     executor.add_node(node)
     try:
-        while rclpy.ok():
-            executor.spin_once(timeout_sec=0.1)
-            if node.p["exit_when_done"] and node.exit_code is not None:
-                node.publish_status()
-                time.sleep(0.3)  # let the last status go out
-                return node.exit_code
+        done = ros_io.spin_until_shutdown(executor, lambda: node.exit_code if node.p["exit_when_done"] else None)
+        if done is not None:
+            node.publish_status()
+            time.sleep(0.3)  # let the last status go out
+            return done
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
