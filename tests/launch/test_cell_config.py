@@ -149,6 +149,25 @@ def test_params_file_is_a_ros2_params_file_with_types_kept(cfg, tmp_path):
     assert nodes["hmi"].command(None) == nodes["hmi"].argv  # no parameters: no --ros-args at all
 
 
+def test_every_node_that_takes_views_subscribes_reliably_in_the_cell(cfg):
+    """In every mode the views come from reliable publishers (the camera, shot and pose_rebase nodes,
+    the driver's /camera/pose, ros2 bag play): the cell's consumers take them reliably, nothing is lost
+    on the way. Standalone, the nodes keep sensor-data QoS (any vendor driver matches)."""
+    from rclpy.qos import ReliabilityPolicy
+
+    from stud_common import ros_io
+
+    for mode in ("sim", "replay", "hardware", "calibrate", "verify"):
+        nodes, _ = plan(cfg, mode, cli_vars={"bag": "/bags/run1"} if mode == "replay" else None)
+        takers = [n for n in ("registration", "matcher", "inspector", "hand_eye_calibrator", "pose_rebase")
+                  if n in nodes]
+        assert takers, mode
+        for name in takers:
+            assert nodes[name].params["sensor_qos"] == "reliable", (mode, name)
+    assert ros_io.sensor_qos("reliable").reliability == ReliabilityPolicy.RELIABLE
+    assert ros_io.sensor_qos(ros_io.SENSOR_QOS_PARAM.default).reliability == ReliabilityPolicy.BEST_EFFORT
+
+
 def test_only_our_executables_are_asked_for_their_stacks(cfg, tmp_path):
     """SIGUSR1 prints a stuck node's stacks (stud_common.stacks); to a command of another package
     (ros2 bag) it would be a kill, so it is not sent there."""
@@ -193,7 +212,7 @@ def test_main_dry_run_prints_commands_with_params_files(capsys, tmp_path):
     code, out, err = run_main(capsys, "--mode", "sim", "--dry-run", "--params", str(CELL_YAML), "--out",
                               str(tmp_path), "--no-hmi", "--set", "matcher.algorithm=bfs")
     assert code == 0, err
-    assert f"--params-file {tmp_path}/params/matcher.yaml" in out and "{algorithm: bfs}" in out
+    assert f"--params-file {tmp_path}/params/matcher.yaml" in out and "{sensor_qos: reliable, algorithm: bfs}" in out
     assert "# hmi" not in out and "--port 8080" in out
     assert not (tmp_path / "params").exists()  # a dry run writes nothing
 

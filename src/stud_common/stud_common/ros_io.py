@@ -131,9 +131,28 @@ class Param:
         return None
 
 
+#: Reliable sensor subscriptions (``sensor_qos: reliable``): nothing is lost on the way, but only
+#: a reliable publisher matches -- our camera and shot nodes, ``ros2 bag play``; not a best-effort
+#: vendor driver (subscribe to that with the default, or through the shot node).
+SENSOR_RELIABLE_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST)
+
+
+def sensor_qos(choice: str) -> QoSProfile:
+    """The QoS of a node's image, depth, camera-info and pose subscriptions: its ``sensor_qos``."""
+    return SENSOR_RELIABLE_QOS if choice == "reliable" else SENSOR_QOS
+
+
 def three_numbers(name: str) -> Callable[[Any], str | None]:
     """A :class:`Param` validator: ``name`` must hold 3 numbers (an x, y, z or a roll, pitch, yaw)."""
     return lambda v: None if len(v) == 3 else f"{name} needs 3 numbers, got {list(v)}"
+
+
+#: The ``sensor_qos`` parameter of the nodes that take camera views (:func:`sensor_qos`).
+SENSOR_QOS_PARAM = Param("sensor_qos", "best_effort", "image/depth/camera-info/pose subscriptions: best_effort "
+                         "(sensor data, matches any publisher; a lost sample is lost) or reliable (nothing lost; "
+                         "matches reliable publishers only: our camera and shot nodes, ros2 bag play)",
+                         choices=("best_effort", "reliable"), read_only=True)
 
 
 def _show(value: Any) -> str:

@@ -30,6 +30,7 @@ from stud_perception.view_registration import config_for_layout, draw_registrati
 from stud_common import names
 
 PARAMS = [
+    ros_io.SENSOR_QOS_PARAM,
     Param("continuous", False, "register every view (true) or once, then on /registration/trigger (false)"),
     Param("method", "eq3", "transform from the marks: 'eq3' (paper) or 'least_squares'",
           choices=("eq3", "least_squares")),
@@ -61,7 +62,7 @@ class RegistrationNode(Node):
                                      slop_ns=int(self.p["sync_slop_s"] * 1e9), on_drop=ros_io.warn_dropped(self, "view"))
         for name, topic, typ in (("color", names.COLOR_IMAGE, Image), ("depth", names.DEPTH_IMAGE, Image),
                                  ("info", names.CAMERA_INFO, CameraInfo), ("pose", names.CAMERA_POSE, PoseStamped)):
-            self.create_subscription(typ, topic, functools.partial(self.sync.add, name), ros_io.SENSOR_QOS)
+            self.create_subscription(typ, topic, functools.partial(self.sync.add, name), ros_io.sensor_qos(self.p["sensor_qos"]))
         self.create_service(Trigger, names.REGISTRATION_TRIGGER, self._on_trigger)
         self.get_logger().info("waiting for /drawing/layout and a synchronised RGB-D view")
 

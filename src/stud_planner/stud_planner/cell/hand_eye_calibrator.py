@@ -55,6 +55,7 @@ def _tilts(v) -> str | None:
 
 
 PARAMS = [
+    ros_io.SENSOR_QOS_PARAM,
     Param("task", "calibrate", "'calibrate': solve and write hand_eye.yaml; 'verify': check the hand-eye in use",
           choices=("calibrate", "verify"), read_only=True),
     Param("output_dir", ".", "folder for hand_eye.yaml (calibrate) or hand_eye_check.yaml (verify)", read_only=True),
@@ -112,7 +113,7 @@ class HandEyeCalibrator(Node):
                                      slop_ns=int(self.p["sync_slop_s"] * 1e9), on_drop=ros_io.warn_dropped(self, "view"))
         for name, topic, typ in (("color", names.COLOR_IMAGE, Image), ("depth", names.DEPTH_IMAGE, Image),
                                  ("info", names.CAMERA_INFO, CameraInfo), ("pose", names.CAMERA_POSE, PoseStamped)):
-            self.create_subscription(typ, topic, functools.partial(self._add, name), ros_io.SENSOR_QOS,
+            self.create_subscription(typ, topic, functools.partial(self._add, name), ros_io.sensor_qos(self.p["sensor_qos"]),
                                      callback_group=cb)
         self.cli_move = self.create_client(MoveTo, names.ARM_MOVE_TO, callback_group=cb)
         self.cli_shot = self.create_client(Trigger, names.CAMERA_TRIGGER, callback_group=cb)

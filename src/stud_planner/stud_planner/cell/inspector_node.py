@@ -40,6 +40,7 @@ from stud_common import names
 
 _LIMITS = InspectionLimits()
 PARAMS = [
+    ros_io.SENSOR_QOS_PARAM,
     Param("max_lean_deg", _LIMITS.max_lean_deg, "the most a welded stud may lean from the surface normal (the code's "
           "5 deg) [deg]", min=0.1, max=45.0),
     Param("position_tol_mm", _LIMITS.position_tol_mm, "the most the stud's base may lie from the planned point [mm]",
@@ -125,7 +126,7 @@ class InspectorNode(Node):
         for name, topic, typ in (("depth", names.DEPTH_IMAGE, Image), ("color", names.COLOR_IMAGE, Image),
                                  ("info", names.CAMERA_INFO, CameraInfo),
                                  ("pose", names.CAMERA_POSE, PoseStamped)):
-            self.create_subscription(typ, topic, functools.partial(self._on_input, name), ros_io.SENSOR_QOS,
+            self.create_subscription(typ, topic, functools.partial(self._on_input, name), ros_io.sensor_qos(self.p["sensor_qos"]),
                                      callback_group=cb)
         self.create_service(Inspect, names.INSPECTION_INSPECT, self._on_inspect, callback_group=cb)
         self._verdicts: dict[str, str] = {}  # stud id -> its newest verdict (this session's inspections)

@@ -65,6 +65,7 @@ from stud_planner.matching.view_targets import ALGORITHMS, PlannerConfig, draw_t
 from stud_common import names
 
 PARAMS = [
+    ros_io.SENSOR_QOS_PARAM,
     Param("algorithm", "batch", "matcher: 'batch' (ours), 'fpm' or 'bfs' (the paper's)", choices=ALGORITHMS),
     Param("tolerance_m", 0.001, "match tolerance on world XY [m] (paper: 1 mm)", min=1e-5, max=0.02),
     Param("fpm_window_px", 25, "FPM brute-force window side [px] (paper: 25)", min=3, max=201),
@@ -140,7 +141,7 @@ class MatcherNode(Node):
         self.sync = ros_io.StampSync(["depth", "info", "pose"], self._on_view, slop_ns=int(self.p["sync_slop_s"] * 1e9), on_drop=ros_io.warn_dropped(self, "view"))
         for name, topic, typ in (("depth", names.DEPTH_IMAGE, Image),
                                  ("info", names.CAMERA_INFO, CameraInfo), ("pose", names.CAMERA_POSE, PoseStamped)):
-            self.create_subscription(typ, topic, functools.partial(self._on_input, name), ros_io.SENSOR_QOS)
+            self.create_subscription(typ, topic, functools.partial(self._on_input, name), ros_io.sensor_qos(self.p["sensor_qos"]))
         self._update_color_subscription()
         self.get_logger().info(f"matcher '{self.p['algorithm']}' waiting for /drawing/layout, /registration/result "
                                "and synchronised RGB-D views")
@@ -170,7 +171,7 @@ class MatcherNode(Node):
                                                        or self.pub_overlay_jpeg.get_subscription_count() > 0)
         if wanted and self._color_sub is None:
             self._color_sub = self.create_subscription(Image, names.COLOR_IMAGE, self._on_color,
-                                                       ros_io.SENSOR_QOS)
+                                                       ros_io.sensor_qos(self.p["sensor_qos"]))
             self.get_logger().info("/weld_targets/overlay has a subscriber: subscribing to /camera/color/image_raw")
         elif not wanted and self._color_sub is not None:
             self.destroy_subscription(self._color_sub)
