@@ -20,14 +20,19 @@ DEMO_SCENE = REPO / "src" / "stud_perception" / "config" / "dome_scene.json"
 COLOR = "/camera/color/image_raw"
 
 
-def _camera_inputs(node):
+def _layout() -> StudLayout:
+    scene = load_scene(DEMO_SCENE)
+    return StudLayout(studs=[Stud(id=sid, x=float(x), y=float(y), diameter=0.016, layer="STUDS")
+                             for sid, (x, y) in zip(scene.stud_ids, scene.studs_drawing_m)],
+                      mark_a=Point(x=0.13), mark_b=Point(y=0.1), mark_diameter=0.02, source_file="test")
+
+
+def _camera_inputs(node, publish_layout: bool = True):
     """Latched layout + true registration of the demo scene, publishers for one posed RGB-D shot."""
     scene = load_scene(DEMO_SCENE)
-    layout = StudLayout(studs=[Stud(id=sid, x=float(x), y=float(y), diameter=0.016, layer="STUDS")
-                               for sid, (x, y) in zip(scene.stud_ids, scene.studs_drawing_m)],
-                        mark_a=Point(x=0.13), mark_b=Point(y=0.1), mark_diameter=0.02, source_file="test")
     reg = Registration(valid=True, message="truth", m_local2world=[float(v) for v in scene.M_local2world.ravel()])
-    node.create_publisher(StudLayout, "/drawing/layout", ros_io.LATCHED_QOS).publish(layout)
+    if publish_layout:
+        node.create_publisher(StudLayout, "/drawing/layout", ros_io.LATCHED_QOS).publish(_layout())
     node.create_publisher(Registration, "/registration/result", ros_io.LATCHED_QOS).publish(reg)
     pubs = {k: node.create_publisher(t, topic, ros_io.CAMERA_PUB_QOS) for k, t, topic in (
         ("color", Image, COLOR), ("depth", Image, "/camera/depth/image_raw"),
@@ -87,6 +92,28 @@ def test_targets_without_colour_and_colour_only_while_the_overlay_is_watched(ros
     ros_node.destroy_subscription(sub)
     wait_for(lambda: ros_node.count_subscribers(COLOR) == 0, 20, spin=ros_node.spin,
              what="the matcher unsubscribing from colour")
+
+
+def test_a_view_that_comes_before_the_layout_is_matched_once_the_layout_arrives(ros_node, procs, tmp_path: Path):
+    """A slow start: the station's shot reaches the matcher before the drawing's layout does (seen in
+    the cell under load). The view waits, and is matched when the layout comes -- no second shot.
+    With sensor_qos reliable, as in the cell, the one shot is not lost on the way either."""
+    procs.append(ros2_run("stud_planner", "matcher", tmp_path / "matcher.log", params={"sensor_qos": "reliable"}))
+    pubs, shot = _camera_inputs(ros_node, publish_layout=False)
+    targets = []
+    ros_node.create_subscription(WeldTargetArray, "/weld_targets", targets.append, ros_io.RESULT_QOS)
+    wait_for(lambda: all(pubs[k].get_subscription_count() >= 1 for k in ("depth", "info", "pose")), 30,
+             spin=ros_node.spin, what="depth, camera info and pose matched by the matcher")
+    stamp = _shoot(pubs, shot, 1, ("depth", "info", "pose"))  # one shot: it arrives, and waits
+
+    def held() -> bool:  # the view's own reason, not the start-up line that names the layout too
+        return any(line.endswith("]: waiting for /drawing/layout") for line in procs[-1].output().splitlines())
+    wait_for(held, 10, spin=ros_node.spin, what="the matcher holding the view")
+    assert not targets
+    ros_node.create_publisher(StudLayout, "/drawing/layout", ros_io.LATCHED_QOS).publish(_layout())
+    wait_for(lambda: any(t.header.stamp == stamp for t in targets), 10, spin=ros_node.spin,
+             what="targets of the view shot before the layout")
+    assert sum(t.status_text == "ok" for t in targets[-1].targets) >= 5
 
 
 def test_poses_hold_only_the_usable_targets_in_target_order_and_no_nan():

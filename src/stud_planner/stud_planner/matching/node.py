@@ -151,13 +151,19 @@ class MatcherNode(Node):
         self.layout = msg
         self._layout_view = layout_from_msg(msg)
         self.get_logger().info(f"layout '{msg.source_file}' with {len(msg.studs)} studs")
+        self._retry_pending()
 
     def _on_registration(self, msg: Registration) -> None:
         self.registration = msg
         if not msg.valid:
             self.get_logger().warn(f"registration not valid: {msg.message}", throttle_duration_sec=10.0)
             return
-        if self._pending is not None:  # a view that came just before its registration
+        self._retry_pending()
+
+    def _retry_pending(self) -> None:
+        """A view that came just before the layout or its registration: match it now (it may be the
+        station's only shot), unless the other is still missing (then it waits on)."""
+        if self._pending is not None:
             view, self._pending = self._pending, None
             self._on_view(view)
 
