@@ -15,6 +15,7 @@ ZYX intrinsic, ``R = Rz(rz) · Ry(ry) · Rx(rx)``. Quaternions here are ROS orde
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Sequence
 
 import numpy as np
 
@@ -333,7 +334,7 @@ class RM65Kinematics:
         tol_rotation_rad: float = 1e-5,
         damping: float = 0.02,
         rng_seed: int = 0,
-        prefer_signs=None,
+        prefer_signs: Sequence[int] | None = None,
     ) -> IKResult:
         """Damped-least-squares IK for the flange (or ``tool``) pose ``T_target`` (4x4, base frame).
 
@@ -439,8 +440,7 @@ class RM65Kinematics:
         return np.array(path), ""
 
 
-
-def _branch_test(prefer_signs):
+def _branch_test(prefer_signs: Sequence[int] | None):
     """``test(q (N, 6)) -> (N,) bool``: the joints have the signs ``prefer_signs`` asks for (0: any)."""
     if prefer_signs is None:
         return lambda q: np.ones(len(q), dtype=bool)
@@ -449,6 +449,7 @@ def _branch_test(prefer_signs):
         raise ValueError(f"prefer_signs must hold -1, 0 or 1 for each joint, got {signs.tolist()}")
     ask = signs != 0
     return lambda q: np.all(np.sign(q[:, ask]) == signs[ask], axis=1)
+
 
 def _rotvec_to_matrix(rv: np.ndarray) -> np.ndarray:
     """Rodrigues' formula (3,) -> 3x3."""
