@@ -67,8 +67,7 @@ class DriverServices(DriverBase):
         if np.any(T_goal[:3, 3] < lo) or np.any(T_goal[:3, 3] > hi):
             return False, f"tool position {np.round(T_goal[:3, 3], 3).tolist()} m is outside the workspace box"
         seed = self._last_state.joints_rad if self._last_state is not None else None
-        signs = list(self.p["preferred_joint_signs"])
-        ik = self.kin.ik(T_goal, q_seed=seed, tool=self.tool_T, prefer_signs=signs if any(signs) else None)
+        ik = self.kin.ik(T_goal, q_seed=seed, tool=self.tool_T, prefer_signs=self.p["preferred_joint_signs"])
         if not ik.success:
             return False, f"unreachable: {ik.message or 'no IK solution within the joint limits'}"
         speed = min(self.p["joint_speed_pct"], self.p["max_joint_speed_pct"])

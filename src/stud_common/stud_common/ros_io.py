@@ -134,8 +134,7 @@ class Param:
 #: Reliable sensor subscriptions (``sensor_qos: reliable``): nothing is lost on the way, but only
 #: a reliable publisher matches -- our camera and shot nodes, ``ros2 bag play``; not a best-effort
 #: vendor driver (subscribe to that with the default, or through the shot node).
-SENSOR_RELIABLE_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
-                                 durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST)
+SENSOR_RELIABLE_QOS = CAMERA_PUB_QOS  # the same profile our camera publishes with
 
 
 def sensor_qos(choice: str) -> QoSProfile:
