@@ -229,3 +229,65 @@ def test_controller_info_runs_the_sdk_handshake(client):
     assert set(info) == set(P.HANDSHAKE_COMMANDS)
     assert info["get_arm_software_info"]["Product_version"] == "RM65-BI"
     assert all(v is not None for v in info.values())
+
+
+def test_a_connected_line_runs_as_one_trajectory_and_reports_its_handover(client, sim):
+    q = np.radians([10, -35, -95, 5, -50, 20])
+    client.move_joints_and_wait(q, 50, timeout_s=5)
+    start = client.get_state().pose
+    short, contact = start.copy(), start.copy()
+    short[2] -= 0.04
+    contact[2] -= 0.05
+    handovers: list[tuple[int, np.ndarray]] = []
+    client.move_linear_path_and_wait([(short, 30), (contact, 10)], timeout_s=5,
+                                     on_handover=lambda i: handovers.append((i, sim.tcp_pose()[:3, 3].copy())))
+    np.testing.assert_allclose(client.get_state().pose[:3], contact[:3], atol=2e-6)
+    sent = sim.commands_named("movel")[-2:]
+    assert [(c.msg["v"], c.msg["trajectory_connect"]) for c in sent] == [(30, 1), (10, 0)]
+    # the hand-over came when the first line ended: at (or just past) the short standoff
+    assert [i for i, _ in handovers] == [1]
+    assert np.linalg.norm(handovers[0][1] - short[:3]) < 0.004
+
+
+def test_a_refused_second_segment_leaves_nothing_to_run(client, sim):
+    q = np.radians([10, -35, -95, 5, -50, 20])
+    client.move_joints_and_wait(q, 50, timeout_s=5)
+    start = client.get_state().pose
+    short = start.copy()
+    short[2] -= 0.02
+    with pytest.raises(ArmCommandError) as e:
+        client.move_linear_path_and_wait([(short, 30), ([0.9, 0, 0.1, np.pi, 0, 0], 10)], timeout_s=5)
+    assert e.value.code == 0x1003
+    time.sleep(0.2)  # the first segment, acknowledged and held, was dropped by a stop: the arm never moved
+    np.testing.assert_allclose(sim.joints, q, atol=2e-5)
+    assert not sim.moving
+    client.move_linear_and_wait(short, 30, timeout_s=5)  # and the next motion runs normally
+    np.testing.assert_allclose(client.get_state().pose[:3], short[:3], atol=2e-6)
+
+
+def test_a_motion_sent_to_be_connected_waits_for_the_next_one(sim):
+    raw = socket.create_connection(("127.0.0.1", sim.port))
+    q0 = sim.joints.copy()
+    raw.sendall(P.encode(P.movej(q0 + np.radians([20, 0, 0, 0, 0, 0]), 50, trajectory_connect=1)))
+    time.sleep(0.3)
+    np.testing.assert_allclose(sim.joints, q0, atol=1e-9)  # planned, not executed
+    raw.sendall(P.encode(P.movej(q0, 50)))  # the next one: now both run, and the arm comes back
+    assert wait_for(lambda: not sim.moving, 5.0)
+    np.testing.assert_allclose(sim.joints, q0, atol=2e-5)
+    assert len(sim.commands_named("movej")) == 2
+    raw.close()
+
+
+def test_a_controller_that_says_all_done_after_the_first_segment_is_not_believed_until_the_arm_is_still():
+    with ArmSimulator(port=0, time_scale=0.3, initial_joints_deg=HOME_DEG, report_connected=False) as s:
+        c = ArmClient("127.0.0.1", s.port, connect_timeout_s=1.0, reply_timeout_s=1.0)
+        c.connect()
+        c.move_joints_and_wait(np.radians([10, -35, -95, 5, -50, 20]), 50, timeout_s=5)
+        short, contact = c.get_state().pose, c.get_state().pose
+        short[2] -= 0.03
+        contact[2] -= 0.04
+        c.move_linear_path_and_wait([(short, 30), (contact, 10)], timeout_s=5)
+        # returned only at the contact, never at the short standoff where the first "all done" came
+        assert not s.moving
+        np.testing.assert_allclose(s.tcp_pose()[:3, 3], contact[:3], atol=2e-6)
+        c.close()

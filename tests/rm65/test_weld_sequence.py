@@ -375,6 +375,49 @@ def test_fast_approach_stops_short_and_the_last_stretch_is_slow(client, sim, tmp
     assert all(set(m) == {"move", "approach", "descend"} and min(m.values()) > 0 for m in motion)
 
 
+def test_a_connected_approach_goes_on_to_the_slow_final_move_without_a_stop_and_welds_at_the_contact(
+        client, sim, tmp_path):
+    targets = dome_targets(rings=((0.0, 1), (0.05, 3)))
+    phases: list = []
+    seq, journal = make_seq(client, tmp_path, params=replace(FAST_CYCLE, connected_approach=True), phases=phases)
+    res = seq.run(targets)
+    assert res.success, res.message
+    assert set(welds_per_stud(sim, targets).values()) == {1}  # each trigger at its stud's contact pose
+    moves = sim.commands_named("movel")
+    assert len(moves) == 3 * len(targets)
+    flags = [(c.msg["v"], c.msg["trajectory_connect"]) for c in moves]
+    assert flags == [(30, 1), (10, 0), (30, 0)] * len(targets)  # approach -> final move joined; retract alone
+    by_stud = {t.stud_id: t for t in targets}
+    started = [json.loads(x) for x in (tmp_path / "weld.jsonl").read_text().splitlines()]
+    for r in (r for r in started if r["event"] == "started"):
+        assert set(r["motion_s"]) == {"move", "approach", "descend"} and min(r["motion_s"].values()) > 0
+        seen = [ph for sid, ph, *_ in phases if sid == r["stud"]]
+        assert seen[:3] == ["approach", "descend", "weld"], seen
+        t = by_stud[r["stud"]]
+        np.testing.assert_allclose(r["position"], t.position, atol=1e-9)
+
+
+def test_a_cancel_during_the_connected_approach_backs_out_and_welds_nothing_more(client, sim, tmp_path):
+    targets = dome_targets(rings=((0.0, 1), (0.05, 2)))
+    phases: list = []
+    seq, journal = make_seq(client, tmp_path, params=replace(FAST_CYCLE, connected_approach=True), phases=phases)
+    sim.stall_next_motion(fraction=0.5, command="movel")  # the first stud's fast approach freezes half-way
+    out: dict = {}
+    th = threading.Thread(target=lambda: out.setdefault("res", seq.run(targets)))
+    th.start()
+    assert wait_for(lambda: any(ph == "approach" for _, ph, *_ in phases) and sim.moving, 5.0)
+    time.sleep(0.1)
+    seq.cancel()
+    th.join(10)
+    res = out["res"]
+    assert not res.success and "cancelled" in res.message
+    assert not sim.rising_edges(1)  # nothing triggered
+    assert not any(json.loads(x)["event"] == "started" for x in (tmp_path / "weld.jsonl").read_text().splitlines())
+    back = _linear_moves(sim)[-1]
+    assert back[1] == FAST_CYCLE.linear_speed_pct  # the back-out: slow, straight out along the normal
+    assert any(np.allclose(back[0], t.position + 0.05 * t.normal, atol=1e-5) for t in targets)
+
+
 def test_a_fast_approach_above_the_speed_cap_is_refused_before_anything_moves(client, sim, tmp_path):
     params = replace(FAST_CYCLE, approach_speed_pct=40)
     seq, _journal = make_seq(client, tmp_path, params=params, max_linear_speed_pct=30)

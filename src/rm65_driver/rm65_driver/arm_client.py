@@ -337,49 +337,82 @@ class ArmClient:
             return self._stop_seq
 
     def _move_and_wait(self, msg: dict[str, Any], timeout_s: float, stop_count: int | None) -> None:
+        self._connected_move_and_wait([msg], timeout_s, stop_count, None)
+
+    def _connected_move_and_wait(self, msgs: Sequence[dict[str, Any]], timeout_s: float, stop_count: int | None,
+                                 on_handover: Callable[[int], None] | None) -> None:
+        """Send ``msgs`` as one trajectory (``trajectory_connect`` 1 on all but the last) and wait for its end.
+
+        An arrival with ``trajectory_connect`` 1 is a hand-over to the next motion: ``on_handover(i)``
+        is called (i = 1, 2, ... motions done), without the client's lock; the trajectory ends
+        with the ``len(msgs)``-th arrival, or with one that says every queued motion is done (0)
+        once the controller also reports no running trajectory.
+        """
+        msgs = [dict(m, trajectory_connect=int(i < len(msgs) - 1)) for i, m in enumerate(msgs)]
+        name = msgs[-1]["command"]
         with self._state_lock:
             stop_seq = self._stop_seq if stop_count is None else stop_count
             gen = self._generation
             if stop_seq != self._stop_seq:
-                raise ArmStopped(f"{msg['command']} not sent: a stop was requested")
-        pending = self._request_raw(msg)
-        if not P.reply_ok(msg["command"], pending.reply or {}):
-            raise self._refusal(msg["command"])
+                raise ArmStopped(f"{name} not sent: a stop was requested")
+        seen = -1
+        for i, msg in enumerate(msgs):
+            pending = self._request_raw(msg)
+            if not P.reply_ok(msg["command"], pending.reply or {}):
+                if i > 0:  # the motions already accepted wait for this one: drop them
+                    self._send(P.set_arm_stop())
+                raise self._refusal(msg["command"])
+            seen = pending.traj_seq if seen < 0 else seen
         with self._state_lock:
             stopped_meanwhile = self._stop_seq != stop_seq
         if stopped_meanwhile:
             # A stop was requested while this command was on its way: it must not run.
             self._send(P.set_arm_stop())
-            raise ArmStopped(f"{msg['command']} stopped right after it was accepted")
-        seen = pending.traj_seq  # arrival messages before our acknowledgement belong to older motions
+            raise ArmStopped(f"{name} stopped right after it was accepted")
+        # arrival messages before our first acknowledgement belong to older motions
         end = time.monotonic() + timeout_s
-        failed = False
         frozen_left: float | None = None
-        with self._traj_cond:
-            while True:
+        done = 0
+        early_end = False
+        while True:
+            handed_over = False
+            with self._traj_cond:
                 if self._stop_seq != stop_seq:
-                    raise ArmStopped(f"{msg['command']} interrupted by a stop")
+                    raise ArmStopped(f"{name} interrupted by a stop")
                 if self._generation != gen or self._sock is None:
-                    raise ArmConnectionError(f"connection lost during {msg['command']} ({self.last_error})")
-                arm_events = [ev for seq, ev in self._traj_events if seq > seen and ev.device == 0]
-                seen = self._traj_seq
-                if arm_events:
-                    if arm_events[0].success:
+                    raise ArmConnectionError(f"connection lost during {name} ({self.last_error})")
+                nxt = next(((seq, ev) for seq, ev in self._traj_events if seq > seen and ev.device == 0), None)
+                if nxt is not None:
+                    seen, ev = nxt
+                    if not ev.success:
+                        break
+                    done += 1
+                    if done >= len(msgs):
                         return
-                    failed = True
-                    break
-                now = time.monotonic()
-                if self._paused:  # a paused motion does not use up its time budget
-                    frozen_left = end - now if frozen_left is None else frozen_left
-                    end = now + max(frozen_left, 0.05)
+                    if ev.trajectory_connect == 0:
+                        early_end = True  # "all done" before every segment reported: see below
+                        break
+                    handed_over = True
                 else:
-                    frozen_left = None
-                left = end - now
-                if left <= 0:
-                    raise ArmTimeout(f"{msg['command']} did not arrive within {timeout_s:.1f} s")
-                self._traj_cond.wait(min(left, 0.05))
-        assert failed
-        raise self._refusal(msg["command"])  # decoded outside the lock: it queries the state
+                    now = time.monotonic()
+                    if self._paused:  # a paused motion does not use up its time budget
+                        frozen_left = end - now if frozen_left is None else frozen_left
+                        end = now + max(frozen_left, 0.05)
+                    else:
+                        frozen_left = None
+                    left = end - now
+                    if left <= 0:
+                        raise ArmTimeout(f"{name} did not arrive within {timeout_s:.1f} s")
+                    self._traj_cond.wait(min(left, 0.05))
+            if handed_over and on_handover is not None:
+                on_handover(done)
+        if early_end:
+            # A controller that reports a connected trajectory once, at its end -- or one that ran the
+            # first segment alone: the arm must be still before the caller acts on "arrived" (a weld
+            # trigger), so ask it.
+            self.wait_idle(max(end - time.monotonic(), 0.1))
+            return
+        raise self._refusal(name)  # decoded outside the lock: it queries the state
 
     def move_joints_and_wait(self, q_rad: ArrayLike, v: int, timeout_s: float = 30.0,
                              stop_count: int | None = None) -> None:
@@ -400,6 +433,17 @@ class ArmClient:
                              stop_count: int | None = None) -> None:
         """``movel`` (straight line) to a tool pose ``[m, m, m, rad, rad, rad]`` in the work frame."""
         self._move_and_wait(P.movel(pose6, v), timeout_s, stop_count)
+
+    def move_linear_path_and_wait(self, segments: Sequence[tuple[ArrayLike, int]], timeout_s: float = 30.0,
+                                  stop_count: int | None = None,
+                                  on_handover: Callable[[int], None] | None = None) -> None:
+        """``movel`` through ``(pose6, v)`` segments as one connected trajectory, without stopping where they join.
+
+        Each segment keeps its own speed; where one continues the other along a line the controller
+        only slows to the next one's speed (a corner is passed at rest: no blend radius is sent).
+        ``on_handover(i)`` is called when segment i ends and the next begins.
+        """
+        self._connected_move_and_wait([P.movel(p6, v) for p6, v in segments], timeout_s, stop_count, on_handover)
 
     # -- stop fast path ------------------------------------------------------------------
     def stop(self, wait_reply: bool = True) -> None:

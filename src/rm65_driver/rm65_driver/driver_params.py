@@ -63,6 +63,9 @@ PARAMS = [
           "standoff slow) [m]", min=0.0, max=0.3),
     Param("approach_speed_pct", 30, "the fast straight approach to final_approach_m and the retract "
           "[% of max; within max_linear_speed_pct]", min=1, max=100),
+    Param("connected_approach", True, "send the fast approach and the slow final move as one connected "
+          "trajectory (trajectory_connect=1): on their shared line the arm slows to linear_speed_pct without a "
+          "stop between them; false: two moves, each from rest to rest"),
     Param("stud_order", "tour", "the order a job's studs are welded in: 'tour' (a short joint-space path from "
           "the current joints and back), 'path' (no way back) or 'given' (the request's)",
           choices=("tour", "path", "given")),
@@ -97,7 +100,8 @@ def job_config(p: dict) -> tuple[WeldParams, SafetyLimits]:
         dwell_s=p["dwell_s"], joint_speed_pct=p["joint_speed_pct"], linear_speed_pct=p["linear_speed_pct"],
         motion_timeout_s=p["motion_timeout_s"], reconnect_timeout_s=p["reconnect_timeout_s"],
         on_disconnect=p["on_disconnect"], final_approach_m=p["final_approach_m"],
-        approach_speed_pct=p["approach_speed_pct"], stud_order=p["stud_order"])
+        approach_speed_pct=p["approach_speed_pct"], stud_order=p["stud_order"],
+        connected_approach=p["connected_approach"])
     limits = SafetyLimits(
         workspace_min_m=tuple(p["workspace_min_m"]), workspace_max_m=tuple(p["workspace_max_m"]),
         max_tool_tilt_deg=p["max_tool_tilt_deg"], yaw_step_deg=p["yaw_step_deg"],

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from stud_common.rotations import rpy_to_matrix
 
@@ -41,6 +42,9 @@ JOINT_LIMITS_DEG = np.array(
 )
 #: Max joint speed (deg/s), J1..J6 (WEB-PARAM).
 JOINT_MAX_SPEED_DEG_S = np.array([180.0, 180.0, 225.0, 225.0, 225.0, 225.0])
+#: Max joint acceleration (deg/s^2), J1..J6: what the simulator answers to ``get_joint_max_acc``
+#: (the SDK documentation's example value; a real arm's factory setting may differ: read it).
+JOINT_MAX_ACC_DEG_S2 = np.array([600.0] * 6)
 
 #: Shoulder point (m, base frame): J2 axis height; the reach sphere is centred here.
 SHOULDER_M = np.array([0.0, 0.0, 0.2405])
@@ -220,16 +224,39 @@ class IKResult:
     message: str = ""
 
 
+def trapezoid_profile(lengths: ArrayLike, speeds: ArrayLike, accels: ArrayLike) -> tuple[float, float]:
+    """(duration T, acceleration time t_a) (s) of the fastest synchronised trapezoidal move.
+
+    Every component ``i`` (a joint, or a move's length and angle) covers ``lengths[i]`` along one
+    shared time law -- accelerate for ``t_a``, cruise, decelerate for ``t_a`` -- so its peak speed
+    is ``L_i / (T - t_a)`` and its acceleration ``L_i / (t_a (T - t_a))``. Both stay within
+    ``speeds[i]`` and ``accels[i]`` iff ``T - t_a >= B = max L_i/v_i`` and ``t_a (T - t_a) >= A =
+    max L_i/a_i``; the shortest such T is ``B + A/B`` (cruising), or ``2 sqrt(A)`` (a triangle,
+    t_a = T/2) when ``B < sqrt(A)``. A single component: ``L/v + v/a``, or ``2 sqrt(L/a)``.
+    """
+    L = np.abs(np.asarray(lengths, dtype=np.float64))
+    B = float(np.max(L / np.asarray(speeds, dtype=np.float64), initial=0.0))
+    A = float(np.max(L / np.asarray(accels, dtype=np.float64), initial=0.0))
+    if B <= 0.0:
+        return 0.0, 0.0
+    if B * B >= A:
+        return B + A / B, A / B
+    T = 2.0 * float(np.sqrt(A))
+    return T, T / 2.0
+
+
 @dataclass
 class RM65Kinematics:
     """Forward/inverse kinematics of the RM65 flange (or a tool given as flange->tool 4x4).
 
-    ``limits_rad`` (6, 2) are the joint ranges; ``max_speed_rad_s`` (6,) the joint speeds.
+    ``limits_rad`` (6, 2) are the joint ranges; ``max_speed_rad_s`` (6,) the joint speeds,
+    ``max_acc_rad_s2`` (6,) their accelerations.
     """
 
     dh: DHModel = field(default_factory=DHModel.rm65)
     limits_rad: np.ndarray = field(default_factory=lambda: np.radians(JOINT_LIMITS_DEG))
     max_speed_rad_s: np.ndarray = field(default_factory=lambda: np.radians(JOINT_MAX_SPEED_DEG_S))
+    max_acc_rad_s2: np.ndarray = field(default_factory=lambda: np.radians(JOINT_MAX_ACC_DEG_S2))
 
     # -- forward ----------------------------------------------------------------------------
     def link_transforms(self, q: np.ndarray) -> np.ndarray:
@@ -302,8 +329,17 @@ class RM65Kinematics:
 
     def joint_move_time(self, q_from, q_to, speed_fraction: float) -> float:
         """Minimum time (s) of a synchronised joint move at ``speed_fraction`` (0..1] of max speed."""
+        return self.joint_move_profile(q_from, q_to, speed_fraction)[0]
+
+    def joint_move_profile(self, q_from, q_to, speed_fraction: float) -> tuple[float, float]:
+        """(duration, acceleration time) (s) of a synchronised joint move (:func:`trapezoid_profile`).
+
+        ``speed_fraction`` scales the joints' speeds and accelerations alike, as a RealMan
+        controller's ``v`` does.
+        """
         dq = np.abs(np.asarray(q_to, dtype=np.float64) - np.asarray(q_from, dtype=np.float64))
-        return float(np.max(dq / (self.max_speed_rad_s * max(speed_fraction, 1e-3))))
+        f = max(speed_fraction, 1e-3)
+        return trapezoid_profile(dq, self.max_speed_rad_s * f, self.max_acc_rad_s2 * f)
 
     # -- inverse ----------------------------------------------------------------------------
     def _seeds(self, q_seed: np.ndarray, restarts: int, rng_seed: int) -> np.ndarray:

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from . import protocol as P
-from .kinematics import JOINT_MAX_SPEED_DEG_S, RM65Kinematics, invert_transform, matrix_to_pose6, pose6_to_matrix
+from .kinematics import JOINT_MAX_ACC_DEG_S2, JOINT_MAX_SPEED_DEG_S, RM65Kinematics, invert_transform, matrix_to_pose6, pose6_to_matrix
 
 #: Controller IO (Gen-3: four multiplexed DI/DO) and tool-flange IO (two), §1.8.
 N_IO = 4
@@ -147,7 +147,8 @@ class ControllerCommands:
         return {"state": "joint_max_speed", "joint_speed": [int(v * 1000) for v in JOINT_MAX_SPEED_DEG_S]}
 
     def _cmd_get_joint_max_acc(self, msg: dict[str, Any]) -> dict[str, Any]:
-        return {"state": "joint_max_acc", "joint_acc": [600000] * 6}
+        # same unit as the speeds; the motion model accelerates at these (RM65Kinematics.max_acc_rad_s2)
+        return {"state": "joint_max_acc", "joint_acc": [int(a * 1000) for a in JOINT_MAX_ACC_DEG_S2]}
 
     def _cmd_get_DH_data(self, msg: dict[str, Any]) -> dict[str, Any]:
         dh = self.kin.dh

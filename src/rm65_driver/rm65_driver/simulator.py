@@ -7,9 +7,11 @@ acknowledgement followed by the ``current_trajectory_state`` arrival message, st
 / pause / continue, tool and work frames, controller and tool-flange IO, arm state in the
 current (``err`` list) or the older error formats.
 
-The arm moves in (scaled) real time: a joint move lasts as long as the slowest joint needs at
-``v`` % of its maximum speed, a linear move as long as the path needs at ``v`` % of the line
-speed; ``time_scale`` multiplies every duration (0.02 makes tests 50x faster). Targets outside
+The arm moves in (scaled) real time along trapezoidal profiles: ``v`` % scales speeds and
+accelerations alike, as RealMan documents; a joint move lasts as long as the slowest joint needs
+at ``v`` % of its maximum speed and acceleration (``get_joint_max_acc``), a linear move as long
+as the path needs at ``v`` % of the line and angular limits (:class:`.sim_motion.MotionLimits`),
+starting and ending at rest; ``time_scale`` multiplies every duration (0.02 makes tests 50x faster). Targets outside
 the joint limits are refused with ``receive_state:false`` and error 0x1002 in the state,
 unreachable poses with 0x1003 (the exact channel is [UNCERTAIN] in the docs; this is the one
 the official SDK reports as "refused", §3). Numbers no arm can reach -- non-finite, too large for
@@ -50,7 +52,7 @@ from . import protocol as P
 from .kinematics import DHModel, RM65Kinematics, matrix_to_pose6
 from .sim_controller import N_IO, N_TOOL_IO, ControllerCommands, DOEvent
 from .sim_faults import Fault, FaultInjection
-from .sim_motion import Motion, plan_motion, trajectory_msg
+from .sim_motion import Motion, MotionLimits, SegmentProfile, junction_speed, line_segment, plan_motion, trajectory_msg
 from .sim_server import Connection, TcpServer
 from stud_common.stacks import dump_stacks_on_signal
 
@@ -82,6 +84,8 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
     ``keep_moving_on_disconnect``: a dropped TCP connection does not stop a planned motion
     (what a controller executing its own trajectory does; [UNCERTAIN] on hardware).
     ``min_motion_real_s``: floor on a motion's wall-clock duration, whatever ``time_scale``.
+    ``report_connected``: a motion sent with ``trajectory_connect`` 1 reports its end with 1 (False: with
+    0, as if every queued motion were done).
     """
 
     def __init__(
@@ -94,13 +98,13 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
         d6_m: float = 0.144,
         initial_joints_deg: Sequence[float] = (0.0, 0.0, 90.0, 0.0, 90.0, 0.0),
         tick_s: float = 0.002,
-        max_line_speed_m_s: float = 0.5,
-        max_angular_speed_rad_s: float = 3.0,
+        limits: MotionLimits | None = None,
         stop_reports_trajectory: bool = True,
         strict_io_mode: bool = True,
         keep_moving_on_disconnect: bool = True,
         product_version: str = "RM65-BI",
         min_motion_real_s: float = 0.01,
+        report_connected: bool = True,
     ):
         if err_format not in ("list", "scalar", "arm_sys"):
             raise ValueError(f"err_format {err_format!r}: expected list, scalar or arm_sys")
@@ -111,8 +115,7 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
         self.pretty_replies = pretty_replies
         self.kin = RM65Kinematics(dh=DHModel.rm65(d6_m))
         self.tick_s = tick_s
-        self.max_line_speed_m_s = max_line_speed_m_s
-        self.max_angular_speed_rad_s = max_angular_speed_rad_s
+        self.limits = limits or MotionLimits()
         self.stop_reports_trajectory = stop_reports_trajectory
         self.strict_io_mode = strict_io_mode
         self.keep_moving_on_disconnect = keep_moving_on_disconnect
@@ -120,6 +123,9 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
         # No real trajectory ends within milliseconds of its acknowledgement; the official SDK's
         # single-thread mode misses an arrival message that shares a TCP read with the ack.
         self.min_motion_real_s = min_motion_real_s
+        # The end of a connected motion's first part: trajectory_connect 1 (DOCS); False sends 0 as
+        # if all were done, the [UNCERTAIN] reading a client must survive.
+        self.report_connected = report_connected
 
         self._lock = threading.RLock()
         self._joints = np.radians(np.asarray(initial_joints_deg, dtype=np.float64))
@@ -254,10 +260,9 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
             conn.close()
 
     # -- motion --------------------------------------------------------------------------
-    def _plan(self, name: str, msg: dict[str, Any], q_start: np.ndarray) -> tuple[np.ndarray | None, float, int]:
-        """Joint path and simulated duration, or (None, 0, error code) (:func:`.sim_motion.plan_motion`)."""
-        return plan_motion(self.kin, name, msg, q_start, self._frames, self.max_line_speed_m_s,
-                           self.max_angular_speed_rad_s)
+    def _plan(self, name: str, msg: dict[str, Any], q_start: np.ndarray) -> tuple[np.ndarray | None, float, float, int]:
+        """Joint path, duration and acceleration time, or (None, 0, 0, error code) (:func:`.sim_motion.plan_motion`)."""
+        return plan_motion(self.kin, name, msg, q_start, self._frames, self.limits)
 
     def _frames(self) -> tuple[np.ndarray, np.ndarray]:
         with self._lock:
@@ -265,19 +270,24 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
 
     def _motion_cmd(self, conn: Connection, msg: dict[str, Any], fault: Fault | None) -> Any:
         name = msg["command"]
-        if int(msg.get("trajectory_connect", 0)) != 0:
-            _log.warning("simulator: trajectory_connect=1 is executed as 0 (blending not simulated)")
+        connect = int(msg.get("trajectory_connect", 0)) != 0
+        if connect and int(msg.get("r", 0)) != 0:
+            _log.warning("simulator: blend radius r=%s is not simulated: corners are passed at rest", msg.get("r"))
         with self._lock:
             q_start = self._queue[-1].path[-1].copy() if self._queue else self._joints.copy()
             if len(self._queue) >= MAX_QUEUED_MOTIONS:
                 return {"command": name, "receive_state": False}
-        path, duration, code = self._plan(name, msg, q_start)
+        path, duration, accel, code = self._plan(name, msg, q_start)
         with self._lock:
             if path is None:
                 self._errors = [code]
                 self._changed.notify_all()
                 return {"command": name, "receive_state": False}
-            motion = Motion(name, path, max(duration, 0.01), conn.id)
+            motion = Motion(name, path, max(duration, 0.01), conn.id, accel_s=accel, connect_next=connect)
+            if name == "movel":
+                motion.line = line_segment(self.kin, path, self._frames_locked()[1], duration, accel)
+            if self._queue and self._queue[-1].connect_next:
+                self._join(self._queue[-1], motion)
             if fault is not None and fault.action == "trajectory":
                 motion.fail_at, motion.fail_code = fault.fraction, fault.code
             stall = self._take_fault(name, ("stall",))
@@ -291,6 +301,24 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
             self.motion_log.append((name, path[-1].copy()))
             self._changed.notify_all()
         return [{"command": name, "receive_state": True}, motion.release]
+
+    @staticmethod
+    def _join(prev: Motion, nxt: Motion) -> None:
+        """``nxt`` follows ``prev`` (sent with trajectory_connect=1), which has not started: pass the junction at speed.
+
+        Only where one line continues the other (:func:`.sim_motion.junction_speed`); anywhere else
+        the arm stops at the junction, as it does between unconnected motions.
+        """
+        if prev.line is None or nxt.line is None or prev.elapsed_s > 0:
+            return
+        u = prev.profile.u if prev.profile is not None else 0.0
+        w = junction_speed(prev.line, nxt.line)
+        if w <= 0 or abs(u * u - w * w) > 2 * prev.line.accel * prev.line.length:
+            return
+        prev.profile = SegmentProfile(prev.line.length, u, w, prev.line.speed, prev.line.accel)
+        nxt.profile = SegmentProfile(nxt.line.length, w, 0.0, nxt.line.speed, nxt.line.accel)
+        prev.duration_s = max(prev.profile.duration_s, 1e-3)
+        nxt.duration_s = max(nxt.profile.duration_s, 1e-3)
 
     _cmd_movej = _motion_cmd
     _cmd_movej_p = _motion_cmd
@@ -309,8 +337,8 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
                 if not self._queue or self._paused:
                     continue
                 m = self._queue[0]
-                if not m.released:
-                    continue
+                if not m.released or (m.connect_next and len(self._queue) == 1):
+                    continue  # acknowledged, not on the wire yet / planned with a motion still to come
                 m.elapsed_s += dt
                 f = m.fraction()
                 for limit in (m.stall_at, m.fail_at, m.drop_at):
@@ -329,7 +357,7 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
                     outbox.append((m.conn_id, trajectory_msg(False)))
                 elif f >= 1.0 and now - (m.released_at or now) >= self.min_motion_real_s:
                     self._queue.popleft()
-                    outbox.append((m.conn_id, trajectory_msg(True)))
+                    outbox.append((m.conn_id, trajectory_msg(True, connected=m.connect_next and self.report_connected)))
                 self._changed.notify_all()
             for conn_id in drops:
                 with self._lock:

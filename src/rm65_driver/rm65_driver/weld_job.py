@@ -60,6 +60,9 @@ class WeldParams:
     # shorter than the standoff): the whole standoff slow, the retract too.
     final_approach_m: float = 0.0
     approach_speed_pct: int = 10
+    # The fast approach and the slow final move sent as one connected trajectory (trajectory_connect=1):
+    # on their shared line the arm slows to the slow speed without stopping in between.
+    connected_approach: bool = False
     stud_order: str = "given"  # "given" | "path" | "tour"
     reconnect_timeout_s: float = 10.0
     max_reconnects_per_stud: int = 3

@@ -19,7 +19,11 @@ Per target, in order:
    ``final_approach_m`` shorter than the standoff, a fast ``movel`` (``approach_speed_pct``)
    along the normal to the short standoff ``final_approach_m`` from the surface;
 4. ``descend``: the slow controlled final ``movel`` (``linear_speed_pct``) along the normal to
-   the contact pose (tool tip on the surface, or ``plunge_m`` beyond it);
+   the contact pose (tool tip on the surface, or ``plunge_m`` beyond it). With
+   ``connected_approach`` the fast and the slow ``movel`` go as one connected trajectory
+   (``trajectory_connect`` 1 on the first): on their shared line the arm slows down to the slow
+   speed instead of stopping at the short standoff; a stop or cancel during it acts as during
+   either move;
 5. ``weld``: journal ``started`` (fsync'ed), digital output ``trigger_io`` high for ``pulse_s``,
    then low. **The controller's outputs source at most 2 mA (RM65_PROTOCOL.md §1.8): a real
    stud-welding gun must be triggered through an external relay / opto-coupled FET module on
@@ -440,6 +444,29 @@ class WeldSequence:
         self._move(kind, target, v)
         return round(time.monotonic() - t0, 4)
 
+    def _connected_approach(self, t: StudTarget, T_short: np.ndarray, T_contact: np.ndarray) -> dict[str, float]:
+        """The fast approach and the slow final move as one trajectory; their times (s) for ``motion_s``.
+
+        The phase turns to ``descend`` when the controller hands over to the slow move (a controller
+        that reports only the end leaves it at ``approach``, and the split at the end).
+        """
+        p = self.params
+        t0 = time.monotonic()
+        handover: list[float] = []
+
+        def on_handover(_: int) -> None:
+            handover.append(time.monotonic())
+            self._set_phase(t, "descend")
+
+        self.client.move_linear_path_and_wait(
+            [(matrix_to_pose6(T_short), p.approach_speed_pct), (matrix_to_pose6(T_contact), p.linear_speed_pct)],
+            p.motion_timeout_s, stop_count=self._epoch, on_handover=on_handover)
+        t1 = time.monotonic()
+        if not handover:
+            self._set_phase(t, "descend")
+        mid = handover[0] if handover else t1
+        return {"approach": round(mid - t0, 4), "descend": round(t1 - mid, 4)}
+
     def _between_phases(self) -> None:
         self._wait_not_paused()
         self._check_halt()
@@ -480,14 +507,18 @@ class WeldSequence:
                 if self._cancel:
                     self._back_out(plan)
                     raise _JobEnded("cancelled")
-                motion_s["approach"] = self._timed_move("linear", T_short, p.approach_speed_pct)
-            self._between_phases()
-            if self._cancel:
-                if p.fast_approach:
-                    self._back_out(plan)
-                raise _JobEnded("cancelled")
-            self._set_phase(t, "descend")
-            motion_s["descend"] = self._timed_move("linear", plan.T_contact, p.linear_speed_pct)
+                if p.connected_approach:
+                    motion_s.update(self._connected_approach(t, T_short, plan.T_contact))
+                else:
+                    motion_s["approach"] = self._timed_move("linear", T_short, p.approach_speed_pct)
+            if "descend" not in motion_s:
+                self._between_phases()
+                if self._cancel:
+                    if p.fast_approach:
+                        self._back_out(plan)
+                    raise _JobEnded("cancelled")
+                self._set_phase(t, "descend")
+                motion_s["descend"] = self._timed_move("linear", plan.T_contact, p.linear_speed_pct)
             self._between_phases()
             if self._cancel:
                 self._back_out(plan)
