@@ -7,7 +7,7 @@ import pytest
 from rm65_driver import protocol as P
 from rm65_driver.kinematics import RM65Kinematics, matrix_to_pose6, trapezoid_profile
 from rm65_driver.sim_motion import (LineSegment, Motion, MotionLimits, SegmentProfile, junction_speed, line_segment,
-                                   plan_motion, trapezoid_fraction)
+                                   plan_motion)
 from rm65_driver.simulator import ArmSimulator
 
 
@@ -45,7 +45,9 @@ def test_every_component_of_a_synchronised_move_stays_within_its_speed_and_accel
 @pytest.mark.parametrize("accel_fraction", [0.05, 0.3, 0.5])
 def test_the_time_law_starts_and_ends_at_rest_and_never_exceeds_its_cruise_speed(accel_fraction):
     tau = np.linspace(0, 1, 20001)
-    s = np.array([trapezoid_fraction(t, accel_fraction) for t in tau])
+    law = SegmentProfile.rest_to_rest(2.0, 2.0 * accel_fraction)
+    assert law.duration_s == pytest.approx(2.0)
+    s = np.array([law.fraction_at(2.0 * t) for t in tau])
     speed = np.diff(s) / np.diff(tau)
     assert s[0] == 0 and s[-1] == pytest.approx(1.0)
     assert np.all(np.diff(s) >= 0)
@@ -63,7 +65,7 @@ def test_a_joint_move_at_v_percent_takes_its_speed_and_acceleration_at_v_percent
     v, a = 0.3 * np.radians(180), 0.3 * np.radians(600)  # J1, the slowest here
     assert T == pytest.approx(np.radians(60) / v + v / a) and ta == pytest.approx(v / a)
     # the simulated joints follow it: J1 never faster than 30 % of 180 deg/s, nor accelerating faster
-    m = Motion("movej", path, T, conn_id=0, accel_s=ta)
+    m = Motion("movej", path, SegmentProfile.rest_to_rest(T, ta), conn_id=0)
     t = np.linspace(0, T, 4001)
     q = np.array([m.joints_at(x / T) for x in t])
     dq = np.diff(q[:, 0]) / np.diff(t)
@@ -129,10 +131,11 @@ def test_the_fast_approach_joined_to_the_slow_final_move_saves_the_stop_between_
     frames = lambda: (np.eye(4), np.eye(4))  # noqa: E731
     p1, T1, a1, _ = plan_motion(kin, "movel", P.movel(matrix_to_pose6(short), 30), q0, frames, MotionLimits())
     p2, T2, a2, _ = plan_motion(kin, "movel", P.movel(matrix_to_pose6(contact), 10), p1[-1], frames, MotionLimits())
-    first = Motion("movel", p1, T1, 0, accel_s=a1, connect_next=True, line=line_segment(kin, p1, np.eye(4), T1, a1))
-    second = Motion("movel", p2, T2, 0, accel_s=a2, line=line_segment(kin, p2, np.eye(4), T2, a2))
+    first = Motion("movel", p1, SegmentProfile.rest_to_rest(T1, a1), 0, connect_next=True,
+                   line=line_segment(kin, p1, np.eye(4), T1, a1))
+    second = Motion("movel", p2, SegmentProfile.rest_to_rest(T2, a2), 0, line=line_segment(kin, p2, np.eye(4), T2, a2))
     ArmSimulator._join(first, second)
-    assert first.profile is not None and second.profile is not None
+    assert first.profile.length == pytest.approx(0.04, rel=1e-4) and second.profile.length == pytest.approx(0.01, rel=1e-4)
     # handed over at the slow move's speed: the 10 mm at 10 % (0.05 m/s, 0.16 m/s^2) peak at 0.04 m/s from rest,
     # and the junction takes no more than that (conservative: the slow move could cruise at 0.05 from a flying start)
     assert first.profile.w == pytest.approx(second.line.speed) and first.profile.w == pytest.approx(0.04, rel=1e-3)

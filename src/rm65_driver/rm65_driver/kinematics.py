@@ -327,10 +327,6 @@ class RM65Kinematics:
         """
         return float(np.linalg.norm(np.asarray(position_flange_m) - SHOULDER_M)) <= WORKING_RADIUS_M
 
-    def joint_move_time(self, q_from, q_to, speed_fraction: float) -> float:
-        """Minimum time (s) of a synchronised joint move at ``speed_fraction`` (0..1] of max speed."""
-        return self.joint_move_profile(q_from, q_to, speed_fraction)[0]
-
     def joint_move_profile(self, q_from, q_to, speed_fraction: float) -> tuple[float, float]:
         """(duration, acceleration time) (s) of a synchronised joint move (:func:`trapezoid_profile`).
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any, Callable
 
 import numpy as np
@@ -29,22 +30,24 @@ _log = logging.getLogger("rm65_driver.simulator")  # one logger for all parts of
 
 @dataclass
 class Motion:
-    """One accepted motion in the controller's queue: joint waypoints, timing, injected faults."""
+    """One accepted motion in the controller's queue: joint waypoints, time law, injected faults."""
 
     kind: str  # "movej" | "movel" | "movej_p"
     path: np.ndarray  # (N, 6) joint waypoints, rad
-    duration_s: float  # simulated seconds (before time_scale)
+    profile: SegmentProfile  # time law along the path: rest to rest (SegmentProfile.rest_to_rest) unless joined
     conn_id: int
-    accel_s: float = -1.0  # acceleration (= deceleration) time, s; below 0: half the move (a triangle)
     connect_next: bool = False  # sent with trajectory_connect=1: runs only once the next motion is queued
     line: LineSegment | None = None  # a movel's straight line (for joining it to the next one)
-    profile: SegmentProfile | None = None  # set when joined: the time law with non-zero end speeds
     elapsed_s: float = 0.0  # simulated seconds done
     stall_at: float | None = None  # fraction where it freezes, never arriving
     fail_at: float | None = None  # fraction where it aborts with trajectory_state false
     fail_code: int = 0
     drop_at: float | None = None  # fraction where the commanding connection is dropped
     released_at: float | None = None  # monotonic time the acknowledgement was on the wire
+
+    @property
+    def duration_s(self) -> float:  # simulated seconds (before time_scale)
+        return self.profile.duration_s
 
     @property
     def released(self) -> bool:  # ack always precedes motion and arrival
@@ -58,31 +61,13 @@ class Motion:
 
     def joints_at(self, fraction: float) -> np.ndarray:
         """The joints at ``fraction`` (0..1) of the move's *time*, along its time law."""
-        if self.profile is not None:
-            s = self.profile.fraction_at(fraction * self.profile.duration_s)
-        else:
-            s = trapezoid_fraction(fraction, self.accel_s / self.duration_s if self.duration_s > 0 else 0.5)
+        s = self.profile.fraction_at(fraction * self.duration_s)
         n = len(self.path) - 1
         if n == 0:
             return self.path[0].copy()
         x = s * n
         i = min(int(x), n - 1)
         return self.path[i] + (x - i) * (self.path[i + 1] - self.path[i])
-
-
-def trapezoid_fraction(tau: float, accel_fraction: float) -> float:
-    """Path fraction (0..1) at time fraction ``tau`` of a trapezoidal move accelerating for ``accel_fraction``.
-
-    ``accel_fraction`` outside (0, 0.5] means a triangle (0.5); 0 would be a jump in speed.
-    """
-    tau = min(max(float(tau), 0.0), 1.0)
-    ta = accel_fraction if 0.0 < accel_fraction <= 0.5 else 0.5
-    vc = 1.0 / (1.0 - ta)  # cruise speed, path fractions per time fraction
-    if tau < ta:
-        return 0.5 * vc / ta * tau * tau
-    if tau > 1.0 - ta:
-        return 1.0 - 0.5 * vc / ta * (1.0 - tau) ** 2
-    return vc * (tau - 0.5 * ta)
 
 
 @dataclass(frozen=True)
@@ -140,12 +125,25 @@ class SegmentProfile:
     speed: float
     accel: float
 
+    @classmethod
+    def rest_to_rest(cls, duration_s: float, accel_s: float) -> SegmentProfile:
+        """The plain trapezoid of a move lasting ``duration_s`` that accelerates for ``accel_s``, along a unit path.
+
+        ``accel_s`` outside (0, duration_s / 2] means a triangle; 0 would be a jump in speed.
+        """
+        T = max(float(duration_s), 1e-9)
+        ta = accel_s if 0.0 < accel_s <= T / 2 else T / 2
+        speed = 1.0 / (T - ta)
+        return cls(1.0, 0.0, 0.0, speed, speed / ta)
+
     @property
     def peak(self) -> float:
-        return float(min(self.speed, np.sqrt(max(self.accel * self.length + 0.5 * (self.u ** 2 + self.w ** 2), 0.0))))
+        return self._phases[0]
 
-    def _phases(self) -> tuple[float, float, float, float]:
-        vp, a = self.peak, self.accel
+    @cached_property
+    def _phases(self) -> tuple[float, float, float, float]:  # asked at every tick of the motion thread
+        a = self.accel
+        vp = float(min(self.speed, np.sqrt(max(a * self.length + 0.5 * (self.u ** 2 + self.w ** 2), 0.0))))
         t1, t3 = max(vp - self.u, 0.0) / a, max(vp - self.w, 0.0) / a
         d1, d3 = (vp * vp - self.u ** 2) / (2 * a), (vp * vp - self.w ** 2) / (2 * a)
         t2 = max(self.length - d1 - d3, 0.0) / vp if vp > 0 else 0.0
@@ -153,14 +151,14 @@ class SegmentProfile:
 
     @property
     def duration_s(self) -> float:
-        _, t1, t2, t3 = self._phases()
+        _, t1, t2, t3 = self._phases
         return t1 + t2 + t3
 
     def fraction_at(self, t: float) -> float:
         """Path fraction (0..1) covered after ``t`` s."""
         if self.length <= 0:
             return 1.0
-        vp, t1, t2, t3 = self._phases()
+        vp, t1, t2, t3 = self._phases
         a, u = self.accel, self.u
         t = min(max(t, 0.0), t1 + t2 + t3)
         if t <= t1:

@@ -283,7 +283,8 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
                 self._errors = [code]
                 self._changed.notify_all()
                 return {"command": name, "receive_state": False}
-            motion = Motion(name, path, max(duration, 0.01), conn.id, accel_s=accel, connect_next=connect)
+            motion = Motion(name, path, SegmentProfile.rest_to_rest(max(duration, 0.01), accel), conn.id,
+                            connect_next=connect)
             if name == "movel":
                 motion.line = line_segment(self.kin, path, self._frames_locked()[1], duration, accel)
             if self._queue and self._queue[-1].connect_next:
@@ -311,14 +312,12 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
         """
         if prev.line is None or nxt.line is None or prev.elapsed_s > 0:
             return
-        u = prev.profile.u if prev.profile is not None else 0.0
+        u = prev.profile.u  # 0 unless joined to the motion before it too
         w = junction_speed(prev.line, nxt.line)
         if w <= 0 or abs(u * u - w * w) > 2 * prev.line.accel * prev.line.length:
             return
         prev.profile = SegmentProfile(prev.line.length, u, w, prev.line.speed, prev.line.accel)
         nxt.profile = SegmentProfile(nxt.line.length, w, 0.0, nxt.line.speed, nxt.line.accel)
-        prev.duration_s = max(prev.profile.duration_s, 1e-3)
-        nxt.duration_s = max(nxt.profile.duration_s, 1e-3)
 
     _cmd_movej = _motion_cmd
     _cmd_movej_p = _motion_cmd
