@@ -68,6 +68,9 @@ def test_calibrate_mode_writes_a_calibration_within_the_limits_close_to_the_true
     assert err_mm < 0.3 and err_deg < 0.1, (err_mm, err_deg)
     assert cal.poses_used >= 12 and sorted(cal.rotation_spread_deg)[1] >= 30.0
     assert cal.reprojection_rms_px < 0.5
+    # after the first shots the views went through the estimate, not the believed value (ViewAimer)
+    assert "views aimed through the hand-eye of the first 6 shots" in text, text[-4000:]
+    assert yaml.safe_load((out / "hand_eye.yaml").read_text())["poses"]["views_aimed_from_shots"] == cal.poses_used
 
 
 def test_verify_passes_with_the_calibration_and_fails_with_the_believed_value(calibration, tmp_path):

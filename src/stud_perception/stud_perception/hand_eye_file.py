@@ -56,9 +56,12 @@ def now_iso() -> str:
 
 
 def calibration_record(result: HandEyeResult, *, date: str | None = None, poses_refused: int = 0,
-                       poses_failed: int = 0, believed_xyz_m=None, believed_rpy_deg=None, note: str = "") -> dict:
+                       poses_failed: int = 0, aimed_from: int = 0, believed_xyz_m=None, believed_rpy_deg=None,
+                       note: str = "") -> dict:
     """The file's content for a calibration ``result`` (plain data, YAML-ready). ``poses_refused``:
-    views the arm driver refused (unreachable); ``poses_failed``: views whose shot showed no marks."""
+    views the arm driver refused (unreachable); ``poses_failed``: views whose shot showed no marks;
+    ``aimed_from``: shots the last estimate the views were aimed through came from (0: every view
+    went through the believed hand-eye)."""
     q = matrix_to_quaternion(result.T_tool_cam[:3, :3])
     intrinsics = ("ok" if not math.isfinite(result.reprojection_rms_px)
                   or result.reprojection_rms_px <= result.limits.max_reprojection_px else
@@ -74,6 +77,7 @@ def calibration_record(result: HandEyeResult, *, date: str | None = None, poses_
                       "rotation_rms_deg": _num(result.rms_deg), "rotation_max_deg": _num(result.max_deg),
                       "reprojection_rms_px": _num(result.reprojection_rms_px, 3), "intrinsics": intrinsics},
         "poses": {"used": int(result.n_shots), "refused": int(poses_refused), "no_marks": int(poses_failed),
+                  "views_aimed_from_shots": int(aimed_from),
                   "rotation_spread_deg": _r(result.rotation_spread_deg, 2)},
         "board_in_world": _pose(result.T_world_board),
         "methods": {name: {**_pose(T), "differs_mm": _num(result.method_differences[name][0]),

@@ -1,9 +1,11 @@
 """Hand-eye calibrator: `ros2 run stud_planner hand_eye_calibrator` (``cell --mode calibrate|verify``).
 
 ``task:=calibrate``: finds the marking board from the registration station, then moves the arm
-through ``/arm/move_to`` (camera frame) to the views of
+through ``/arm/move_to`` to the views of
 :func:`~stud_planner.cell.hand_eye_views.plan_calibration_views` (a view the driver refuses is skipped
-and counted), and at each: waits for the arm to settle, takes the weld-tool pose from
+and counted): the first through the believed hand-eye (camera frame), the rest, once a few shots
+agree on one, through the estimate so far (tool frame; :class:`~stud_planner.cell.hand_eye_views.ViewAimer`,
+so a camera mounted degrees off its believed pose still sees the board in the tilted views). At each view it waits for the arm to settle, takes the weld-tool pose from
 ``/arm/state``, shoots (``/camera/trigger``), finds O, A, B (sub-pixel, ``markers.py``) and lifts
 them with Eq. 1 into the camera frame. :func:`~stud_perception.hand_eye.calibrate_hand_eye` solves
 the camera-to-tool transform; ``<output_dir>/hand_eye.yaml`` gets the result, accepted or refused
@@ -37,16 +39,15 @@ from stud_common import hand_eye_ros, ros_io
 from stud_perception import image_io
 from stud_common.hand_eye_in_use import camera_in_world
 from stud_common.rotations import transform
-from stud_perception.hand_eye import (BoardShot, board_points_m, board_pose_from_marks, calibrate_hand_eye,
-                                      check_hand_eye)
+from stud_perception.hand_eye import BoardShot, board_points_m, board_pose_from_marks, calibrate_hand_eye, check_hand_eye
 from stud_perception.hand_eye_solvers import HandEyeError, rotation_angle_deg
 from stud_perception.hand_eye_file import calibration_record, check_record, write_yaml
 from stud_perception.markers import MarkDetectorConfig, detect_marks
 from stud_perception.registration import layout_marks_m
 from stud_common.ros_io import Param, three_numbers
 from stud_perception.view_registration import config_for_layout
-from stud_planner.cell.hand_eye_views import (CalibrationView, ViewPlanError, plan_calibration_views, plan_check_views,
-                                              station_view)
+from stud_planner.cell.hand_eye_views import (CalibrationView, ViewAimer, ViewPlanError, board_centre_w,
+                                              plan_calibration_views, plan_check_views, station_view)
 from stud_common import names
 
 
@@ -161,10 +162,15 @@ class HandEyeCalibrator(Node):
         return future.result()
 
     # -- one view -------------------------------------------------------------------------------
-    def _move(self, view: CalibrationView) -> str | None:
-        """Camera to the view; the driver's refusal (unreachable, workspace) as text, None when there."""
-        req = MoveTo.Request(pose=ros_io.rt_to_pose(view.R_world_cam, view.t_world_cam),
-                             frame=MoveTo.Request.FRAME_CAMERA)
+    def _move(self, view: CalibrationView, T_world_tool: np.ndarray | None = None) -> str | None:
+        """Camera to the view (or the weld tool to ``T_world_tool``, the view through an estimated
+        hand-eye); the driver's refusal (unreachable, workspace) as text, None when there."""
+        if T_world_tool is None:
+            req = MoveTo.Request(pose=ros_io.rt_to_pose(view.R_world_cam, view.t_world_cam),
+                                 frame=MoveTo.Request.FRAME_CAMERA)
+        else:
+            req = MoveTo.Request(pose=ros_io.rt_to_pose(T_world_tool[:3, :3], T_world_tool[:3, 3]),
+                                 frame=MoveTo.Request.FRAME_TOOL)
         reply = self._call(self.cli_move, req)
         if not reply.success:
             return reply.message
@@ -207,13 +213,16 @@ class HandEyeCalibrator(Node):
         marks_cam = camera.world_to_camera(det.marks_world_m)
         return BoardShot(transform(tool_R, tool_t), marks_cam, det.marks_pixels_uv, camera.K), det.message
 
-    def _shots(self, views: list[CalibrationView], wanted: int, drawing_marks, config) -> tuple[list, int, int]:
+    def _shots(self, views: list[CalibrationView], wanted: int, drawing_marks, config,
+               aimer: ViewAimer | None = None) -> tuple[list, int, int]:
+        """Shots at ``views`` until ``wanted``; with an ``aimer``, at its views, re-aimed as shots come in."""
         shots: list[BoardShot] = []
         refused = failed = 0
-        for view in views:
+        for i in range(len(views)):
             if len(shots) >= wanted or self._stop.is_set():
                 break
-            why = self._move(view)
+            view = aimer.views[i] if aimer is not None else views[i]
+            why = self._move(view, aimer.tool_pose(view) if aimer is not None else None)
             if why is not None and why.startswith(_ARM_BUSY):
                 raise Aborted(f"the arm driver refused to move: {why}")
             if why is not None:
@@ -228,6 +237,8 @@ class HandEyeCalibrator(Node):
             shots.append(shot)
             self.diag.set(self.diag.OK, f"{len(shots)} shot(s)", refused=refused, failed=failed)
             self.get_logger().info(f"{view.describe()}: shot {len(shots)} ({message})")
+            if aimer is not None and (line := aimer.update(shots, self.hand_eye.T_tool_cam)):
+                self.get_logger().info(line)
         return shots, refused, failed
 
     # -- the procedure --------------------------------------------------------------------------
@@ -258,29 +269,28 @@ class HandEyeCalibrator(Node):
         target = self._board_centre_w(first[0], drawing_marks)
         self.get_logger().info(f"marking board found; views look at {np.round(target, 4).tolist()} m")
         if p["task"] == "calibrate":
-            views = plan_calibration_views(target, p["view_distance_m"], tuple(p["view_tilts_deg"]),
-                                           p["views_per_tilt"], p["view_yaw_span_deg"])
-            shots, refused, failed = self._shots(views, p["max_poses"], drawing_marks, config)
-            return self._calibrate(shots, refused, failed, drawing_marks)
+            aimer = ViewAimer(lambda t: plan_calibration_views(t, p["view_distance_m"], tuple(p["view_tilts_deg"]),
+                                                               p["views_per_tilt"], p["view_yaw_span_deg"]),
+                              target, drawing_marks, self.limits)
+            shots, refused, failed = self._shots(aimer.views, p["max_poses"], drawing_marks, config, aimer)
+            return self._calibrate(shots, refused, failed, drawing_marks, aimer.aimed_from)
         views = plan_check_views(target, p["view_distance_m"], p["verify_tilt_deg"], 8, p["view_yaw_span_deg"])
         shots, refused, failed = self._shots(views, p["verify_poses"] + 1, drawing_marks, config)
         return self._verify(shots, drawing_marks)
 
     def _board_centre_w(self, shot: BoardShot, drawing_marks) -> np.ndarray:
-        """World point the views look at: the centre of the marks' bounding box on the board,
-        through the hand-eye in use (a few mm off at worst: the views only need the board in view)."""
-        board = board_points_m(drawing_marks)
-        T_world_board = camera_in_world(shot.T_world_tool, self.hand_eye.T_tool_cam) @ board_pose_from_marks(shot.marks_cam_m, board)
-        centre = np.append((board.min(axis=0) + board.max(axis=0)) / 2.0, 1.0)
-        return (T_world_board @ centre)[:3]
+        """World point the views look at, through the hand-eye in use (off by the hand-eye's error: the
+        views only need the board in view, and a calibration re-aims them once its shots agree)."""
+        T_cam_board = board_pose_from_marks(shot.marks_cam_m, board_points_m(drawing_marks))
+        return board_centre_w(camera_in_world(shot.T_world_tool, self.hand_eye.T_tool_cam) @ T_cam_board, drawing_marks)
 
-    def _calibrate(self, shots, refused: int, failed: int, drawing_marks) -> int:
+    def _calibrate(self, shots, refused: int, failed: int, drawing_marks, aimed_from: int = 0) -> int:
         if len(shots) < 3:
             raise Aborted(f"too few poses: {len(shots)} usable shot(s) ({refused} view(s) refused by the driver, "
                           f"{failed} without marks), need at least {self.limits.min_poses}")
         result = calibrate_hand_eye(shots, drawing_marks, self.limits)
         path = write_yaml(Path(self.p["output_dir"]) / "hand_eye.yaml",
-                          calibration_record(result, poses_refused=refused, poses_failed=failed,
+                          calibration_record(result, poses_refused=refused, poses_failed=failed, aimed_from=aimed_from,
                                              believed_xyz_m=self.hand_eye.xyz_m,
                                              believed_rpy_deg=self.hand_eye.rpy_deg),
                           "hand-eye calibration (camera_color_optical_frame in weld_tool), written by "
