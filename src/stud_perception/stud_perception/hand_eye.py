@@ -361,8 +361,9 @@ def _shot_problems(shots, drawing_marks_m, limits) -> tuple[list[str], list[Mark
 
 
 #: Weight of a mark's residual along its viewing ray (its depth) relative to across it in the least
-#: squares: structured-light depth (about 0.06 mm at the board after the plane fit) is several times
-#: noisier than the sub-pixel centre (about 0.01 mm at 0.3 m), measured on rendered shots.
+#: squares: the board depth behind a mark (about 0.004 mm RMS along the ray after the ring's plane
+#: fit, at 0.5 mm depth noise) is several times noisier than the sub-pixel centre (about 0.001 mm
+#: across it at 0.3 m), measured on rendered calibration shots.
 RAY_WEIGHT = 0.2
 
 #: A check solves the hand-eye from its own shots only when their orientations spread this much about
