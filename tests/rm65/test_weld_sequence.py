@@ -457,3 +457,47 @@ def test_a_drop_during_the_fast_approach_backs_out_along_the_normal_and_welds_th
     moves = _linear_moves(sim)
     # after the reconnect: straight back out to the standoff before the stud is approached again
     np.testing.assert_allclose(moves[1][0], t.position + 0.05 * t.normal, atol=1e-5)
+
+
+def test_each_next_stud_is_planned_during_the_dwell_not_between_the_studs(client, sim, tmp_path):
+    targets = dome_targets(rings=((0.0, 1), (0.05, 4)))
+    seq, journal = make_seq(client, tmp_path)
+    phases_at_check = []
+    check_target = seq.safety.check_target
+
+    def counted(*args, **kwargs):
+        phases_at_check.append(seq.phase)
+        return check_target(*args, **kwargs)
+    seq.safety.check_target = counted  # type: ignore[method-assign]
+    res = seq.run(targets)
+    assert res.success and sorted(res.welded) == sorted(t.stud_id for t in targets)
+    assert set(welds_per_stud(sim, targets).values()) == {1}
+    # one plan a stud: the first before it, every other one during the dwell of the stud before it
+    assert len(phases_at_check) == len(targets) and phases_at_check[1:] == ["dwell"] * (len(targets) - 1)
+    assert seq.plans_ahead_used == len(targets) - 1
+
+
+def test_a_plan_made_ahead_is_used_only_for_its_stud_and_from_where_the_arm_is(client, sim, tmp_path):
+    from rm65_driver.weld_sequence import LOOKAHEAD_TOL_RAD
+
+    seq, _ = make_seq(client, tmp_path)
+    t, other = dome_targets(rings=((0.05, 2),))
+    q = np.radians([0.0, 20.0, 70.0, 0.0, 90.0, 0.0])
+    seq._plan_ahead(t, q)
+    assert seq._planned is not None
+    assert seq._planned_check(other, q) is None and seq._planned is None  # another stud came next
+    seq._plan_ahead(t, q)
+    assert seq._planned_check(t, q + 2 * LOOKAHEAD_TOL_RAD) is None  # the arm is elsewhere: planned again
+    seq._plan_ahead(t, q)
+    ahead = seq._planned_check(t, q + 0.5 * LOOKAHEAD_TOL_RAD)
+    assert ahead is not None and ahead.ok
+    now = seq.safety.check_target(t.position, t.normal, PARAMS.standoff_m, q, PARAMS.plunge_m).plan
+    assert ahead.plan is not None and now is not None and ahead.plan.yaw_rad == now.yaw_rad
+    np.testing.assert_allclose(ahead.plan.q_approach, now.q_approach)
+    np.testing.assert_allclose(ahead.plan.q_contact, now.q_contact)
+    assert seq._planned_check(t, q) is None  # used once
+    # the joint move is checked again from where the arm is: a plan whose move from there leaves the
+    # workspace is not used
+    seq._plan_ahead(t, q)
+    seq.safety.check_joint_path = lambda *a, **k: "approach move: outside the workspace box"  # type: ignore
+    assert seq._planned_check(t, q) is None
