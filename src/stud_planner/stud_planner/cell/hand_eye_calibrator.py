@@ -4,9 +4,10 @@
 through ``/arm/move_to`` to the views of
 :func:`~stud_planner.cell.hand_eye_views.plan_calibration_views` (a view the driver refuses is skipped
 and counted): the first through the believed hand-eye (camera frame), the rest, once a few shots
-agree on one, through the estimate so far (tool frame; :class:`~stud_planner.cell.hand_eye_views.ViewAimer`,
-so a camera mounted degrees off its believed pose still sees the board in the tilted views). At each view it waits for the arm to settle, takes the weld-tool pose from
-``/arm/state``, shoots (``/camera/trigger``), finds O, A, B (sub-pixel, ``markers.py``) and lifts
+agree on one, through the estimate so far (tool frame;
+:class:`~stud_planner.cell.hand_eye_views.ViewAimer`, so a camera mounted degrees off its believed
+pose still sees the board in the tilted views). At each view it waits for the arm to settle, takes
+the weld-tool pose from ``/arm/state``, shoots (``/camera/trigger``), finds O, A, B (sub-pixel, ``markers.py``) and lifts
 them with Eq. 1 into the camera frame. :func:`~stud_perception.hand_eye.calibrate_hand_eye` solves
 the camera-to-tool transform; ``<output_dir>/hand_eye.yaml`` gets the result, accepted or refused
 with the reasons (:mod:`stud_perception.hand_eye_file`).
