@@ -63,7 +63,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -588,7 +588,7 @@ class WeldSequence:
         return check
 
     def _weld(self, t: StudTarget, plan: StudPlan, motion_s: dict[str, float] | None = None,
-              during_dwell=None) -> None:
+              during_dwell: Callable[[], None] | None = None) -> None:
         p = self.params
         # The joints the controller reports at the contact pose: the gun's real axis at the weld
         # (forward kinematics), for the QA record and the demo's check against the true normal.
