@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -169,3 +170,36 @@ def test_stamp_sync_says_which_views_it_drops_and_what_they_lacked():
     for sec in (3, 4, 5):  # three views that only ever get a depth: the oldest beyond max_sets goes
         sync.add("depth", msg(sec))
     assert drops[-1] == (3, ["info", "pose"]) and sync.dropped == 2
+
+
+_HANGING_TEARDOWN = """
+import sys, threading, time
+sys.path.insert(0, {src!r})
+import rclpy
+from rclpy.node import Node
+from stud_common import ros_io
+ros_io.TEARDOWN_TIMEOUT_S = 1.0
+
+class Stuck(Node):
+    def __init__(self):
+        super().__init__("stuck_teardown")
+        self.create_timer(0.05, lambda: None)
+    def destroy_node(self):  # as the middleware's node destruction once did after Ctrl-C
+        print("destroying", flush=True)
+        threading.Event().wait()
+
+t0 = time.monotonic()
+threading.Timer(0.3, lambda: rclpy.try_shutdown()).start()
+sys.exit(ros_io.spin_node(Stuck, [], until=lambda node: 3 if time.monotonic() - t0 > 0.2 else None))
+"""
+
+
+def test_a_node_whose_teardown_hangs_still_ends_with_its_exit_code():
+    code = _HANGING_TEARDOWN.format(src=str(REPO / "src" / "stud_common"))
+    t0 = time.monotonic()
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=20)
+    elapsed = time.monotonic() - t0
+    assert "destroying" in proc.stdout, proc.stdout + proc.stderr
+    assert proc.returncode == 3, proc.stdout + proc.stderr
+    assert "node teardown still running after 1 s" in proc.stderr
+    assert elapsed < 10.0  # well within the launcher's grace period: no SIGKILL, no failure reported
