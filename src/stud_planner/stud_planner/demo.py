@@ -49,6 +49,11 @@ _HAND_EYE_VARS = ("hand_eye_xyz_m", "hand_eye_rpy_deg", "hand_eye_file", "true_h
                   "true_hand_eye_rpy_deg")
 
 
+def sets_hand_eye(user_vars: list[str]) -> bool:
+    """Whether ``user_vars`` (``NAME=VALUE``) set up a hand-eye case of their own."""
+    return any(v.split("=", 1)[0].strip() in _HAND_EYE_VARS for v in user_vars)
+
+
 def calibration_residual_vars(user_vars: list[str]) -> list[str]:
     """``--var`` arguments putting the simulated camera :data:`CALIBRATION_RESIDUAL` off the cell's
     typed hand-eye (cell.yaml's ``hand_eye_xyz_m`` / ``hand_eye_rpy_deg``); none when ``user_vars``
@@ -56,7 +61,7 @@ def calibration_residual_vars(user_vars: list[str]) -> list[str]:
     from stud_common.rotations import matrix_to_rpy, transform_xyz_rpy
     from stud_planner.cell.launch import default_config_path, load_config
 
-    if any(v.split("=", 1)[0].strip() in _HAND_EYE_VARS for v in user_vars):
+    if sets_hand_eye(user_vars):
         return []
     typed = load_config(default_config_path())["vars"]
     T = transform_xyz_rpy(typed["hand_eye_xyz_m"], typed["hand_eye_rpy_deg"]) @ transform_xyz_rpy(*CALIBRATION_RESIDUAL)
@@ -68,10 +73,10 @@ def calibration_residual_vars(user_vars: list[str]) -> list[str]:
 def calibration_residual_size() -> tuple[float, float]:
     """(mm, deg): the translation and rotation angle of :data:`CALIBRATION_RESIDUAL`."""
     from stud_common.rotations import rpy_to_matrix
+    from stud_perception.hand_eye_solvers import rotation_angle_deg
 
     R = rpy_to_matrix(*np.radians(CALIBRATION_RESIDUAL[1]))
-    return (1e3 * float(np.linalg.norm(CALIBRATION_RESIDUAL[0])),
-            float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))))
+    return 1e3 * float(np.linalg.norm(CALIBRATION_RESIDUAL[0])), float(rotation_angle_deg(R, np.eye(3)))
 
 
 def share_file(package: str, relative: str) -> Path:
@@ -233,7 +238,7 @@ def _print_summary(args: argparse.Namespace, out: Path, report: dict, result: di
           + (f", unreachable: {', '.join(report['unreachable'])}" if report.get("unreachable") else ""))
     print("   camera mount        " + (
         "{:.2f} mm / {:.3f} deg off the hand-eye the cell uses (a calibration's residual, simulated)".format(
-            *calibration_residual_size()) if calibration_residual_vars(args.vars) else "as set by --var"))
+            *calibration_residual_size()) if not sets_hand_eye(args.vars) else "as set by --var"))
     print(f"   weld-point error    max {acc['max_xy_error_mm']:.2f} mm XY (mean {acc['mean_xy_error_mm']:.2f}), "
           f"max {acc['max_z_error_mm']:.2f} mm Z   [paper: 7.1 mm XY, 2.09 mm Z]")
     print(f"   normal error        max {acc['max_normal_error_deg']:.2f} deg; steepest slope welded "
