@@ -55,6 +55,21 @@ def test_window_sums_are_the_sums_of_the_windows_pixels(holed_depth, use_table):
         assert got.n_window[k] == rows_in * cols_in
 
 
+
+@pytest.mark.parametrize("use_table", [True, False])
+@pytest.mark.parametrize("no_depth", [0.0, -0.3, np.inf, -np.inf])
+def test_every_spelling_of_no_depth_gives_the_sums_of_nan_holes(holed_depth, use_table, no_depth):
+    # The class's contract: NaN or <= 0 is no depth (REP 118's +-inf too). A 0 once gave inf in
+    # 1/z and inf * 0 = NaN in the sums of every window holding it.
+    other = holed_depth.copy()
+    other[np.isnan(holed_depth)] = no_depth
+    r0, c0 = np.array([0, 3, 1]), np.array([0, 5, 8])
+    r1, c1 = r0 + 4, c0 + 5
+    want = BlockMoments(holed_depth, 2.2).window_sums(r0, r1, c0, c1, use_table=use_table)
+    got = BlockMoments(other, 2.2).window_sums(r0, r1, c0, c1, use_table=use_table)
+    for field in ("mw", "my", "yy"):
+        np.testing.assert_array_equal(getattr(got, field), getattr(want, field))
+
 def test_smooth_windows_take_the_plain_fit_and_a_step_goes_to_the_robust_path(scenes, cam_full):
     plane = scenes.Plane((0.0, 0.0, 0.02), (0.2, 0.1, 1.0))
     depth = scenes.render_depth(cam_full, plane, noise_m=0.0005, seed=21)

@@ -34,6 +34,11 @@ COORD_SCALE_PX = 64.0
 W_TERMS = tuple((p, q) for d in range(5) for p in range(d, -1, -1) for q in (d - p,))
 Y_TERMS = tuple((p, q) for d in range(3) for p in range(d, -1, -1) for q in (d - p,))
 N_CHANNELS = len(W_TERMS) + len(Y_TERMS) + 1
+#: No depth -- NaN, 0, negative or -inf -- becomes this depth (m) before 1/z: an inverse depth far
+#: beyond :data:`_MAX_INVERSE_DEPTH` yet finite, so masking it out multiplies by 0 without making
+#: a NaN (1/0 = inf, and inf * 0 is NaN). +inf ("too far", REP 118) gives 1/z = 0: no depth too.
+_NO_DEPTH_M = np.float32(1e-30)
+_MAX_INVERSE_DEPTH = np.float32(1e6)  # 1/m: a depth under 1 micrometre is no depth
 #: Up to this fraction of blocks with a hole, their validity sums are taken pixel by pixel and
 #: the whole blocks' in closed form; beyond it, one product over the whole image is cheaper.
 _HOLED_BLOCKS_PIXELWISE = 0.3
@@ -103,7 +108,7 @@ def _shift(ch: dict, x0: np.ndarray, y0: np.ndarray, terms, order: int) -> dict:
 class BlockMoments:
     """Per-block sums of one depth image, computed on demand (a set of blocks, or all of them).
 
-    ``depth_m`` (H, W) metres, NaN (or <= 0) = no depth; ``y_ref_per_m`` the inverse depth the
+    ``depth_m`` (H, W) metres, NaN, <= 0 or +-inf = no depth; ``y_ref_per_m`` the inverse depth the
     sums are taken relative to.
     """
 
@@ -132,9 +137,9 @@ class BlockMoments:
     # -- block sums ----------------------------------------------------------------------------
     def _inverse_depth(self, pix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(valid, y') of pixels (any layout): y' = 1/z - y_ref (float32), 0 where no depth."""
-        z = np.fmin(pix, np.float32(np.inf))  # NaN -> inf (and a contiguous copy): 1/z is then 0
+        z = np.fmax(pix, _NO_DEPTH_M)  # a contiguous copy; every "no depth" but +inf to _NO_DEPTH_M
         y = np.divide(np.float32(1.0), z, out=z)
-        valid = (y > 0) & (y < np.inf)  # no depth: NaN, 0 or negative
+        valid = (y > 0) & (y < _MAX_INVERSE_DEPTH)
         y -= np.float32(self.y_ref)
         y *= valid
         return valid, y
@@ -229,10 +234,10 @@ class BlockMoments:
         in_cols = (cols >= col0[:, None] * b) & (cols < col1[:, None] * b)
         # Validity and y' of the window's own pixels (0 elsewhere in the box), as two row blocks of
         # one buffer per window.
-        np.fmin(pix, np.float32(np.inf), out=pix)  # NaN -> inf: 1/z is then 0
+        np.fmax(pix, _NO_DEPTH_M, out=pix)  # as in _inverse_depth
         data = np.empty((n, 2, kr, kc), dtype=np.float32)
         y = np.divide(np.float32(1.0), pix, out=data[:, 1])
-        valid = (y > 0) & (y < np.inf)  # no depth: NaN, 0 or negative
+        valid = (y > 0) & (y < _MAX_INVERSE_DEPTH)
         valid &= in_rows[:, :, None]
         valid &= in_cols[:, None, :]
         data[:, 0] = valid
