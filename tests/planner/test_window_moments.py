@@ -55,7 +55,6 @@ def test_window_sums_are_the_sums_of_the_windows_pixels(holed_depth, use_table):
         assert got.n_window[k] == rows_in * cols_in
 
 
-
 @pytest.mark.parametrize("use_table", [True, False])
 @pytest.mark.parametrize("no_depth", [0.0, -0.3, np.inf, -np.inf])
 def test_every_spelling_of_no_depth_gives_the_sums_of_nan_holes(holed_depth, use_table, no_depth):
@@ -69,6 +68,7 @@ def test_every_spelling_of_no_depth_gives_the_sums_of_nan_holes(holed_depth, use
     got = BlockMoments(other, 2.2).window_sums(r0, r1, c0, c1, use_table=use_table)
     for field in ("mw", "my", "yy"):
         np.testing.assert_array_equal(getattr(got, field), getattr(want, field))
+
 
 def test_smooth_windows_take_the_plain_fit_and_a_step_goes_to_the_robust_path(scenes, cam_full):
     plane = scenes.Plane((0.0, 0.0, 0.02), (0.2, 0.1, 1.0))

@@ -72,6 +72,15 @@ def powers_of(x: np.ndarray, order: int) -> np.ndarray:
 
 
 
+def _reciprocal_depth(z: np.ndarray, out: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(1/z written to ``out``, valid) of depths ``z`` (m): every "no depth" -- NaN, 0, negative,
+    -inf -- goes to :data:`_NO_DEPTH_M` first and +inf gives 0, so both fail the validity test and
+    ``out`` stays finite where they are."""
+    np.fmax(z, _NO_DEPTH_M, out=out)
+    y = np.divide(np.float32(1.0), out, out=out)
+    return y, (y > 0) & (y < _MAX_INVERSE_DEPTH)
+
+
 def _binomial_shift(d: np.ndarray, order: int = 4) -> np.ndarray:
     """(n, order + 1, order + 1) matrices B with B[p, r] = C(p, r) (-d)^(p - r): the moments
     sum (x - d)^p of a set of points from its moments sum x^r, as B @ moments."""
@@ -137,9 +146,7 @@ class BlockMoments:
     # -- block sums ----------------------------------------------------------------------------
     def _inverse_depth(self, pix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(valid, y') of pixels (any layout): y' = 1/z - y_ref (float32), 0 where no depth."""
-        z = np.fmax(pix, _NO_DEPTH_M)  # a contiguous copy; every "no depth" but +inf to _NO_DEPTH_M
-        y = np.divide(np.float32(1.0), z, out=z)
-        valid = (y > 0) & (y < _MAX_INVERSE_DEPTH)
+        y, valid = _reciprocal_depth(pix, np.empty(pix.shape, dtype=np.float32))
         y -= np.float32(self.y_ref)
         y *= valid
         return valid, y
@@ -234,10 +241,8 @@ class BlockMoments:
         in_cols = (cols >= col0[:, None] * b) & (cols < col1[:, None] * b)
         # Validity and y' of the window's own pixels (0 elsewhere in the box), as two row blocks of
         # one buffer per window.
-        np.fmax(pix, _NO_DEPTH_M, out=pix)  # as in _inverse_depth
         data = np.empty((n, 2, kr, kc), dtype=np.float32)
-        y = np.divide(np.float32(1.0), pix, out=data[:, 1])
-        valid = (y > 0) & (y < _MAX_INVERSE_DEPTH)
+        y, valid = _reciprocal_depth(pix, data[:, 1])
         valid &= in_rows[:, :, None]
         valid &= in_cols[:, None, :]
         data[:, 0] = valid
