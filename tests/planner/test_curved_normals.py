@@ -188,3 +188,43 @@ def test_steep_parts_are_welded_along_their_normal_not_refused(kind):
     steep = t.inclination_deg > 20.0
     assert steep.any()
     assert np.all(t.status[steep & view.stud_visible] == STATUS_OK), t.counts()
+
+
+def _uncertainty_on_correlated_noise(correlation_px: float, config: PlannerConfig):
+    """(error / sigma, error) of the OK studs, and the errors of every fitted stud, on parts seen
+    with 0.8 mm depth noise correlated over ``correlation_px``."""
+    ratio, ok_err, all_err = [], [], []
+    for kind in ("dome", "cylinder", "tilted_plane"):
+        scene = curved_scene(kind, 25.0)
+        for seed in range(3):
+            cam = view_camera((0.0, 0.0, 0.05), 0.45, 0.6, 0.12, 1.0)
+            view = render(scene, cam, seed=seed, depth_noise_m=0.0008, hole_fraction=0.05,
+                          depth_noise_correlation_px=correlation_px)
+            t = plan(scene, view, config)
+            ok = t.status == STATUS_OK
+            fitted = t.poses.ok & view.stud_visible
+            err = angle_deg(t.normal_w, view.stud_normals_w)
+            ratio += list(err[ok] / t.normal_sigma_deg[ok])
+            ok_err += list(err[ok])
+            all_err += list(err[fitted])
+    return np.asarray(ratio), np.asarray(ok_err), np.asarray(all_err)
+
+
+@pytest.mark.parametrize("correlation_px", [1.5, 3.0])
+def test_reported_uncertainty_holds_when_the_depth_noise_is_correlated(correlation_px):
+    """A real camera's depth noise is correlated over a few pixels: the fit's own covariance then
+    understates the normal's error several-fold. The frame's measured correlation widens it back,
+    and the lean check refuses what the budget cannot take."""
+    config = PlannerConfig()
+    ratio, ok_err, all_err = _uncertainty_on_correlated_noise(correlation_px, config)
+    assert all_err.max() > 1.0  # the noise really moves these normals: the check below has work to do
+    assert 0.6 < np.median(ratio) < 1.6
+    assert np.mean(ratio > 4.0) < 0.03
+    assert ok_err.max() <= config.lean_budget_deg - config.arm_orientation_error_deg
+
+
+def test_taking_correlated_noise_as_independent_understates_the_normal_error():
+    """The same frames with the correlation ignored (``noise_correlation_max_lag_px=0``, the fit's own
+    covariance): the errors are several times the reported 1-sigma."""
+    ratio, _, _ = _uncertainty_on_correlated_noise(3.0, PlannerConfig(noise_correlation_max_lag_px=0))
+    assert np.median(ratio) > 4.0

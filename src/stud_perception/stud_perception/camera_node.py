@@ -63,6 +63,9 @@ PARAMS = [
     Param("depth_encoding", "16UC1", "depth image encoding: '16UC1' (mm, 0 = none; what RGB-D drivers send) or "
           "'32FC1' (m, NaN = none; not quantised)", choices=("16UC1", "32FC1")),
     Param("depth_noise_m", 0.0005, "std of Gaussian depth noise [m]", min=0.0, max=0.05),
+    Param("depth_noise_correlation_px", 0.0, "how far the depth noise is correlated across pixels, as a real "
+          "structured-light camera's is (sigma of a Gaussian blur of the noise; 0: independent pixels) [px]",
+          min=0.0, max=20.0),
     Param("hole_fraction", 0.0, "fraction of depth pixels lost in blobs", min=0.0, max=0.9),
     Param("mark_depth_dropout", False, "dark paint returns no depth (marks and stud marks lose depth)"),
     Param("render_welded_studs", True, "show the studs the arm welds (/arm/welds) in later shots, with the scene's "
@@ -222,6 +225,7 @@ class CameraNode(Node):
                 return False, "no fresh camera pose: waiting for /arm/state"
             view = render(self.scene, camera, seed=self.p["seed"] + self._shots,
                           depth_noise_m=self.p["depth_noise_m"], hole_fraction=self.p["hole_fraction"],
+                          depth_noise_correlation_px=self.p["depth_noise_correlation_px"],
                           mark_depth_dropout=self.p["mark_depth_dropout"], welded=tuple(self._welded.values()))
             if has_distortion(self.p["distortion_d"]):  # raw images of a lens with distortion
                 view = distort_view(view, self.p["distortion_d"], self.p["distortion_model"])

@@ -167,10 +167,13 @@ def render(
     mark_depth_dropout: bool = False,
     projector_offset_m: tuple[float, float, float] = (0.05, 0.0, 0.0),
     welded: tuple[StudCylinder, ...] = (),
+    depth_noise_correlation_px: float = 0.0,
 ) -> RenderedView:
     """Ray-cast ``scene`` through ``camera`` into a colour + 16UC1 depth pair with ground truth.
 
-    ``depth_noise_m``: std of Gaussian noise on the optical z before mm quantisation.
+    ``depth_noise_m``: std of Gaussian noise on the optical z before mm quantisation, correlated
+    across pixels over ``depth_noise_correlation_px`` (the sigma of a Gaussian blur; 0: independent
+    pixels; real structured-light cameras: a few pixels).
     ``hole_fraction``: fraction of pixels removed from the depth as random blobs of about
     ``hole_blob_px`` radius. ``color_noise``: std of Gaussian noise in grey levels.
     ``mark_depth_dropout``: structured light returns nothing from dark paint, so the marks
@@ -183,10 +186,11 @@ def render(
     """
     if not (0.0 <= hole_fraction < 1.0):
         raise SceneError(f"hole_fraction must be in [0, 1), got {hole_fraction}")
-    if depth_noise_m < 0 or color_noise < 0 or hole_blob_px <= 0:
+    if depth_noise_m < 0 or color_noise < 0 or hole_blob_px <= 0 or depth_noise_correlation_px < 0:
         raise SceneError(
             f"noise levels must be >= 0 and hole_blob_px > 0, got depth_noise_m={depth_noise_m}, "
-            f"color_noise={color_noise}, hole_blob_px={hole_blob_px}"
+            f"color_noise={color_noise}, hole_blob_px={hole_blob_px}, "
+            f"depth_noise_correlation_px={depth_noise_correlation_px}"
         )
     rng_depth, rng_holes, rng_color = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3))
     hits = _cast_rays(scene, camera, welded)
@@ -195,7 +199,7 @@ def render(
     color_bgr = _colour(hits.sid, grey, color_noise, rng_color)
     dropout = (mark_cover > 0.5) | (stud_cover > 0.5) if mark_depth_dropout else None
     depth_mm, holes = sensor_depth_mm(hits.depth_exact, depth_noise_m, rng_depth, hole_fraction, hole_blob_px,
-                                      rng_holes, dropout, specular)
+                                      rng_holes, dropout, specular, depth_noise_correlation_px)
     return _with_truth(scene, camera, hits, seed, color_bgr, depth_mm, holes)
 
 

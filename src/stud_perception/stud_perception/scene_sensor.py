@@ -1,5 +1,11 @@
-"""What the synthetic scene's RGB-D sensor does to the ideal view: depth noise, millimetre
-quantisation, holes, dark-paint and specular dropout.
+"""What the synthetic scene's RGB-D sensor does to the ideal view: depth noise (independent or
+correlated across pixels), millimetre quantisation, holes, dark-paint and specular dropout.
+
+A real structured-light or stereo camera's depth noise is not independent from pixel to pixel:
+each depth comes from a correlation window or a phase over its neighbours, and drivers filter
+spatially. :func:`depth_noise` makes such noise (white noise blurred by a Gaussian of
+``correlation_px``, rescaled to the asked standard deviation); it is what makes a normal fitted to
+a window of pixels less certain than its residuals say.
 
 A structured-light camera returns no depth in random blobs (:func:`hole_mask`), from dark paint
 and where shiny steel mirrors its projector into the camera (:func:`specular_mask`). Each random
@@ -53,17 +59,31 @@ def specular_mask(normals_w: np.ndarray, points_w: np.ndarray, camera_w: np.ndar
     return cos_half > math.cos(math.radians(lobe_deg))
 
 
+def depth_noise(shape: tuple[int, int], sigma_m: float, correlation_px: float, rng: np.random.Generator) -> np.ndarray:
+    """Gaussian depth noise (H, W) of standard deviation ``sigma_m``, correlated over ``correlation_px``
+    (the sigma of the Gaussian blur of white noise; 0: independent pixels)."""
+    noise = rng.normal(0.0, 1.0, shape)
+    if correlation_px > 0:
+        noise = cv2.GaussianBlur(noise, (0, 0), correlation_px, borderType=cv2.BORDER_REFLECT)
+        noise /= max(float(noise.std()), 1e-12)
+    return sigma_m * noise
+
+
 def sensor_depth_mm(depth_exact_m: np.ndarray, depth_noise_m: float, rng_depth: np.random.Generator,
                     hole_fraction: float, hole_blob_px: float, rng_holes: np.random.Generator,
-                    dropout: np.ndarray | None, specular: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                    dropout: np.ndarray | None, specular: np.ndarray,
+                    noise_correlation_px: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """The 16UC1 depth (0 = no depth, REP 118) the sensor delivers of the exact optical z (NaN = no hit)
     and the mask of the depth removed by holes and specular dropout.
 
-    Noise first (Gaussian, std ``depth_noise_m``), then mm quantisation, then the holes: random
-    blobs (:func:`hole_mask`), the ``dropout`` pixels (dark paint; None: none) and the ``specular`` ones.
+    Noise first (Gaussian, std ``depth_noise_m``, correlated over ``noise_correlation_px``:
+    :func:`depth_noise`), then mm quantisation, then the holes: random blobs (:func:`hole_mask`),
+    the ``dropout`` pixels (dark paint; None: none) and the ``specular`` ones.
     """
     depth_noisy = depth_exact_m
-    if depth_noise_m > 0:
+    if depth_noise_m > 0 and noise_correlation_px > 0:
+        depth_noisy = depth_exact_m + depth_noise(depth_exact_m.shape, depth_noise_m, noise_correlation_px, rng_depth)
+    elif depth_noise_m > 0:  # the same draws as before correlated noise existed: old seeds give old frames
         depth_noisy = depth_exact_m + rng_depth.normal(0.0, depth_noise_m, depth_exact_m.shape)
     depth_mm = depth_m_to_mm(depth_noisy)
     holes = hole_mask(depth_exact_m.shape, hole_fraction, hole_blob_px, rng_holes)

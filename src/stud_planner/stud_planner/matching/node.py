@@ -74,6 +74,9 @@ PARAMS = [
     Param("normal_samples_per_side", 81, "depth samples per side of the normal's patch at most (81: every pixel "
           "of a 20 mm patch at 0.45 m; fewer is faster and noisier)", min=5, max=161),
     Param("max_normal_rms_m", 0.0015, "largest fit RMS for a trusted normal [m]", min=1e-5, max=0.05),
+    Param("noise_correlation_max_lag_px", 16, "the normal's 1-sigma is widened by the depth noise's correlation "
+          "across pixels, measured on each frame up to this lag; 0: take the noise as independent (a real "
+          "camera's normal error is then understated several-fold) [px]", min=0, max=64),
     Param("lean_budget_deg", 5.0, "the most a welded stud may lean from the true normal (the code's 5 deg); a "
           "target whose normal is too uncertain for it is normal_uncertain -- the slope never refuses [deg]",
           min=0.1, max=45.0),
@@ -210,6 +213,7 @@ class MatcherNode(Node):
                              max_normal_rms_m=p["max_normal_rms_m"], lean_budget_deg=p["lean_budget_deg"],
                              arm_orientation_error_deg=p["arm_orientation_error_deg"],
                              normal_sigma_k=p["normal_sigma_k"], check_gun_clearance=p["check_gun_clearance"],
+                             noise_correlation_max_lag_px=p["noise_correlation_max_lag_px"],
                              gun=GunModel(radius_m=p["gun_radius_m"], length_m=p["gun_length_m"]),
                              tool_offset_m=p["tool_offset_m"], bfs_max_pixels=p["bfs_max_pixels"] or None)
 

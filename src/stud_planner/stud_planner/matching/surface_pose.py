@@ -39,6 +39,7 @@ import numpy as np
 from stud_perception.camera_model import CameraModel
 from stud_common.rotations import frame_from_normal
 from stud_common.rotations import matrix_to_quaternion as quaternion_from_matrix
+from stud_planner.matching.noise_correlation import measure_noise_correlation
 from stud_planner.matching.quadric_fit import (_N_TERMS, _fast_fits, _fit_inverse_depth, _frame_noise_m,
                                                _InverseDepthFit, _window_blocks)
 from stud_planner.matching.window_moments import BlockMoments
@@ -64,7 +65,9 @@ class SurfacePoses:
     - ``quat_xyzw`` (N, 4): orientation whose z-axis is the normal;
     - ``inclination_deg`` (N,): angle between normal and world z (the slope: information only);
     - ``normal_sigma_deg`` (N,): 1-sigma uncertainty of the normal's direction about its least
-      certain axis, from the fit's covariance;
+      certain axis, from the fit's covariance widened by the depth noise's correlation;
+    - ``sigma_inflation`` (N,): the factor the fit's own 1-sigma was multiplied by for that
+      correlation (1: independent noise; :mod:`stud_planner.matching.noise_correlation`);
     - ``fit_rms_m`` (N,): RMS distance of the inliers to the fitted surface;
     - ``fill_ratio`` (N,): valid depths / pixels sampled in the window;
     - ``outlier_ratio`` (N,): valid points rejected by the robust pass;
@@ -78,6 +81,7 @@ class SurfacePoses:
     quat_xyzw: np.ndarray
     inclination_deg: np.ndarray
     normal_sigma_deg: np.ndarray
+    sigma_inflation: np.ndarray
     fit_rms_m: np.ndarray
     fill_ratio: np.ndarray
     outlier_ratio: np.ndarray
@@ -157,6 +161,7 @@ def estimate_surface_poses(
     fast_fit: bool = True,
     fast_fit_noise_ratio: float = 1.25,
     fast_fit_floor_m: float = 1e-4,
+    noise_correlation_max_lag_px: int = 16,
 ) -> SurfacePoses:
     """Normals and weld poses at N matched points by a robust least-squares fit of the window.
 
@@ -179,7 +184,9 @@ def estimate_surface_poses(
     the fitted surface (the fit averages the depth noise out of the height), the normal is the
     surface's there (Eq. 1's camera: ``R_wc`` takes it to `world`). ``normal_sigma_deg`` is the
     1-sigma uncertainty of the normal's direction about its least certain axis, from the fit's
-    covariance. Status: TOO_FEW_POINTS (< min_points or fill < min_fill_ratio), BAD_FIT (RMS >
+    covariance, widened by the square root of the variance inflation of the frame's correlated depth
+    noise, measured on the frame through the studs up to ``noise_correlation_max_lag_px`` (0: the
+    noise is taken as independent; :mod:`stud_planner.matching.noise_correlation`). Status: TOO_FEW_POINTS (< min_points or fill < min_fill_ratio), BAD_FIT (RMS >
     max_rms_m or outliers > max_outlier_ratio), else OK.
     """
     P0 = np.asarray(points_w, dtype=np.float64).reshape(-1, 3)
@@ -193,7 +200,8 @@ def estimate_surface_poses(
 
     out = dict(
         position_w=np.full((n, 3), np.nan), normal_w=np.full((n, 3), np.nan), quat_xyzw=np.full((n, 4), np.nan),
-        inclination_deg=np.full(n, np.nan), normal_sigma_deg=np.full(n, np.nan), fit_rms_m=np.full(n, np.nan),
+        inclination_deg=np.full(n, np.nan), normal_sigma_deg=np.full(n, np.nan), sigma_inflation=np.full(n, np.nan),
+        fit_rms_m=np.full(n, np.nan),
         fill_ratio=np.full(n, np.nan), outlier_ratio=np.full(n, np.nan), n_points=np.zeros(n, dtype=np.int64),
         status=np.full(n, SurfaceStatus.NOT_MATCHED, dtype=np.int8),
     )
@@ -212,8 +220,11 @@ def estimate_surface_poses(
                                        outlier_k=outlier_k, outlier_floor_m=outlier_floor_m))
     fitted = [b for b in fitted if b[0].size]
     if fitted:  # one pass for all: its fixed cost is paid once
-        idx, fit, z0_w, z_cam, n_in, n_valid, n_window = fitted[0] if len(fitted) == 1 else _concatenate(fitted)
-        _store_poses(out, idx, fit, camera, target_xy[idx], z0_w, z_cam, n_in, n_valid, n_window, limits)
+        idx, fit, z0_w, z_cam, n_in, n_valid, n_window, step = (fitted[0] if len(fitted) == 1
+                                                                else _concatenate(fitted))
+        noise = measure_noise_correlation(depth, uv[idx], max_lag_px=noise_correlation_max_lag_px)
+        inflation = np.sqrt(np.minimum(noise.inflation(step), np.maximum(n_in, 1)))
+        _store_poses(out, idx, fit, camera, target_xy[idx], z0_w, z_cam, n_in, n_valid, n_window, inflation, limits)
     return SurfacePoses(**out)
 
 
@@ -221,7 +232,7 @@ def _fast_path_fits(idx: np.ndarray, P0: np.ndarray, uv: np.ndarray, depth: np.n
                     window_m: float, limits: "_Limits", *, gate_ratio: float, gate_floor_m: float):
     """The plain fits from block moment sums of studs ``idx`` where they stand (see
     :func:`estimate_surface_poses`): ((idx, fit, z0_w, z_cam, n_in, n_valid, n_window) of those,
-    the studs left for the pixel path)."""
+    the studs left for the pixel path); the fits use every pixel (a sample step of 1)."""
     z_cam = camera.world_to_camera(P0[idx])[:, 2]
     y_ref = 1.0 / float(np.median(z_cam))
     moments = BlockMoments(depth, y_ref)
@@ -235,14 +246,15 @@ def _fast_path_fits(idx: np.ndarray, P0: np.ndarray, uv: np.ndarray, depth: np.n
     take = eligible & (few | ((rms_m <= gate_m) & (rms_m <= limits.max_rms_m)))
     k = np.flatnonzero(take)
     batch = (idx[k], fit if k.size == take.size else fit.take(k), P0[idx[k], 2], z_cam[k], n_valid[k], n_valid[k],
-             n_window[k])
+             n_window[k], np.ones(k.size, dtype=np.int64))
     return batch, idx[~take]
 
 
 def _pixel_path_fits(idx: np.ndarray, P0: np.ndarray, uv: np.ndarray, depth: np.ndarray, camera: CameraModel,
                      window_m: float, *, max_per_side: int, robust_passes: int, outlier_k: float,
                      outlier_floor_m: float):
-    """The robust fits of the pixels of studs ``idx``' windows: (idx, fit, z0_w, z_cam, n_in, n_valid, n_window)."""
+    """The robust fits of the pixels of studs ``idx``' windows: (idx, fit, z0_w, z_cam, n_in, n_valid, n_window,
+    the sample step in pixels)."""
     p_stud = P0[idx]
     z_cam = camera.world_to_camera(p_stud)[:, 2]
     win = _window_blocks(camera, depth, uv[idx], z_cam, window_m, max_per_side)
@@ -251,7 +263,7 @@ def _pixel_path_fits(idx: np.ndarray, P0: np.ndarray, uv: np.ndarray, depth: np.
     fit = _fit_inverse_depth(win, camera, scale, robust_passes, outlier_k, floor_w)
     assert fit.inliers is not None  # a fit of windows keeps its inlier masks
     return (idx, fit.without_inliers(), p_stud[:, 2], z_cam, fit.inliers.sum(axis=(1, 2)), win.good.sum(axis=(1, 2)),
-            win.n_window)
+            win.n_window, win.step)
 
 
 def _concatenate(batches: list[tuple]) -> tuple:
@@ -272,8 +284,9 @@ class _Limits:
 
 def _store_poses(out: dict, idx: np.ndarray, fit: _InverseDepthFit, camera: CameraModel, target_xy: np.ndarray,
                  z0_w: np.ndarray, z_cam: np.ndarray, n_in: np.ndarray, n_valid: np.ndarray, n_window: np.ndarray,
-                 limits: _Limits) -> None:
-    """Weld point, normal, its uncertainty and the status of studs ``idx`` from their fits, into ``out``."""
+                 inflation: np.ndarray, limits: _Limits) -> None:
+    """Weld point, normal, its uncertainty (the fit's own times ``inflation``) and the status of studs
+    ``idx`` from their fits, into ``out``."""
     if idx.size == 0:
         return
     z_w = _vertical_line_hit(fit, camera, target_xy, z0_w)
@@ -281,7 +294,7 @@ def _store_poses(out: dict, idx: np.ndarray, fit: _InverseDepthFit, camera: Came
     X = camera.world_to_camera(pos)
     nrm_c, sigma_rad = fit.normal_at(X[:, 0] / X[:, 2], X[:, 1] / X[:, 2])
     nrm = nrm_c @ camera.R_wc.T
-    sigma = np.degrees(sigma_rad)
+    sigma = np.degrees(sigma_rad * inflation)
     rms_m = fit.rms_w * z_cam**2  # d(1/z) = dz / z^2
 
     fill = n_valid / np.maximum(n_window, 1)
@@ -300,6 +313,7 @@ def _store_poses(out: dict, idx: np.ndarray, fit: _InverseDepthFit, camera: Came
     out["quat_xyzw"][j] = quaternion_from_normal(nrm[have])
     out["inclination_deg"][j] = inclination_deg(nrm[have])
     out["normal_sigma_deg"][j] = sigma[have]
+    out["sigma_inflation"][j] = inflation[have]
     out["fit_rms_m"][j] = rms_m[have]
     out["outlier_ratio"][j] = outl[have]
     out["n_points"][idx] = n_in

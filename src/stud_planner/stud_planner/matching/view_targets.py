@@ -52,7 +52,10 @@ class PlannerConfig:
     on the normal's 1-sigma (3: 99 % of a 2D normal error), ``normal_sigma_floor_deg`` what the
     fit's covariance cannot see (depth quantisation, the quadric's model error), added in
     quadrature; a target whose ``lean_bound_deg`` = k * sqrt(sigma^2 + floor^2) + arm error
-    exceeds the budget is ``normal_uncertain``. ``gun``: the volume the gun
+    exceeds the budget is ``normal_uncertain``. The 1-sigma is the fit's own, widened by the depth
+    noise's correlation across pixels as the frame shows it up to ``noise_correlation_max_lag_px``
+    (0: the noise is taken as independent, which understates a real camera's normal error
+    several-fold: :mod:`stud_planner.matching.noise_correlation`). ``gun``: the volume the gun
     sweeps about the stud's axis, checked against the view (``check_gun_clearance``).
     ``tool_offset_m``: the reported position is moved this far along the normal (0: the surface
     point; the paper's M16x150 stud top is 13 mm -> use the arm driver's tool offset instead).
@@ -69,6 +72,7 @@ class PlannerConfig:
     arm_orientation_error_deg: float = 0.5
     normal_sigma_k: float = 3.0
     normal_sigma_floor_deg: float = 0.1
+    noise_correlation_max_lag_px: int = 16
     check_gun_clearance: bool = True
     gun: GunModel = GunModel()
     tool_offset_m: float = 0.0
@@ -82,6 +86,8 @@ class PlannerConfig:
                              f"arm_orientation_error_deg={self.arm_orientation_error_deg} >= 0")
         if not self.normal_sigma_k > 0:
             raise ValueError(f"normal_sigma_k={self.normal_sigma_k} must be positive")
+        if not 0 <= self.noise_correlation_max_lag_px <= 64:
+            raise ValueError(f"noise_correlation_max_lag_px={self.noise_correlation_max_lag_px} must be in [0, 64] px")
 
 
 @dataclass(frozen=True, eq=False)
@@ -174,7 +180,8 @@ def plan_view(ids: list[str], drawing_xy_m: np.ndarray, M_local2world: np.ndarra
     match_time = time.perf_counter() - t0
     poses = estimate_surface_poses_for_matches(matches, depth_m, camera, window_m=config.normal_window_m,
                                                max_samples_per_side=config.normal_samples_per_side,
-                                               max_rms_m=config.max_normal_rms_m, target_xy_w=target_xy_w)
+                                               max_rms_m=config.max_normal_rms_m, target_xy_w=target_xy_w,
+                                               noise_correlation_max_lag_px=config.noise_correlation_max_lag_px)
     status = matches.status.astype(np.uint8).copy()
     matched = status == MatchStatus.OK
     status[matched & ~poses.ok] = STATUS_NO_NORMAL

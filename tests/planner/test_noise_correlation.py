@@ -1,0 +1,80 @@
+"""The depth noise's correlation measured on a frame, and the normal's 1-sigma it widens.
+
+A fit's own covariance assumes independent noise; a real camera's is correlated over a few pixels,
+and then the normal is several times less certain than the residuals say. These tests check the
+measurement against frames whose noise is known, and that the planner's lean check then stops a
+stud whose normal is off by more than the budget allows (it did not before)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from stud_perception.depth_image import depth_m_to_mm, depth_mm_to_m
+from stud_perception.scene_sensor import depth_noise
+from stud_planner.matching.noise_correlation import NoiseCorrelation, measure_noise_correlation
+
+H, W = 480, 640
+
+
+def _surface(curvature_per_px2: float = 0.0) -> np.ndarray:
+    """A tilted plane 0.5 m away (metres), bent by ``curvature_per_px2`` (m / px^2) about the centre."""
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    return 0.5 + 2e-4 * (u - W / 2) - 1e-4 * (v - H / 2) + curvature_per_px2 * ((u - W / 2) ** 2 + (v - H / 2) ** 2)
+
+
+def _studs(n: int = 64) -> np.ndarray:
+    rng = np.random.default_rng(3)
+    return np.column_stack([rng.uniform(60, W - 60, n), rng.uniform(60, H - 60, n)])
+
+
+def _vif_of_blur(s: float) -> float:
+    """sum of the autocorrelation of white noise blurred by a Gaussian of sigma s px: 4 pi s^2."""
+    return max(1.0, 4.0 * math.pi * s * s)
+
+
+@pytest.mark.parametrize("s", [1.0, 2.0, 3.0])
+def test_a_blurred_noise_has_the_inflation_of_its_blur(s):
+    rng = np.random.default_rng(int(10 * s))
+    depth = _surface() + depth_noise((H, W), 0.0005, s, rng)
+    c = measure_noise_correlation(depth, _studs())
+    assert c.measured
+    assert c.sigma_m == pytest.approx(0.0005, rel=0.15)
+    # The separable estimate, truncated where rho falls under the cutoff: within 35 % of the sum.
+    assert 0.65 * _vif_of_blur(s) < float(c.inflation(1)) < 1.2 * _vif_of_blur(s)
+    # Samples every 2nd pixel are less correlated with each other: about a quarter of the factor.
+    assert float(c.inflation(2)) < 0.45 * float(c.inflation(1))
+
+
+def test_independent_noise_on_a_curved_part_is_independent():
+    """White noise, quantised to millimetres, on a strongly curved surface: the third differences
+    leave the curvature out, and the factor stays near 1."""
+    rng = np.random.default_rng(1)
+    exact = _surface(curvature_per_px2=2e-7)  # 20 mm of sag over 320 px
+    depth = depth_mm_to_m(depth_m_to_mm(exact + rng.normal(0.0, 0.0005, (H, W))))
+    c = measure_noise_correlation(depth, _studs())
+    assert c.measured
+    assert float(c.inflation(1)) < 1.4
+    assert c.sigma_m == pytest.approx(math.sqrt(0.0005**2 + 0.001**2 / 12), rel=0.15)  # noise + quantisation
+
+
+def test_part_edges_and_holes_are_left_out():
+    """A 50 mm step through half the segments and holes in the rest do not read as correlation."""
+    rng = np.random.default_rng(2)
+    depth = _surface() + rng.normal(0.0, 0.0005, (H, W))
+    depth[:, W // 2:] += 0.05  # the part's edge: the floor beyond it
+    depth[rng.random((H, W)) < 0.05] = np.nan
+    c = measure_noise_correlation(depth, _studs())
+    assert c.measured
+    assert float(c.inflation(1)) < 1.4
+
+
+def test_a_frame_without_noise_or_without_studs_is_taken_as_independent():
+    assert not measure_noise_correlation(_surface(), _studs()).measured  # exact float depth: no noise
+    assert not measure_noise_correlation(_surface(), np.empty((0, 2))).measured
+    assert not measure_noise_correlation(np.full((H, W), np.nan), _studs()).measured
+    off = measure_noise_correlation(_surface() + depth_noise((H, W), 5e-4, 2.0, np.random.default_rng(0)), _studs(),
+                                    max_lag_px=0)
+    assert not off.measured and float(off.inflation(1)) == 1.0
+    assert NoiseCorrelation.independent(8).inflation(np.array([1, 2, 3])).tolist() == [1.0, 1.0, 1.0]
