@@ -34,7 +34,8 @@ Methods (what each figure includes):
   on a capped scan (marked ~: a real run takes minutes per stud).
 
 Usage: python bench/bench_poses.py [--sizes 17 100 1000 10000 100000] [--scenes dome shell]
-       [--repeat 5] [--src DIR]   (--src: another checkout's src/, e.g. a "before" tree)
+       [--repeat 5] [--src DIR] [--noise-correlation-px S]   (--src: another checkout's src/, e.g. a
+       "before" tree; --noise-correlation-px: the depth noise correlated over S px, as a real camera's)
 """
 from __future__ import annotations
 
@@ -96,7 +97,7 @@ SCENES = {
 }
 
 
-def scene_and_view(n: int, name: str = "dome", seed: int = 7):
+def scene_and_view(n: int, name: str = "dome", seed: int = 7, correlation_px: float = 0.0):
     part, extent, yaw, tilt, azimuth = SCENES[name]
     base = demo_dome_scene()
     if part == "cylinder":
@@ -105,7 +106,8 @@ def scene_and_view(n: int, name: str = "dome", seed: int = 7):
     c = scene.component.centre_xy_m
     cam = view_camera((c[0], c[1], 0.0), 0.5, yaw_rad=math.radians(yaw), tilt_rad=math.radians(tilt),
                       tilt_azimuth_rad=math.radians(azimuth))
-    view = render(scene, cam, seed=seed, depth_noise_m=0.0005, hole_fraction=0.04)
+    extra = {"depth_noise_correlation_px": correlation_px} if correlation_px else {}  # older --src trees lack it
+    view = render(scene, cam, seed=seed, depth_noise_m=0.0005, hole_fraction=0.04, **extra)
     return scene, view
 
 
@@ -217,11 +219,12 @@ def best_of(fn, repeat):
     return best, out
 
 
-def run_scene(name: str, sizes: list[int], repeat: int, fpm_max: int) -> list[tuple[int, dict]]:
+def run_scene(name: str, sizes: list[int], repeat: int, fpm_max: int,
+              correlation_px: float = 0.0) -> list[tuple[int, dict]]:
     rows = []
     fpm_per_stud = bfs_per_px = None
     for n in sizes:
-        scene, view = scene_and_view(n, name)
+        scene, view = scene_and_view(n, name, correlation_px=correlation_px)
         cam, depth = view.camera, view.depth_m
         ids, dxy, M = list(scene.stud_ids), np.asarray(scene.studs_drawing_m), scene.M_local2world
         xy = scene.studs_world_xy_m
@@ -281,11 +284,12 @@ def fmt_time(t: float, est: bool) -> str:
     return f"{pre}{t * 1e3:.1f} ms"
 
 
-def print_tables(name: str, rows: list[tuple[int, dict]]) -> None:
+def print_tables(name: str, rows: list[tuple[int, dict]], correlation_px: float = 0.0) -> None:
     part, extent, yaw, tilt, az = SCENES[name]
     names = list(dict.fromkeys(k for _, r in rows for k in r))
     w = 52
-    print(f"\n### Scene `{name}`: 1280x960, camera yawed {yaw:g} deg, tilted {tilt:g} deg, 0.5 mm noise, "
+    noise = f"0.5 mm noise correlated over {correlation_px:g} px" if correlation_px else "0.5 mm noise"
+    print(f"\n### Scene `{name}`: 1280x960, camera yawed {yaw:g} deg, tilted {tilt:g} deg, {noise}, "
           "1 mm quantisation, 4 % holes\n")
     print("Time per frame / max normal error / coverage of the visible studs:\n")
     print(f"| {'method':{w}s} | " + " | ".join(f"{n:,} studs" for n, _ in rows) + " |")
@@ -327,6 +331,9 @@ def main() -> int:
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--fpm-max", type=int, default=100, help="time FPM for real up to this many studs")
     ap.add_argument("--src", default=None, help="a checkout's src/ to benchmark instead of this one's")
+    ap.add_argument("--noise-correlation-px", type=float, default=0.0,
+                    help="the depth noise correlated across pixels (Gaussian blur sigma, px), as a real "
+                         "structured-light camera's; 0 (default): independent, issue 19's scene")
     args = ap.parse_args()
     try:
         os.sched_setaffinity(0, {max(os.sched_getaffinity(0))})
@@ -336,7 +343,8 @@ def main() -> int:
     print(f"Full weld poses, one frame, one core ({pinned}, BLAS threads 1), best of {args.repeat}; "
           f"src: {Path(sys.modules[plan_view.__module__].__file__).parents[2]}")
     for name in args.scenes:
-        print_tables(name, run_scene(name, args.sizes, args.repeat, args.fpm_max))
+        print_tables(name, run_scene(name, args.sizes, args.repeat, args.fpm_max, args.noise_correlation_px),
+                     args.noise_correlation_px)
     print("\n~: estimated (FPM: per-stud time of the timed run x N; BFS: exact iteration count x timed per-pixel cost)")
     return 0
 

@@ -63,7 +63,7 @@ PARAMS = [
     Param("depth_encoding", "16UC1", "depth image encoding: '16UC1' (mm, 0 = none; what RGB-D drivers send) or "
           "'32FC1' (m, NaN = none; not quantised)", choices=("16UC1", "32FC1")),
     Param("depth_noise_m", 0.0005, "std of Gaussian depth noise [m]", min=0.0, max=0.05),
-    Param("depth_noise_correlation_px", 0.0, "how far the depth noise is correlated across pixels, as a real "
+    Param("depth_noise_correlation_px", 1.5, "how far the depth noise is correlated across pixels, as a real "
           "structured-light camera's is (sigma of a Gaussian blur of the noise; 0: independent pixels) [px]",
           min=0.0, max=20.0),
     Param("hole_fraction", 0.0, "fraction of depth pixels lost in blobs", min=0.0, max=0.9),
