@@ -78,3 +78,29 @@ def test_a_frame_without_noise_or_without_studs_is_taken_as_independent():
                                     max_lag_px=0)
     assert not off.measured and float(off.inflation(1)) == 1.0
     assert NoiseCorrelation.independent(8).inflation(np.array([1, 2, 3])).tolist() == [1.0, 1.0, 1.0]
+
+
+def test_correlated_noise_keeps_smooth_windows_on_the_fast_path(monkeypatch):
+    """The fast path's gate is the frame's whole noise: against the 8x8 blocks' plane-fit RMS alone
+    (blind to the noise's slow part), nearly every window of a correlated frame went to the robust
+    pixel path, at twice the cost, for the same normals."""
+    from stud_perception.scene import demo_dome_scene, grid_stud_scene
+    from stud_perception.scene_cameras import view_camera
+    from stud_perception.scene_render import render
+    import stud_planner.matching.surface_pose as surface_pose
+    from stud_planner.matching.view_targets import PlannerConfig, plan_view
+
+    scene = grid_stud_scene(100, demo_dome_scene(), extent_m=(0.26, 0.2))
+    c = scene.component.centre_xy_m
+    cam = view_camera((c[0], c[1], 0.0), 0.5, yaw_rad=math.radians(35), tilt_rad=math.radians(8),
+                      tilt_azimuth_rad=math.radians(60))
+    view = render(scene, cam, seed=7, depth_noise_m=0.0005, hole_fraction=0.04, depth_noise_correlation_px=1.5)
+    robust = []
+    pixel_path = surface_pose._pixel_path_fits
+    monkeypatch.setattr(surface_pose, "_pixel_path_fits", lambda idx, *a, **k: robust.append(len(idx)) or pixel_path(idx, *a, **k))
+    t = plan_view(list(scene.stud_ids), np.asarray(scene.studs_drawing_m), scene.M_local2world, view.depth_m, cam,
+                  PlannerConfig(check_gun_clearance=False))
+    fitted = int(t.poses.ok.sum())
+    assert fitted >= 90
+    assert sum(robust) <= 0.1 * fitted, (sum(robust), fitted)
+    assert 2.5 < t.sigma_inflation() < 6.0  # sqrt of ~9-21 (4 pi 1.5^2 = 28 for the blur alone, less quantisation)

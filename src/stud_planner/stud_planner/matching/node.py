@@ -279,12 +279,14 @@ class MatcherNode(Node):
             else:
                 _put_bounded(self._overlays_due, stamp_ns, (targets, camera, rectifier))
         counts = targets.counts()
+        widened = targets.sigma_inflation()
         summary = (f"view {self.view_index}: {counts.get('ok', 0)}/{len(targets.ids)} ok "
                    f"({', '.join(f'{k} {v}' for k, v in sorted(counts.items()) if k != 'ok') or 'no failures'}), "
-                   f"{targets.algorithm} {targets.match_time_s * 1e3:.1f} ms, {targets.matches.total_iterations} iterations")
+                   f"{targets.algorithm} {targets.match_time_s * 1e3:.1f} ms, {targets.matches.total_iterations} iterations"
+                   + (f", normal sigma x{widened:.1f} for the depth noise's correlation" if widened >= 1.5 else ""))
         self.get_logger().info(summary)
         self.diag.set(self.diag.OK, summary, last_match_time_ms=f"{targets.match_time_s * 1e3:.2f}",
-                      **{f"count_{k}": v for k, v in counts.items()})
+                      normal_sigma_inflation=f"{widened:.2f}", **{f"count_{k}": v for k, v in counts.items()})
 
     def _publish_overlay(self, targets, camera, rectifier, color_msg: Image) -> None:
         try:

@@ -153,6 +153,12 @@ class ViewTargets:
         vals, n = np.unique(self.status, return_counts=True)
         return {STATUS_TEXT[int(v)]: int(c) for v, c in zip(vals, n)}
 
+    def sigma_inflation(self) -> float:
+        """The median factor the normals' 1-sigma was widened by for the depth noise's correlation
+        (1: independent noise or no normal)."""
+        f = self.poses.sigma_inflation[np.isfinite(self.poses.sigma_inflation)]
+        return float(np.median(f)) if f.size else 1.0
+
 
 def match(algorithm: str, targets_xy_w: np.ndarray, depth_m: np.ndarray, camera: CameraModel,
           config: PlannerConfig, heights: tuple | None | str = "observe") -> MatchResults:
