@@ -104,3 +104,25 @@ def test_correlated_noise_keeps_smooth_windows_on_the_fast_path(monkeypatch):
     assert fitted >= 90
     assert sum(robust) <= 0.1 * fitted, (sum(robust), fitted)
     assert 2.5 < t.sigma_inflation() < 6.0  # sqrt of ~9-21 (4 pi 1.5^2 = 28 for the blur alone, less quantisation)
+
+
+@pytest.mark.parametrize("part", ["dome", "shell"])
+def test_painted_stud_marks_do_not_hide_the_correlation(part):
+    """The stud marks' dark paint returns no depth where the studs are: the correlation is measured
+    along the normal windows' edges, not through the studs, and is still seen."""
+    from pathlib import Path
+
+    from stud_perception.scene_cameras import view_camera
+    from stud_perception.scene_file import load_scene
+    from stud_perception.scene_render import render
+    from stud_planner.matching.view_targets import plan_view
+
+    scene = load_scene(Path(__file__).resolve().parents[2] / "src" / "stud_perception" / "config" / f"{part}_scene.json")
+    c = scene.studs_world_xy_m.mean(axis=0)
+    cam = view_camera((c[0], c[1], 0.0), 0.40)
+    view = render(scene, cam, seed=3, depth_noise_m=0.0005, hole_fraction=0.02, mark_depth_dropout=True,
+                  depth_noise_correlation_px=1.5)
+    t = plan_view(list(scene.stud_ids), np.asarray(scene.studs_drawing_m), scene.M_local2world, view.depth_m, cam)
+    through_the_studs = measure_noise_correlation(view.depth_m, t.matches.pixel_uv[t.matches.ok], beside_px=0)
+    assert not through_the_studs.measured  # the marks leave no long enough run of depth there
+    assert t.sigma_inflation() > 2.5

@@ -14,8 +14,9 @@ issue 19's dome scene with 0.5 mm noise blurred over 3 px (Gaussian sigma), the 
 normal 1-sigma of 0.08 deg against true errors of up to 2.2 deg: 20 sigma, and every stud was
 judged well inside the 5 deg lean budget.
 
-The autocorrelation is measured on the frame, on rows and columns of pixels through the studs
-(the surface where it matters), by the third-difference variogram
+The autocorrelation is measured on the frame, on rows and columns of pixels beside the studs (the
+surface where it matters; not through them, where a painted stud mark may return no depth), by the
+third-difference variogram
 
     T(k) = E[(d(x + 2k) - 3 d(x + k) + 3 d(x) - d(x - k))^2] = sigma^2 (20 - 30 rho(k) + 12 rho(2k) - 2 rho(3k)),
 
@@ -85,10 +86,12 @@ def _lag_sum(rho: np.ndarray, step: int) -> float:
 
 
 def measure_noise_correlation(depth_m: np.ndarray, uv: np.ndarray, *, max_lag_px: int = 16,
-                              max_segments: int = 64, step_m: float = 0.004) -> NoiseCorrelation:
+                              max_segments: int = 64, step_m: float = 0.004,
+                              beside_px: float | None = None) -> NoiseCorrelation:
     """The noise correlation of ``depth_m`` (H, W) metres, NaN or <= 0 = no depth, measured on the
-    row and the column of 6 ``max_lag_px`` + 1 pixels through up to ``max_segments`` of the pixels
-    ``uv`` (n, 2) (evenly chosen); segments holding a depth jump over ``step_m`` are left out.
+    rows and the columns of 6 ``max_lag_px`` + 1 pixels centred on up to ``max_segments`` of the
+    pixels ``uv`` (n, 2) (evenly chosen), ``beside_px`` (default ``max_lag_px`` / 2, at least 4) above
+    and below, left and right of each; segments holding a depth jump over ``step_m`` are left out.
     ``max_lag_px`` 0: not measured (independent noise)."""
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
     uv = uv[np.all(np.isfinite(uv), axis=1)]
@@ -98,10 +101,16 @@ def measure_noise_correlation(depth_m: np.ndarray, uv: np.ndarray, *, max_lag_px
     pick = np.unique(np.linspace(0, uv.shape[0] - 1, min(uv.shape[0], max_segments)).round().astype(np.int64))
     u0, v0 = np.rint(uv[pick, 0]).astype(np.int64), np.rint(uv[pick, 1]).astype(np.int64)
     off = np.arange(-3 * K, 3 * K + 1)
-    U = np.concatenate([u0[:, None] + off, np.broadcast_to(u0[:, None], (u0.size, off.size))])
-    V = np.concatenate([np.broadcast_to(v0[:, None], (v0.size, off.size)), v0[:, None] + off])
+    # Rows and columns beside the stud, not through it: a painted stud mark (no depth from dark paint)
+    # covers the stud's own place and often a cross along its row and column.
+    side = max(4, int(round(beside_px)) if beside_px is not None and np.isfinite(beside_px) else K // 2)
+    u_c, v_c = np.tile(u0, 2)[:, None], np.tile(v0, 2)[:, None]  # each stud twice: one side, then the other
+    beside = np.repeat([-side, side], u0.size)[:, None]
+    along_u = (u_c + off, np.broadcast_to(v_c + beside, (u_c.size, off.size)))  # rows above and below
+    along_v = (np.broadcast_to(u_c + beside, (u_c.size, off.size)), v_c + off)  # columns left and right
+    U, V = np.concatenate([along_u[0], along_v[0]]), np.concatenate([along_u[1], along_v[1]])
     lags = _lags(K)
-    T, count = _third_differences(np.asarray(depth_m), U, V, lags, step_m, rows=u0.size)
+    T, count = _third_differences(np.asarray(depth_m), U, V, lags, step_m, rows=u_c.size)
     if count.min() < MIN_DIFFERENCES:
         return NoiseCorrelation.independent(K)
     var = 0.5 * (T[0, -1] + T[1, -1]) / 20.0

@@ -185,7 +185,7 @@ def estimate_surface_poses(
     surface's there (Eq. 1's camera: ``R_wc`` takes it to `world`). ``normal_sigma_deg`` is the
     1-sigma uncertainty of the normal's direction about its least certain axis, from the fit's
     covariance, widened by the square root of the variance inflation of the frame's correlated depth
-    noise, measured on the frame through the studs up to ``noise_correlation_max_lag_px`` (0: the
+    noise, measured on the frame beside the studs up to ``noise_correlation_max_lag_px`` (0: the
     noise is taken as independent; :mod:`stud_planner.matching.noise_correlation`). Status: TOO_FEW_POINTS (< min_points or fill < min_fill_ratio), BAD_FIT (RMS >
     max_rms_m or outliers > max_outlier_ratio), else OK.
     """
@@ -209,9 +209,12 @@ def estimate_surface_poses(
     limits = _Limits(min_points=max(min_points, _N_TERMS + 2), min_fill_ratio=min_fill_ratio, max_rms_m=max_rms_m,
                      max_outlier_ratio=max_outlier_ratio)
     robust = np.flatnonzero(ok_in)
-    # The noise's correlation through the studs: it widens every sigma, and the fast path's gate
+    # The noise's correlation beside the studs: it widens every sigma, and the fast path's gate
     # needs the noise's whole standard deviation (8x8-pixel blocks see only its fast part).
-    noise = measure_noise_correlation(depth, uv[robust], max_lag_px=noise_correlation_max_lag_px)
+    # Measured along the windows' edges: the stud's own place may be a painted mark without depth.
+    z_cam = camera.world_to_camera(P0[robust])[:, 2] if robust.size else np.ones(1)
+    edge_px = float(np.median(0.5 * window_m * camera.fx / np.maximum(z_cam, 1e-6)))
+    noise = measure_noise_correlation(depth, uv[robust], max_lag_px=noise_correlation_max_lag_px, beside_px=edge_px)
     fitted = []  # (idx, fit, z0_w, z_cam, n_in, n_valid, n_window, step) of each path, stored together at the end
     if fast_fit and robust.size:
         batch, robust = _fast_path_fits(robust, P0, uv, depth, camera, window_m, limits,
