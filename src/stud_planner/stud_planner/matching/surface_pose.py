@@ -186,8 +186,9 @@ def estimate_surface_poses(
     1-sigma uncertainty of the normal's direction about its least certain axis, from the fit's
     covariance, widened by the square root of the variance inflation of the frame's correlated depth
     noise, measured on the frame beside the studs up to ``noise_correlation_max_lag_px`` (0: the
-    noise is taken as independent; :mod:`stud_planner.matching.noise_correlation`). Status: TOO_FEW_POINTS (< min_points or fill < min_fill_ratio), BAD_FIT (RMS >
-    max_rms_m or outliers > max_outlier_ratio), else OK.
+    noise is taken as independent; :mod:`stud_planner.matching.noise_correlation`). Status:
+    TOO_FEW_POINTS (< min_points or fill < min_fill_ratio), BAD_FIT (RMS > max_rms_m or outliers >
+    max_outlier_ratio), else OK.
     """
     P0 = np.asarray(points_w, dtype=np.float64).reshape(-1, 3)
     uv = np.asarray(pixel_uv, dtype=np.float64).reshape(-1, 2)
