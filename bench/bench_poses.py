@@ -19,6 +19,9 @@ Methods (what each figure includes):
   drawing -> world, batch matching with hole filling, quadric normal, its 1-sigma, the weld point
   on the fitted surface, the lean bound and the per-stud status (issue 19 target 1);
 - ``ours + gun clearance``: the same plus the gun-clearance check (plan_view's default);
+- ``ours, every pixel sampled`` (only with --noise-correlation-px): ``ours`` with
+  ``sample_step_max_loss`` 0, every pixel of each window sampled however correlated the noise (the
+  default samples every few pixels where the measured correlation makes neighbours redundant);
 - ``ours match only``: matching.match_batch;
 - ``peer A``: two re-projections of the stud's vertical line at the image's median height, a 7x7
   mean of valid depths each (matching only);
@@ -90,6 +93,7 @@ def bfs_seconds_per_pixel(xy, depth_m, camera, pixels: int) -> float:
     return (time.perf_counter() - t0) / r.total_iterations
 
 OURS = "ours: match+normal+sigma+status"
+EVERY_PIXEL = "ours, every pixel sampled"
 SCENES = {
     # name: (part, grid extent (m), camera yaw, tilt, tilt azimuth (deg))
     "dome": (None, (0.26, 0.2), 35.0, 8.0, 60.0),
@@ -237,6 +241,8 @@ def run_scene(name: str, sizes: list[int], repeat: int, fpm_max: int,
             return (t, *_angle_max(np.where(out.ok[:, None], out.normal_w, np.nan), truth, vis), False)
         res[OURS] = pose_row(PlannerConfig(check_gun_clearance=False))
         res["ours + gun clearance"] = pose_row(PlannerConfig())
+        if correlation_px and "sample_step_max_loss" in {f.name for f in dataclasses.fields(PlannerConfig)}:
+            res[EVERY_PIXEL] = pose_row(PlannerConfig(check_gun_clearance=False, sample_step_max_loss=0.0))
         t, out = best_of(lambda: match_batch(xy, depth, cam), rep)
         res["ours match only"] = (t, float("nan"), float(out.ok[vis].mean()), False)
         t, out = best_of(lambda: peer_a(xy, depth, cam), rep)

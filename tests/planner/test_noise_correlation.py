@@ -103,7 +103,10 @@ def test_correlated_noise_keeps_smooth_windows_on_the_fast_path(monkeypatch):
     fitted = int(t.poses.ok.sum())
     assert fitted >= 90
     assert sum(robust) <= 0.1 * fitted, (sum(robust), fitted)
-    assert 2.5 < t.sigma_inflation() < 6.0  # sqrt of ~9-21 (4 pi 1.5^2 = 28 for the blur alone, less quantisation)
+    every_pixel = measure_noise_correlation(view.depth_m, t.matches.pixel_uv[t.matches.ok], beside_px=20)
+    # sqrt of ~9-21 (4 pi 1.5^2 = 28 for the blur alone, less quantisation)
+    assert 2.5 < every_pixel.correlation_px() < 6.0
+    assert 1.5 < t.sigma_inflation() <= every_pixel.correlation_px()  # the windows sample every few pixels
 
 
 @pytest.mark.parametrize("part", ["dome", "shell"])
@@ -115,14 +118,71 @@ def test_painted_stud_marks_do_not_hide_the_correlation(part):
     from stud_perception.scene_cameras import view_camera
     from stud_perception.scene_file import load_scene
     from stud_perception.scene_render import render
-    from stud_planner.matching.view_targets import plan_view
+    from stud_planner.matching.view_targets import PlannerConfig, plan_view
 
     scene = load_scene(Path(__file__).resolve().parents[2] / "src" / "stud_perception" / "config" / f"{part}_scene.json")
     c = scene.studs_world_xy_m.mean(axis=0)
     cam = view_camera((c[0], c[1], 0.0), 0.40)
     view = render(scene, cam, seed=3, depth_noise_m=0.0005, hole_fraction=0.02, mark_depth_dropout=True,
                   depth_noise_correlation_px=1.5)
-    t = plan_view(list(scene.stud_ids), np.asarray(scene.studs_drawing_m), scene.M_local2world, view.depth_m, cam)
+    t = plan_view(list(scene.stud_ids), np.asarray(scene.studs_drawing_m), scene.M_local2world, view.depth_m, cam,
+                  PlannerConfig(sample_step_max_loss=0.0))  # every pixel: the factor is the correlation's whole
     through_the_studs = measure_noise_correlation(view.depth_m, t.matches.pixel_uv[t.matches.ok], beside_px=0)
     assert not through_the_studs.measured  # the marks leave no long enough run of depth there
     assert t.sigma_inflation() > 2.5
+
+
+@pytest.mark.parametrize("s, max_step", [(0.0, 1), (1.5, 4), (3.0, 4)])
+def test_the_sample_step_costs_the_normal_at_most_the_loss_asked(s, max_step):
+    """Correlated neighbours are redundant: a window sampled every few pixels loses almost nothing.
+    Independent noise keeps every pixel, and 0 loss asked keeps every pixel."""
+    rng = np.random.default_rng(21)
+    depth = _surface() + depth_noise((H, W), 0.0005, s, rng)
+    c = measure_noise_correlation(depth, _studs())
+    step = c.redundant_step(0.05)
+    assert 1 <= step <= max_step
+    if s == 0.0:
+        assert step == 1
+    else:
+        assert step >= 2  # a 1.5 px blur: rho(1) ~ 0.9
+        loss = math.sqrt(step**2 * float(c.inflation(step)) / float(c.inflation(1)))
+        assert loss <= 1.05
+    assert c.redundant_step(0.0) == 1
+    assert NoiseCorrelation.independent(16).redundant_step(0.05) == 1
+
+
+@pytest.mark.parametrize("correlation_px", [0.0, 1.5])
+def test_sampling_a_correlated_frame_sparsely_keeps_its_normals(correlation_px):
+    """On issue 19's dome with a real camera's correlated noise the windows are sampled every few
+    pixels -- a quarter of the samples or fewer -- for normals as accurate and a 1-sigma as honest as
+    every pixel's. On independent noise nothing changes."""
+    from stud_perception.scene import demo_dome_scene, grid_stud_scene
+    from stud_perception.scene_cameras import view_camera
+    from stud_perception.scene_render import render
+    from stud_planner.matching.view_targets import PlannerConfig, plan_view
+
+    scene = grid_stud_scene(100, demo_dome_scene(), extent_m=(0.26, 0.2))
+    c = scene.component.centre_xy_m
+    cam = view_camera((c[0], c[1], 0.0), 0.5, yaw_rad=math.radians(35), tilt_rad=math.radians(8),
+                      tilt_azimuth_rad=math.radians(60))
+    view = render(scene, cam, seed=11, depth_noise_m=0.0005, hole_fraction=0.04,
+                  depth_noise_correlation_px=correlation_px)
+    args = (list(scene.stud_ids), np.asarray(scene.studs_drawing_m), scene.M_local2world, view.depth_m, cam)
+    every = plan_view(*args, PlannerConfig(check_gun_clearance=False, sample_step_max_loss=0.0))
+    sparse = plan_view(*args, PlannerConfig(check_gun_clearance=False))
+    if correlation_px == 0.0:
+        np.testing.assert_array_equal(sparse.normal_w, every.normal_w)
+        np.testing.assert_array_equal(sparse.normal_sigma_deg, every.normal_sigma_deg)
+        return
+    ok = every.poses.ok & sparse.poses.ok & view.stud_visible
+    assert ok.sum() >= 90 and sparse.poses.ok.sum() >= every.poses.ok.sum() - 1
+    assert np.median(sparse.poses.n_points[ok] / every.poses.n_points[ok]) <= 0.3
+
+    def errors(t):
+        return np.degrees(np.arccos(np.clip(np.sum(t.normal_w[ok] * view.stud_normals_w[ok], axis=1), -1, 1)))
+
+    e_every, e_sparse = errors(every), errors(sparse)
+    assert np.sqrt(np.mean(e_sparse**2)) <= 1.15 * np.sqrt(np.mean(e_every**2))
+    # The 1-sigma follows the samples it has: the errors stay within the same few sigma.
+    assert np.percentile(e_sparse / sparse.normal_sigma_deg[ok], 95) < 3.0
+    assert np.max(e_sparse / sparse.normal_sigma_deg[ok]) < 4.5

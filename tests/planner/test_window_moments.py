@@ -55,6 +55,32 @@ def test_window_sums_are_the_sums_of_the_windows_pixels(holed_depth, use_table):
         assert got.n_window[k] == rows_in * cols_in
 
 
+@pytest.mark.parametrize("step", [2, 3])
+def test_strided_window_sums_are_the_sums_of_every_step_th_pixel(holed_depth, step):
+    """The direct sums sampled every ``step``-th row and column (a correlated frame's redundant
+    pixels) are the sums of exactly those pixels, about the window's centre, and count them."""
+    b, y_ref = BLOCK_PX, 2.2
+    moments = BlockMoments(holed_depth, y_ref)
+    rng = np.random.default_rng(5)
+    r0 = rng.integers(0, moments.n_rows - 5, 30)  # whole windows inside the image: each box starts at
+    c0 = rng.integers(0, moments.n_cols - 5, 30)  # its own window's first pixel
+    r1, c1 = r0 + rng.integers(2, 6, 30), c0 + rng.integers(2, 6, 30)
+    got = moments.window_sums(r0, r1, c0, c1, use_table=False, step=step)
+    assert got.step == step
+    for k in range(30):
+        sampled = np.zeros_like(holed_depth)  # NaN: no depth, the pixels not sampled
+        sampled[:] = np.nan
+        rows, cols = slice(r0[k] * b, r1[k] * b, step), slice(c0[k] * b, c1[k] * b, step)
+        sampled[rows, cols] = holed_depth[rows, cols]
+        mw, my, yy = brute_force_sums(sampled, y_ref, r0[k], r1[k], c0[k], c1[k])
+        np.testing.assert_allclose(got.mw[k], mw, rtol=0, atol=1e-6 * np.abs(mw).max())
+        np.testing.assert_allclose(got.my[k], my, rtol=0, atol=1e-5 * np.abs(my).max() + 1e-9)
+        np.testing.assert_allclose(got.yy[k], yy, rtol=1e-5)
+        assert got.n_window[k] == len(range(r0[k] * b, r1[k] * b, step)) * len(range(c0[k] * b, c1[k] * b, step))
+    # The table sums every pixel whatever the step asked: it says so.
+    assert moments.window_sums(r0, r1, c0, c1, use_table=True, step=step).step == 1
+
+
 @pytest.mark.parametrize("use_table", [True, False])
 @pytest.mark.parametrize("no_depth", [0.0, -0.3, np.inf, -np.inf])
 def test_every_spelling_of_no_depth_gives_the_sums_of_nan_holes(holed_depth, use_table, no_depth):

@@ -77,6 +77,9 @@ PARAMS = [
     Param("noise_correlation_max_lag_px", 16, "the normal's 1-sigma is widened by the depth noise's correlation "
           "across pixels, measured on each frame up to this lag; 0: take the noise as independent (a real "
           "camera's normal error is then understated several-fold) [px]", min=0, max=64),
+    Param("sample_step_max_loss", 0.05, "where the measured noise correlation makes neighbouring pixels redundant, "
+          "the normal's patch is sampled every few pixels (faster) at a cost of at most this fraction of the "
+          "normal's 1-sigma; 0: every pixel", min=0.0, max=1.0),
     Param("lean_budget_deg", 5.0, "the most a welded stud may lean from the true normal (the code's 5 deg); a "
           "target whose normal is too uncertain for it is normal_uncertain -- the slope never refuses [deg]",
           min=0.1, max=45.0),
@@ -214,6 +217,7 @@ class MatcherNode(Node):
                              arm_orientation_error_deg=p["arm_orientation_error_deg"],
                              normal_sigma_k=p["normal_sigma_k"], check_gun_clearance=p["check_gun_clearance"],
                              noise_correlation_max_lag_px=p["noise_correlation_max_lag_px"],
+                             sample_step_max_loss=p["sample_step_max_loss"],
                              gun=GunModel(radius_m=p["gun_radius_m"], length_m=p["gun_length_m"]),
                              tool_offset_m=p["tool_offset_m"], bfs_max_pixels=p["bfs_max_pixels"] or None)
 

@@ -27,6 +27,13 @@ the largest lag down. Rows and columns give rho along u and v; rho(k, l) = rho_u
 :data:`RHO_CUTOFF` (the estimate's own noise would otherwise add up over the lags). A segment holding a
 depth step (a part edge) is left out; pixels without depth are skipped.
 
+Correlated samples are also redundant: where rho(1) is high, a window sampled every second or
+third pixel holds nearly as many independent samples as one sampled at every pixel.
+:meth:`NoiseCorrelation.redundant_step` picks the sample step that costs the normal at most a
+given fraction of its 1-sigma, sigma(s) / sigma(1) = sqrt(s^2 VIF(s) / VIF(1)); on independent
+noise that is every pixel. On issue 19's scenes with 0.5 mm noise blurred over 1.5 px (and 1 mm
+quantisation, which adds an independent part) the ratio is 1.01-1.05 at s = 2 and 1.06-1.11 at 3.
+
 Limits: a correlation longer than about ``max_lag_px`` / 3 (Gaussian sigma) is underestimated, and
 the factor is for windows much wider than the correlation; it is capped at the window's sample
 count (perfectly correlated samples). Pure numpy; depth in metres, NaN = no depth.
@@ -43,6 +50,8 @@ RHO_CUTOFF = 0.05
 MIN_DIFFERENCES = 200
 #: Noise under this (m, 1-sigma) is none to speak of: an exact or noise-free frame.
 MIN_NOISE_M = 1e-6
+#: The largest sample step :meth:`NoiseCorrelation.redundant_step` returns (px).
+MAX_SAMPLE_STEP = 4
 
 
 @dataclass(frozen=True)
@@ -69,6 +78,17 @@ class NoiseCorrelation:
         steps, inverse = np.unique(step, return_inverse=True)
         f = np.array([_lag_sum(self.rho_u, s) * _lag_sum(self.rho_v, s) for s in steps.tolist()])
         return f[inverse].reshape(step.shape)
+
+    def redundant_step(self, max_loss: float, max_step: int = MAX_SAMPLE_STEP) -> int:
+        """The largest sample step s <= ``max_step`` (px, both directions) whose fit's normal 1-sigma
+        is at most ``1 + max_loss`` times that of a fit to every pixel: sqrt(s^2 VIF(s) / VIF(1)),
+        the window's n / s^2 samples against its n. 1 for independent noise, for a frame whose noise
+        was not measured, and for ``max_loss`` 0."""
+        if not self.measured or not max_loss > 0:
+            return 1
+        steps = np.arange(1, max(int(max_step), 1) + 1)
+        loss = np.sqrt(steps**2 * self.inflation(steps) / self.inflation(1))
+        return int(steps[loss <= 1.0 + max_loss].max())
 
     def correlation_px(self) -> float:
         """The correlation's extent: the side of the square of independent samples, sqrt(VIF) px."""
@@ -181,4 +201,4 @@ def _rho_from_variogram(lags: np.ndarray, T: np.ndarray, var: float) -> np.ndarr
     return rho
 
 
-__all__ = ["MIN_DIFFERENCES", "NoiseCorrelation", "RHO_CUTOFF", "measure_noise_correlation"]
+__all__ = ["MAX_SAMPLE_STEP", "MIN_DIFFERENCES", "NoiseCorrelation", "RHO_CUTOFF", "measure_noise_correlation"]

@@ -145,10 +145,10 @@ class _Windows:
 
 
 def _window_blocks(camera: CameraModel, depth: np.ndarray, uv: np.ndarray, z_cam: np.ndarray, window_m: float,
-                   max_per_side: int) -> _Windows:
+                   max_per_side: int, min_step: int = 1) -> _Windows:
     H, W = depth.shape
     half_px = 0.5 * window_m * camera.fx / np.maximum(z_cam, 1e-6)
-    step = np.maximum(1, np.ceil(2 * half_px / max(max_per_side - 1, 1))).astype(np.int64)
+    step = np.maximum(max(int(min_step), 1), np.ceil(2 * half_px / max(max_per_side - 1, 1))).astype(np.int64)
     reach = half_px + 0.5 * step
     half_k = int(np.max(np.floor(reach / step)))
     grid = np.arange(-half_k, half_k + 1)
@@ -309,13 +309,16 @@ def _fit_inverse_depth(win: _Windows, camera: CameraModel, scale: np.ndarray, ro
                             rms_w=np.sqrt(var))
 
 
-def _fast_fits(moments: BlockMoments, camera: CameraModel, uv: np.ndarray, z_cam: np.ndarray, window_m: float):
+def _fast_fits(moments: BlockMoments, camera: CameraModel, uv: np.ndarray, z_cam: np.ndarray, window_m: float,
+               step: int = 1):
     """Plain least-squares quadric fits of 1/z over block-aligned windows, from moment sums
     (:mod:`stud_planner.matching.window_moments`): the fit :func:`_fit_inverse_depth` makes before any
-    robust pass, on every valid pixel of a window of whole blocks around each stud.
+    robust pass, on every valid pixel of a window of whole blocks around each stud (every
+    ``step``-th of each row and column where the sums come from the windows' own pixels).
 
-    Returns (fit, n_valid (n,), n_window (n,), eligible (n,) bool); a window under two blocks a
-    side, or one the image border cuts to nothing, is not eligible (the pixel path takes it).
+    Returns (fit, n_valid (n,), n_window (n,), eligible (n,) bool, the sample step used); a window
+    under two blocks a side, or one the image border cuts to nothing, is not eligible (the pixel
+    path takes it).
     """
     b = BLOCK_PX
     half = 0.5 * window_m * camera.fx / np.maximum(z_cam, 1e-6)
@@ -327,7 +330,7 @@ def _fast_fits(moments: BlockMoments, camera: CameraModel, uv: np.ndarray, z_cam
     eligible &= (c1 > c0) & (r1 > r0)
     c0, c1, r0, r1 = (np.where(eligible, a, 0).astype(np.int64) for a in (c0, c1, r0, r1))
     c1, r1 = np.maximum(c1, c0 + 1), np.maximum(r1, r0 + 1)
-    sums = moments.window_sums(r0, r1, c0, c1)
+    sums = moments.window_sums(r0, r1, c0, c1, step=step)
     scale = 0.5 * window_m / np.maximum(z_cam, 1e-6)
     ca, cb = 1.0 / (camera.fx * scale), 1.0 / (camera.fy * scale)  # window units per pixel
     beta, A_inv, rhs = _solve_normal_equations(sums.mw, sums.my, ca, cb)
@@ -337,7 +340,7 @@ def _fast_fits(moments: BlockMoments, camera: CameraModel, uv: np.ndarray, z_cam
     fit = _InverseDepthFit(x0=(sums.centre_uv[:, 0] - camera.cx) / camera.fx,
                            y0=(sums.centre_uv[:, 1] - camera.cy) / camera.fy, scale=scale, beta=beta,
                            cov=var[:, None, None] * A_inv, inliers=None, rms_w=np.sqrt(var))
-    return fit, n_valid, sums.n_window, eligible
+    return fit, n_valid, sums.n_window, eligible, sums.step
 
 
 def _frame_noise_m(moments: BlockMoments, stride: int = 4) -> float:

@@ -162,6 +162,7 @@ def estimate_surface_poses(
     fast_fit_noise_ratio: float = 1.25,
     fast_fit_floor_m: float = 1e-4,
     noise_correlation_max_lag_px: int = 16,
+    sample_step_max_loss: float = 0.05,
 ) -> SurfacePoses:
     """Normals and weld poses at N matched points by a robust least-squares fit of the window.
 
@@ -186,7 +187,10 @@ def estimate_surface_poses(
     1-sigma uncertainty of the normal's direction about its least certain axis, from the fit's
     covariance, widened by the square root of the variance inflation of the frame's correlated depth
     noise, measured on the frame beside the studs up to ``noise_correlation_max_lag_px`` (0: the
-    noise is taken as independent; :mod:`stud_planner.matching.noise_correlation`). Status:
+    noise is taken as independent; :mod:`stud_planner.matching.noise_correlation`). Correlated samples
+    are redundant: the windows' pixels are sampled every s-th row and column, s the largest step (up
+    to 4) that widens the normal's 1-sigma by at most ``sample_step_max_loss`` for the noise measured
+    (every pixel on independent noise, or with 0; summed-area tables always sum every pixel). Status:
     TOO_FEW_POINTS (< min_points or fill < min_fill_ratio), BAD_FIT (RMS > max_rms_m or outliers >
     max_outlier_ratio), else OK.
     """
@@ -216,16 +220,18 @@ def estimate_surface_poses(
     z_cam = camera.world_to_camera(P0[robust])[:, 2] if robust.size else np.ones(1)
     edge_px = float(np.median(0.5 * window_m * camera.fx / np.maximum(z_cam, 1e-6)))
     noise = measure_noise_correlation(depth, uv[robust], max_lag_px=noise_correlation_max_lag_px, beside_px=edge_px)
+    sample_step = noise.redundant_step(sample_step_max_loss)
     fitted = []  # (idx, fit, z0_w, z_cam, n_in, n_valid, n_window, step) of each path, stored together at the end
     if fast_fit and robust.size:
         batch, robust = _fast_path_fits(robust, P0, uv, depth, camera, window_m, limits,
                                         gate_ratio=fast_fit_noise_ratio, gate_floor_m=fast_fit_floor_m,
-                                        noise_sigma_m=noise.sigma_m)
+                                        noise_sigma_m=noise.sigma_m, step=sample_step)
         fitted.append(batch)
     for start in range(0, robust.size, chunk):
         fitted.append(_pixel_path_fits(robust[start:start + chunk], P0, uv, depth, camera, window_m,
                                        max_per_side=int(max_samples_per_side), robust_passes=robust_passes,
-                                       outlier_k=outlier_k, outlier_floor_m=outlier_floor_m))
+                                       outlier_k=outlier_k, outlier_floor_m=outlier_floor_m,
+                                       min_step=sample_step))
     fitted = [b for b in fitted if b[0].size]
     if fitted:  # one pass for all: its fixed cost is paid once
         idx, fit, z0_w, z_cam, n_in, n_valid, n_window, step = (fitted[0] if len(fitted) == 1
@@ -237,10 +243,11 @@ def estimate_surface_poses(
 
 def _fast_path_fits(idx: np.ndarray, P0: np.ndarray, uv: np.ndarray, depth: np.ndarray, camera: CameraModel,
                     window_m: float, limits: "_Limits", *, gate_ratio: float, gate_floor_m: float,
-                    noise_sigma_m: float = float("nan")):
+                    noise_sigma_m: float = float("nan"), step: int = 1):
     """The plain fits from block moment sums of studs ``idx`` where they stand (see
     :func:`estimate_surface_poses`): ((idx, fit, z0_w, z_cam, n_in, n_valid, n_window, step) of those,
-    the studs left for the pixel path); the fits use every pixel (a sample step of 1).
+    the studs left for the pixel path); the fits sample every ``step``-th pixel where the sums come
+    from the windows' own pixels, every pixel where from summed-area tables.
 
     The gate is the frame's noise: the larger of the blocks' plane-fit RMS and ``noise_sigma_m``
     (the noise's whole standard deviation, NaN: not measured). Noise correlated over a few pixels
@@ -250,7 +257,7 @@ def _fast_path_fits(idx: np.ndarray, P0: np.ndarray, uv: np.ndarray, depth: np.n
     z_cam = camera.world_to_camera(P0[idx])[:, 2]
     y_ref = 1.0 / float(np.median(z_cam))
     moments = BlockMoments(depth, y_ref)
-    fit, n_valid, n_window, eligible = _fast_fits(moments, camera, uv[idx], z_cam, window_m)
+    fit, n_valid, n_window, eligible, step = _fast_fits(moments, camera, uv[idx], z_cam, window_m, step)
     rms_m = fit.rms_w * z_cam**2
     noise_m = _frame_noise_m(moments)
     if np.isfinite(noise_sigma_m):
@@ -262,18 +269,18 @@ def _fast_path_fits(idx: np.ndarray, P0: np.ndarray, uv: np.ndarray, depth: np.n
     take = eligible & (few | ((rms_m <= gate_m) & (rms_m <= limits.max_rms_m)))
     k = np.flatnonzero(take)
     batch = (idx[k], fit if k.size == take.size else fit.take(k), P0[idx[k], 2], z_cam[k], n_valid[k], n_valid[k],
-             n_window[k], np.ones(k.size, dtype=np.int64))
+             n_window[k], np.full(k.size, step, dtype=np.int64))
     return batch, idx[~take]
 
 
 def _pixel_path_fits(idx: np.ndarray, P0: np.ndarray, uv: np.ndarray, depth: np.ndarray, camera: CameraModel,
                      window_m: float, *, max_per_side: int, robust_passes: int, outlier_k: float,
-                     outlier_floor_m: float):
-    """The robust fits of the pixels of studs ``idx``' windows: (idx, fit, z0_w, z_cam, n_in, n_valid, n_window,
-    the sample step in pixels)."""
+                     outlier_floor_m: float, min_step: int = 1):
+    """The robust fits of the pixels of studs ``idx``' windows, sampled at least every ``min_step``
+    pixels: (idx, fit, z0_w, z_cam, n_in, n_valid, n_window, the sample step in pixels)."""
     p_stud = P0[idx]
     z_cam = camera.world_to_camera(p_stud)[:, 2]
-    win = _window_blocks(camera, depth, uv[idx], z_cam, window_m, max_per_side)
+    win = _window_blocks(camera, depth, uv[idx], z_cam, window_m, max_per_side, min_step)
     scale = 0.5 * window_m / np.maximum(z_cam, 1e-6)
     floor_w = outlier_floor_m / np.maximum(z_cam, 1e-6) ** 2  # 1 mm of depth, in 1/z
     fit = _fit_inverse_depth(win, camera, scale, robust_passes, outlier_k, floor_w)

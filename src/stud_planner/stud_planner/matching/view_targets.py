@@ -55,7 +55,9 @@ class PlannerConfig:
     exceeds the budget is ``normal_uncertain``. The 1-sigma is the fit's own, widened by the depth
     noise's correlation across pixels as the frame shows it up to ``noise_correlation_max_lag_px``
     (0: the noise is taken as independent, which understates a real camera's normal error
-    several-fold: :mod:`stud_planner.matching.noise_correlation`). ``gun``: the volume the gun
+    several-fold: :mod:`stud_planner.matching.noise_correlation`). Where that correlation makes
+    neighbouring pixels redundant, the normal's window is sampled every few pixels, at a cost of at
+    most ``sample_step_max_loss`` of the normal's 1-sigma (0: every pixel). ``gun``: the volume the gun
     sweeps about the stud's axis, checked against the view (``check_gun_clearance``).
     ``tool_offset_m``: the reported position is moved this far along the normal (0: the surface
     point; the paper's M16x150 stud top is 13 mm -> use the arm driver's tool offset instead).
@@ -73,6 +75,7 @@ class PlannerConfig:
     normal_sigma_k: float = 3.0
     normal_sigma_floor_deg: float = 0.1
     noise_correlation_max_lag_px: int = 16
+    sample_step_max_loss: float = 0.05
     check_gun_clearance: bool = True
     gun: GunModel = GunModel()
     tool_offset_m: float = 0.0
@@ -88,6 +91,9 @@ class PlannerConfig:
             raise ValueError(f"normal_sigma_k={self.normal_sigma_k} must be positive")
         if not 0 <= self.noise_correlation_max_lag_px <= 64:
             raise ValueError(f"noise_correlation_max_lag_px={self.noise_correlation_max_lag_px} must be in [0, 64] px")
+        if not 0 <= self.sample_step_max_loss <= 1:
+            raise ValueError(f"sample_step_max_loss={self.sample_step_max_loss} must be in [0, 1] (a fraction of "
+                             "the normal's 1-sigma)")
 
 
 @dataclass(frozen=True, eq=False)
@@ -187,7 +193,8 @@ def plan_view(ids: list[str], drawing_xy_m: np.ndarray, M_local2world: np.ndarra
     poses = estimate_surface_poses_for_matches(matches, depth_m, camera, window_m=config.normal_window_m,
                                                max_samples_per_side=config.normal_samples_per_side,
                                                max_rms_m=config.max_normal_rms_m, target_xy_w=target_xy_w,
-                                               noise_correlation_max_lag_px=config.noise_correlation_max_lag_px)
+                                               noise_correlation_max_lag_px=config.noise_correlation_max_lag_px,
+                                               sample_step_max_loss=config.sample_step_max_loss)
     status = matches.status.astype(np.uint8).copy()
     matched = status == MatchStatus.OK
     status[matched & ~poses.ok] = STATUS_NO_NORMAL

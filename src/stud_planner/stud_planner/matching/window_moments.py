@@ -51,7 +51,8 @@ class WindowSums:
     ``mw`` (n, 5, 5) [p, q] = sum u'^p v'^q (entries with p + q > 4 are 0); ``my`` (n, 3, 3)
     [p, q] = sum y' u'^p v'^q (p + q <= 2); ``yy`` (n,) = sum y'^2; with u', v' the pixel offsets
     from the window's centre and y' = 1/z - y_ref (1/m). ``centre_uv`` (n, 2) px, ``n_window`` (n,)
-    pixels of the window inside the image.
+    pixels of the window inside the image; ``step`` (px): the sums are over every ``step``-th pixel
+    of each row and column (``n_window`` counts those), 1: every pixel.
     """
 
     mw: np.ndarray
@@ -59,6 +60,7 @@ class WindowSums:
     yy: np.ndarray
     centre_uv: np.ndarray
     n_window: np.ndarray
+    step: int = 1
 
 
 def powers_of(x: np.ndarray, order: int) -> np.ndarray:
@@ -225,18 +227,22 @@ class BlockMoments:
 
     # -- window sums ---------------------------------------------------------------------------
     def _direct_window_sums(self, row0: np.ndarray, row1: np.ndarray, col0: np.ndarray,
-                            col1: np.ndarray) -> WindowSums:
-        """The windows' sums from their own pixels, in window-local coordinates (few windows: no
-        table to build). Every window is cut from the image as a box of the largest window's size
-        (a view copied row by row), its own pixels picked by row and column masks."""
-        b, n = BLOCK_PX, row0.size
+                            col1: np.ndarray, step: int = 1) -> WindowSums:
+        """The windows' sums from their own pixels, every ``step``-th of each row and column, in
+        window-local coordinates (few windows: no table to build). Every window is cut from the
+        image as a box of the largest window's size (a view copied row by row), its own pixels
+        picked by row and column masks."""
+        b, n, s = BLOCK_PX, row0.size, max(int(step), 1)
         kr, kc = int((row1 - row0).max()) * b, int((col1 - col0).max()) * b
         top = np.minimum(row0 * b, self._depth.shape[0] - kr)  # the box stays inside the image
         left = np.minimum(col0 * b, self._depth.shape[1] - kc)
-        pix = np.lib.stride_tricks.sliding_window_view(self._depth, (kr, kc))[top, left]  # (n, kr, kc), a copy
+        boxes = np.lib.stride_tricks.sliding_window_view(self._depth, (kr, kc))[:, :, ::s, ::s]  # a view
+        pix = boxes[top, left]  # (n, kr / s, kc / s), a copy of the samples only
         centre = self._centres(row0, row1, col0, col1)
-        rows = top[:, None] + np.arange(kr)  # image row / column of each box row / column
-        cols = left[:, None] + np.arange(kc)
+        box_r, box_c = np.arange(0, kr, s), np.arange(0, kc, s)  # the samples' rows / columns in the box
+        kr, kc = box_r.size, box_c.size
+        rows = top[:, None] + box_r  # image row / column of each sample row / column
+        cols = left[:, None] + box_c
         in_rows = (rows >= row0[:, None] * b) & (rows < row1[:, None] * b)
         in_cols = (cols >= col0[:, None] * b) & (cols < col1[:, None] * b)
         # Validity and y' of the window's own pixels (0 elsewhere in the box), as two row blocks of
@@ -253,18 +259,20 @@ class BlockMoments:
         # Sums over columns then rows of offsets from the box's centre, the same powers for every
         # box: two plain products (float32 over a row, float64 over the rows), then the binomial
         # shift to each window's own centre.
-        g_c = powers_of(np.arange(kc) - (kc - 1) / 2.0, 4)  # (kc, 5)
-        g_r = powers_of(np.arange(kr) - (kr - 1) / 2.0, 4)  # (kr, 5)
+        mid_c, mid_r = 0.5 * (box_c[0] + box_c[-1]), 0.5 * (box_r[0] + box_r[-1])  # the samples' centre
+        g_c = powers_of(box_c - mid_c, 4)  # (kc, 5)
+        g_r = powers_of(box_r - mid_r, 4)  # (kr, 5)
         t = (data.reshape(-1, kc) @ g_c.astype(np.float32)).astype(np.float64).reshape(n, 2, kr, 5)
         m = (np.ascontiguousarray(np.swapaxes(t, 2, 3)).reshape(-1, kr) @ g_r).reshape(n, 2, 5, 5)  # [p, q]
-        du = centre[:, 0] - (left + (kc - 1) / 2.0)  # each window's centre in its box's coordinates
-        dv = centre[:, 1] - (top + (kr - 1) / 2.0)
+        du = centre[:, 0] - (left + mid_c)  # each window's centre in its samples' coordinates
+        dv = centre[:, 1] - (top + mid_r)
         m = np.matmul(np.matmul(_binomial_shift(du)[:, None], m), np.swapaxes(_binomial_shift(dv), 1, 2)[:, None])
         mw, my = m[:, 0], np.ascontiguousarray(m[:, 1, :3, :3])
         mw[:, np.add.outer(np.arange(5), np.arange(5)) > 4] = 0.0
         my[:, np.add.outer(np.arange(3), np.arange(3)) > 2] = 0.0
-        return WindowSums(mw=mw, my=my, yy=yy, centre_uv=centre,
-                          n_window=self._pixels_in_image(row0, row1, col0, col1))
+        n_window = (self._pixels_in_image(row0, row1, col0, col1) if s == 1
+                    else in_rows.sum(axis=1) * in_cols.sum(axis=1))  # the box lies in the image
+        return WindowSums(mw=mw, my=my, yy=yy, centre_uv=centre, n_window=n_window, step=s)
 
     def _centres(self, row0, row1, col0, col1) -> np.ndarray:
         b = BLOCK_PX
@@ -293,17 +301,18 @@ class BlockMoments:
         return self._sat[1]
 
     def window_sums(self, row0: np.ndarray, row1: np.ndarray, col0: np.ndarray, col1: np.ndarray,
-                    use_table: bool | None = None) -> WindowSums:
+                    use_table: bool | None = None, step: int = 1) -> WindowSums:
         """Sums over windows of blocks [row0, row1) x [col0, col1) (n,) each (0 <= row0 < row1 <= n_rows).
 
         ``use_table``: from the summed-area table (True) or from the windows' own pixels (False);
-        by default whichever touches fewer blocks.
+        by default whichever touches fewer pixels. ``step``: the windows' own pixels are sampled
+        every ``step``-th row and column (the table sums every pixel: ``WindowSums.step`` says which).
         """
         row0, row1, col0, col1 = (np.asarray(a, dtype=np.int64) for a in (row0, row1, col0, col1))
         nr, nc = row1 - row0, col1 - col0
         n = row0.size
         if use_table is None:
-            use_table = int((nr * nc).sum()) > self.n_rows * self.n_cols
+            use_table = int((nr * nc).sum()) > self.n_rows * self.n_cols * max(int(step), 1) ** 2
         if n == 0:
             cht = np.zeros((N_CHANNELS, 0))
         elif use_table:
@@ -313,7 +322,7 @@ class BlockMoments:
             a0, a1, b0, b1 = row0 - r_lo, row1 - r_lo, col0 - c_lo, col1 - c_lo
             cht = S[:, a1, b1] - S[:, a0, b1] - S[:, a1, b0] + S[:, a0, b0]
         else:
-            return self._direct_window_sums(row0, row1, col0, col1)
+            return self._direct_window_sums(row0, row1, col0, col1, step)
         centre = self._centres(row0, row1, col0, col1)
         # Back from the frame-wide coordinate to pixel offsets from each window's centre.
         s = COORD_SCALE_PX
