@@ -51,7 +51,7 @@ CONFIG = REPO / "src" / "stud_perception" / "config"
 #: world +X. Both parts share it (one cell layout).
 BOARD_POSE = Pose2D(x_m=0.16, y_m=-0.34, yaw_rad=0.0)
 #: The cell's defaults these parts are laid out for (arm_driver and cell.yaml): tool and approach.
-TOOL_OFFSET_M, STANDOFF_M = 0.15, 0.05
+TOOL_OFFSET_M, STANDOFF_M = 0.15, 0.06  # the driver's tool_offset_m, cell.yaml standoff_m
 HAND_EYE_XYZ_M, HAND_EYE_RPY_DEG = (0.05, 0.0, -0.10), (0.0, 0.0, 0.0)
 #: M16x50 studs: the camera stations stand 0.25 m above the parts' tops (as high as the arm holds a
 #: nadir camera here), and the post-weld shot must see every stud's top inside the image.

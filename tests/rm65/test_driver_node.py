@@ -252,6 +252,10 @@ BAD_PARAMS = [
     ("workspace_min_m", "[0.0,0.0,2.0]",
      "workspace_min_m=[0.0, 0.0, 2.0] must be below workspace_max_m=[0.7, 0.7, 1.1] on every axis"),
     ("max_tool_tilt_deg", "95.0", "max_tool_tilt_deg=95.0: expected a number in [0.0, 90.0]"),
+    # A 50 mm stud and the default 50 mm standoff: the retract would leave the gun on the stud's top.
+    ("stud_length_mm", "50.0", "combination refused by the weld job: standoff_m=0.05 m does not pull the gun off "
+     "the welded stud: the retract must clear the stud's 50 mm standing height plus stud_clearance_m=0.01 m "
+     "before the gun moves sideways; expected standoff_m >= 0.06 m"),
 ]
 
 

@@ -246,6 +246,21 @@ def test_job_refused_for_speed_caps_and_a_foreign_work_frame(client, sim, tmp_pa
         WeldParams(on_disconnect="retry")
 
 
+@pytest.mark.parametrize("standoff_m, stud_length_m, ok", [
+    (0.05, 0.0, True),     # the stud's height not known: not checked
+    (0.06, 0.05, True),    # 50 mm stud, 10 mm clearance
+    (0.059, 0.05, False),  # the gun's foot 9 mm over the stud's top
+    (0.05, 0.05, False),   # on the stud's top: the sideways move would drag the gun over it
+    (0.08, 0.08, False),
+])
+def test_the_retract_must_pull_the_gun_off_the_whole_welded_stud(standoff_m, stud_length_m, ok):
+    if ok:
+        WeldParams(standoff_m=standoff_m, stud_length_m=stud_length_m)
+        return
+    with pytest.raises(ValueError, match=r"does not pull the gun off the welded stud.*standoff_m >= "):
+        WeldParams(standoff_m=standoff_m, stud_length_m=stud_length_m)
+
+
 def test_controller_restart_mid_pulse_sets_the_controller_up_again_and_the_job_goes_on(client, sim, tmp_path):
     """The controller restarts (a new simulator on the same port) while the trigger is high: the new
     one comes up with its IO in input mode and the factory tool frame. The job reconnects, sets

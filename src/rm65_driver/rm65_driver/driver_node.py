@@ -111,6 +111,9 @@ class DriverNode(DriverStatus, DriverServices, Node):
         super().__init__("rm65_driver")
         self.p = ros_io.declare_params(self, PARAMS, check=job_config_problem)
         p = self.p
+        if not p["stud_length_mm"] > 0:
+            self.get_logger().warn(f"stud_length_mm not set: the retract (standoff_m={p['standoff_m']:g} m) is not "
+                                   "checked against the welded stud's height; set it to the stud's standing height")
         self.hand_eye = hand_eye_ros.hand_eye_in_use(self, p)
         self.calibration_topic = hand_eye_ros.CalibrationTopic(self, self.hand_eye)
         self.kin = RM65Kinematics(dh=DHModel.rm65(D6_BY_VARIANT[p["arm_variant"]]))

@@ -6,7 +6,8 @@ with :func:`job_config_problem` (at start-up: a bad value ends the node with exi
 time: the change is refused). :func:`job_config` maps the values to the job's
 :class:`~rm65_driver.weld_job.WeldParams` and :class:`~rm65_driver.safety.SafetyLimits`.
 Units are in the names: ``_m`` metres, ``_s`` seconds, ``_hz``, ``_deg``, ``_pct`` % of the
-controller maximum, ``_kg``. No node here.
+controller maximum, ``_kg``; ``stud_length_mm`` is in millimetres, as the post-weld inspection's ``nominal_length_mm``
+(the cell gives both the same value). No node here.
 """
 from __future__ import annotations
 
@@ -38,6 +39,11 @@ PARAMS = [
     Param("state_rate_hz", 10.0, "arm state polling and /arm/state, /joint_states rate [Hz] "
           "(RealMan: poll no faster than every 20 ms)", min=0.5, max=50.0),
     Param("standoff_m", 0.05, "approach distance from the surface along the normal [m]", min=0.005, max=0.3),
+    Param("stud_length_mm", 0.0, "the welded stud's standing height [mm, as the inspection's nominal_length_mm]: "
+          "the gun is pulled straight off the whole stud before it moves sideways, so standoff_m must be at least "
+          "this plus stud_clearance_m (refused otherwise); 0: not known, not checked", min=0.0, max=1000.0),
+    Param("stud_clearance_m", 0.01, "how far the gun's foot clears the welded stud's top at the end of the "
+          "retract [m]", min=0.0, max=0.1),
     Param("tool_offset_m", 0.15, "flange -> weld-gun tip along the flange z axis (weld_tool frame) [m]",
           min=0.0, max=0.5),
     Param("plunge_m", 0.0, "how far beyond the surface the tip is commanded (gun spring travel) [m]",
@@ -101,7 +107,8 @@ def job_config(p: dict) -> tuple[WeldParams, SafetyLimits]:
         motion_timeout_s=p["motion_timeout_s"], reconnect_timeout_s=p["reconnect_timeout_s"],
         on_disconnect=p["on_disconnect"], final_approach_m=p["final_approach_m"],
         approach_speed_pct=p["approach_speed_pct"], stud_order=p["stud_order"],
-        connected_approach=p["connected_approach"])
+        connected_approach=p["connected_approach"], stud_length_m=p["stud_length_mm"] * 1e-3,
+        stud_clearance_m=p["stud_clearance_m"])
     limits = SafetyLimits(
         workspace_min_m=tuple(p["workspace_min_m"]), workspace_max_m=tuple(p["workspace_max_m"]),
         max_tool_tilt_deg=p["max_tool_tilt_deg"], yaw_step_deg=p["yaw_step_deg"],

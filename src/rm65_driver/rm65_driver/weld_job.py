@@ -40,6 +40,13 @@ class WeldParams:
     ``tool_offset_m``: flange -> weld-gun tip along the flange z axis (the ``weld_tool`` frame,
     set on the controller as tool frame ``tool_frame_name``). ``trigger_io``: controller DO 1..4
     (or tool-flange DO 1..2 with ``trigger_on_tool``); needs an external relay, see :mod:`.weld_sequence`.
+
+    ``stud_length_m``: the welded stud's standing height. The gun holds the stud in its chuck and
+    the ferrule at its base, so after the weld it must be pulled straight off the whole stud before
+    it moves sideways (stud-gun makers: "pull the gun straight off the welded stud to prevent damage
+    to the weld chuck"). The retract ends at the approach pose, ``standoff_m`` out along the normal,
+    where the move to the next stud begins: ``standoff_m`` must be at least ``stud_length_m`` +
+    ``stud_clearance_m``. 0: not known, not checked.
     """
 
     standoff_m: float = 0.05
@@ -68,6 +75,8 @@ class WeldParams:
     max_reconnects_per_stud: int = 3
     on_disconnect: str = "continue"  # or "abort"
     require_base_work_frame: bool = True
+    stud_length_m: float = 0.0
+    stud_clearance_m: float = 0.01
 
     def __post_init__(self) -> None:
         if self.stud_order not in STUD_ORDERS:
@@ -75,13 +84,20 @@ class WeldParams:
         if self.on_disconnect not in ("continue", "abort"):
             raise ValueError(f"on_disconnect={self.on_disconnect!r}: expected 'continue' or 'abort'")
         for name in ("standoff_m", "tool_offset_m", "plunge_m", "tool_payload_kg", "pulse_s", "dwell_s",
-                     "motion_timeout_s", "reconnect_timeout_s", "final_approach_m"):
+                     "motion_timeout_s", "reconnect_timeout_s", "final_approach_m", "stud_length_m",
+                     "stud_clearance_m"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"{name}={getattr(self, name)} must be a finite number")
             if getattr(self, name) < 0:
                 raise ValueError(f"{name}={getattr(self, name)} must not be negative")
         if self.standoff_m <= 0:
             raise ValueError("standoff_m must be positive (the approach pose must be off the surface)")
+        need = self.stud_length_m + self.stud_clearance_m
+        if self.stud_length_m > 0 and self.standoff_m < need - 1e-9:
+            raise ValueError(
+                f"standoff_m={self.standoff_m:g} m does not pull the gun off the welded stud: the retract must "
+                f"clear the stud's {self.stud_length_m * 1e3:g} mm standing height plus stud_clearance_m="
+                f"{self.stud_clearance_m:g} m before the gun moves sideways; expected standoff_m >= {need:.4g} m")
 
     @property
     def fast_approach(self) -> bool:
