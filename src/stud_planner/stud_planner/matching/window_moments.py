@@ -305,14 +305,14 @@ class BlockMoments:
         """Sums over windows of blocks [row0, row1) x [col0, col1) (n,) each (0 <= row0 < row1 <= n_rows).
 
         ``use_table``: from the summed-area table (True) or from the windows' own pixels (False);
-        by default whichever touches fewer pixels. ``step``: the windows' own pixels are sampled
+        by default whichever touches fewer blocks. ``step``: the windows' own pixels are sampled
         every ``step``-th row and column (the table sums every pixel: ``WindowSums.step`` says which).
         """
         row0, row1, col0, col1 = (np.asarray(a, dtype=np.int64) for a in (row0, row1, col0, col1))
         nr, nc = row1 - row0, col1 - col0
         n = row0.size
-        if use_table is None:
-            use_table = int((nr * nc).sum()) > self.n_rows * self.n_cols * max(int(step), 1) ** 2
+        if use_table is None:  # a sampled pixel costs the direct path more than a table's does: no step here
+            use_table = int((nr * nc).sum()) > self.n_rows * self.n_cols
         if n == 0:
             cht = np.zeros((N_CHANNELS, 0))
         elif use_table:
