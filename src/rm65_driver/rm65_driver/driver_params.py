@@ -44,6 +44,9 @@ PARAMS = [
           "this plus stud_clearance_m (refused otherwise); 0: not known, not checked", min=0.0, max=1000.0),
     Param("stud_clearance_m", 0.01, "how far the gun's foot clears the welded stud's top at the end of the "
           "retract [m]", min=0.0, max=0.1),
+    Param("min_stud_spacing_m", 0.0, "the room the gun's foot needs around its axis beside a welded stud (foot "
+          "radius + stud head radius + margin): a stud closer to one already welded is refused, the neighbour "
+          "named; 0: not checked [m]", min=0.0, max=0.5),
     Param("tool_offset_m", 0.15, "flange -> weld-gun tip along the flange z axis (weld_tool frame) [m]",
           min=0.0, max=0.5),
     Param("plunge_m", 0.0, "how far beyond the surface the tip is commanded (gun spring travel) [m]",
@@ -108,7 +111,7 @@ def job_config(p: dict) -> tuple[WeldParams, SafetyLimits]:
         on_disconnect=p["on_disconnect"], final_approach_m=p["final_approach_m"],
         approach_speed_pct=p["approach_speed_pct"], stud_order=p["stud_order"],
         connected_approach=p["connected_approach"], stud_length_m=p["stud_length_mm"] * 1e-3,
-        stud_clearance_m=p["stud_clearance_m"])
+        stud_clearance_m=p["stud_clearance_m"], min_stud_spacing_m=p["min_stud_spacing_m"])
     limits = SafetyLimits(
         workspace_min_m=tuple(p["workspace_min_m"]), workspace_max_m=tuple(p["workspace_max_m"]),
         max_tool_tilt_deg=p["max_tool_tilt_deg"], yaw_step_deg=p["yaw_step_deg"],

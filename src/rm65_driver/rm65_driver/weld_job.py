@@ -47,6 +47,11 @@ class WeldParams:
     to the weld chuck"). The retract ends at the approach pose, ``standoff_m`` out along the normal,
     where the move to the next stud begins: ``standoff_m`` must be at least ``stud_length_m`` +
     ``stud_clearance_m``. 0: not known, not checked.
+
+    ``min_stud_spacing_m``: the room the gun's foot needs around its axis beside a welded stud (the
+    foot's radius, the stud head's and a margin: the gun's and the stud's, set by the cell). A stud
+    whose foot would pass closer to a stud already welded (or uncertain) in the job is refused
+    (skipped, the neighbour named): :mod:`.welded_studs`. 0: not checked.
     """
 
     standoff_m: float = 0.05
@@ -77,6 +82,7 @@ class WeldParams:
     require_base_work_frame: bool = True
     stud_length_m: float = 0.0
     stud_clearance_m: float = 0.01
+    min_stud_spacing_m: float = 0.0
 
     def __post_init__(self) -> None:
         if self.stud_order not in STUD_ORDERS:
@@ -85,7 +91,7 @@ class WeldParams:
             raise ValueError(f"on_disconnect={self.on_disconnect!r}: expected 'continue' or 'abort'")
         for name in ("standoff_m", "tool_offset_m", "plunge_m", "tool_payload_kg", "pulse_s", "dwell_s",
                      "motion_timeout_s", "reconnect_timeout_s", "final_approach_m", "stud_length_m",
-                     "stud_clearance_m"):
+                     "stud_clearance_m", "min_stud_spacing_m"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"{name}={getattr(self, name)} must be a finite number")
             if getattr(self, name) < 0:

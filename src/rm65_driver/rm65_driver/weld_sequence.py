@@ -13,7 +13,9 @@ Per target, in order:
    decision": ``/arm/resolve_stud``);
 2. safety check (gun tilt from vertical, workspace, reach/IK inside the joint limits for the
    free rotation about the stud's axis nearest the current joints, straight descent
-   feasible): a rejection is journaled ``skipped(reason)`` and nothing is sent;
+   feasible; with ``min_stud_spacing_m``, room for the gun's foot beside the job's studs
+   already welded or uncertain: :mod:`.welded_studs`): a rejection is journaled
+   ``skipped(reason)`` and nothing is sent;
 3. ``approach``: ``movej`` to the checked joint solution of the approach (clearance) pose,
    ``standoff_m`` out along the surface normal, tool z pointing into the surface; then, with
    ``final_approach_m`` shorter than the standoff, a fast ``movel`` (``approach_speed_pct``)
@@ -73,6 +75,7 @@ from .journal_records import JournalError
 from .kinematics import matrix_to_pose6, tool_pose_facing
 from .safety import SafetyChecker, StudPlan, TargetCheck
 from .stud_order import order_by_path
+from .welded_studs import nearest_welded
 from .weld_job import JobResult, PhaseCallback, StudTarget, WeldedCallback, WeldParams, new_job_id
 
 _log = logging.getLogger(__name__)
@@ -109,6 +112,7 @@ class WeldSequence:
             raise ValueError("the safety checker's tool transform differs from params.tool_T")
         self._lock = threading.Lock()
         self._wake = threading.Condition(self._lock)
+        self._job_targets: list[StudTarget] = []
         self._cancel = False
         self._halt = False
         self._halt_reason = ""
@@ -205,6 +209,7 @@ class WeldSequence:
         return res
 
     def _run(self, targets: list[StudTarget], resume: bool, res: JobResult) -> None:
+        self._job_targets = list(targets)  # where the job's studs stand once welded (min_stud_spacing_m)
         ids = [t.stud_id for t in targets]
         if len(set(ids)) != len(ids):
             res.message = "duplicate stud ids in the job: " + ", ".join(sorted({i for i in ids if ids.count(i) > 1}))
@@ -493,8 +498,9 @@ class WeldSequence:
         except ArmError as exc:
             self._abort_motion()
             raise _JobEnded(f"aborted at {t.stud_id}: cannot read the arm state: {exc}") from exc
-        check = self._planned_check(t, q_now) or self.safety.check_target(t.position, t.normal, p.standoff_m, q_now,
-                                                                          p.plunge_m)
+        crowded = self._welded_too_close(t)
+        check = (TargetCheck(False, crowded) if crowded else self._planned_check(t, q_now)
+                 or self.safety.check_target(t.position, t.normal, p.standoff_m, q_now, p.plunge_m))
         if not check.ok:
             try:
                 self.journal.skipped(t.stud_id, check.reason, job=self.job_id)
@@ -572,6 +578,20 @@ class WeldSequence:
             _log.exception("planning %s ahead failed; it is planned again before its move", nxt.stud_id)
             return
         self._planned = (nxt.stud_id, np.array(q_from, dtype=np.float64), check)
+
+    def _welded_too_close(self, t: StudTarget) -> str:
+        """Why the gun's foot has no room at ``t`` beside the job's studs already welded or uncertain
+        (a stud the journal cannot rule out stands there too); "" if it has, or is not checked."""
+        p = self.params
+        if not p.min_stud_spacing_m > 0:
+            return ""
+        welded = [(o.stud_id, o.position, o.normal) for o in self._job_targets
+                  if o.stud_id != t.stud_id and self.journal.status(o.stud_id) in ("welded", "uncertain")]
+        near = nearest_welded(t.position, t.normal, welded, p.stud_length_m, p.stud_clearance_m)
+        if near is None or near.distance_m >= p.min_stud_spacing_m:
+            return ""
+        return (f"welded stud {near.stud_id} stands {near.distance_m * 1e3:.0f} mm from the gun foot's axis, which "
+                f"needs {p.min_stud_spacing_m * 1e3:.0f} mm (min_stud_spacing_m): the gun would hit it")
 
     def _planned_check(self, t: StudTarget, q_now: np.ndarray) -> TargetCheck | None:
         """The plan made ahead for ``t``, if it was made for it from where the arm is (None otherwise)."""
