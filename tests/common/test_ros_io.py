@@ -203,3 +203,28 @@ def test_a_node_whose_teardown_hangs_still_ends_with_its_exit_code():
     assert proc.returncode == 3, proc.stdout + proc.stderr
     assert "node teardown still running after 1 s" in proc.stderr
     assert elapsed < 10.0  # well within the launcher's grace period: no SIGKILL, no failure reported
+
+
+_GIL_HOLDING_TEARDOWN = _HANGING_TEARDOWN.replace(
+    """        threading.Event().wait()""",
+    """        import re
+        re.match(r"(a+)+$", "a" * 64 + "b")  # catastrophic backtracking: C code that holds the GIL for ages""")
+
+
+def test_a_teardown_that_hangs_holding_the_gil_is_ended_by_the_backstop_as_a_clean_stop():
+    """The hang seen in CI: destroy_node stuck in a C call that holds the GIL, so the Python timer
+    never ran and the launcher killed the node after its grace period. The backstop's SIGTERM ends it
+    in time, and the launcher counts a SIGTERM as a clean stop."""
+    import signal
+
+    from stud_planner.cell.launcher import _CLEAN_STOP_CODES
+
+    code = _GIL_HOLDING_TEARDOWN.format(src=str(REPO / "src" / "stud_common"))
+    t0 = time.monotonic()
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
+    elapsed = time.monotonic() - t0
+    assert "destroying" in proc.stdout, proc.stdout + proc.stderr
+    assert proc.returncode == -signal.SIGTERM, proc.stdout + proc.stderr
+    assert proc.returncode in _CLEAN_STOP_CODES
+    assert "node teardown still running" not in proc.stderr  # the timer could not run: the backstop did it
+    assert elapsed < 8.0

@@ -405,8 +405,11 @@ def spin_node(node_factory: Callable[[], AnyNode], args: list[str] | None = None
 
 
 #: Longest wait for a node's teardown (``destroy_node``, rclpy's shutdown) once its own ``shutdown()``
-#: and its callbacks are done; within the launcher's 10 s SIGINT grace period.
-TEARDOWN_TIMEOUT_S = 5.0
+#: and its callbacks are done (the executor's drain takes up to 3 s before it); with the backstop's
+#: second, well within the launcher's 10 s SIGINT grace period.
+TEARDOWN_TIMEOUT_S = 3.0
+#: The backstop's SIGTERM comes this long after the teardown's own timeout.
+TEARDOWN_BACKSTOP_S = 1.0
 
 
 def teardown_within(timeout_s: float, code: int, steps: list[Callable[[], object]]) -> None:
@@ -416,15 +419,24 @@ def teardown_within(timeout_s: float, code: int, steps: list[Callable[[], object
     (inside rclpy's node destruction, the DDS participant's teardown), so the launcher killed the
     node and the cell reported a failure. Everything the node owes is done before its teardown (its
     ``shutdown()`` hook, its callbacks drained; journal records are synced as they are written), so
-    leaving then loses nothing, and the process stops as asked."""
+    leaving then loses nothing, and the process stops as asked.
+
+    The timer is Python and needs the GIL, which a hang inside a C call may hold: the node then
+    outlived the timer and the launcher's grace period both (a CI run, 2026-12-03). A backstop
+    process therefore sends SIGTERM ``TEARDOWN_BACKSTOP_S`` later, SIGTERM's default action
+    restored: the kernel ends the process, no Python code needs to run, and the launcher counts
+    a SIGTERM as a clean stop."""
     import os
     import threading
+
+    backstop = _sigterm_backstop(timeout_s + TEARDOWN_BACKSTOP_S)
 
     def give_up() -> None:
         sys.stderr.write(f"node teardown still running after {timeout_s:g} s (the middleware's node "
                          f"destruction); exiting with code {code}\n")
         sys.stderr.flush()
         sys.stdout.flush()
+        _end_backstop(backstop)
         os._exit(code)
 
     timer = threading.Timer(timeout_s, give_up)
@@ -435,6 +447,38 @@ def teardown_within(timeout_s: float, code: int, steps: list[Callable[[], object
             step()
     finally:
         timer.cancel()
+        _end_backstop(backstop)
+
+
+def _sigterm_backstop(after_s: float):
+    """A process (its own session) that sends this one SIGTERM after ``after_s``, SIGTERM's default
+    action (end the process) restored here first; None where that cannot be set up."""
+    import os
+    import signal
+    import subprocess
+
+    try:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        return subprocess.Popen(["/bin/sh", "-c", f"sleep {after_s:.3f} && kill -TERM {os.getpid()}"],
+                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                start_new_session=True)
+    except (OSError, ValueError):  # no /bin/sh, or not the main thread: the timer alone
+        return None
+
+
+def _end_backstop(backstop) -> None:
+    """Stop the backstop (its shell and its sleep) before it fires."""
+    import os
+    import signal
+    import subprocess
+
+    if backstop is None:
+        return
+    try:
+        os.killpg(backstop.pid, signal.SIGKILL)
+        backstop.wait(timeout=1.0)
+    except (OSError, subprocess.TimeoutExpired):  # gone already, or not reaped in time: it cannot fire
+        pass
 
 
 def drain_executor(executor, timeout_s: float = 3.0) -> None:
