@@ -228,3 +228,52 @@ def test_a_teardown_that_hangs_holding_the_gil_is_ended_by_the_backstop_as_a_cle
     assert proc.returncode in _CLEAN_STOP_CODES
     assert "node teardown still running" not in proc.stderr  # the timer could not run: the backstop did it
     assert elapsed < 8.0
+
+
+_BUSY_NODE = """
+import sys, time
+sys.path.insert(0, {src!r})
+import rclpy
+from rclpy.node import Node
+from sensor_msgs.msg import Image
+from stud_common import ros_io
+
+class Busy(Node):
+    '''Takes a 0.6 MB image every 2 ms (the takes rclpy's own handler used to break into), and
+    stops slowly: its shutdown() takes 0.5 s, as the driver's does halting a job.'''
+    def __init__(self):
+        super().__init__("busy_probe")
+        self.pub = self.create_publisher(Image, "/busy_probe", 5)
+        self.create_subscription(Image, "/busy_probe", lambda m: None, 5)
+        self.msg = Image(height=480, width=640, encoding="16UC1", step=1280, data=bytes(640 * 480 * 2))
+        self.create_timer(0.002, lambda: self.pub.publish(self.msg))
+        print("ready", flush=True)
+    def shutdown(self):
+        time.sleep(0.5)
+        print("shut down", flush=True)
+
+sys.exit(ros_io.spin_node(Busy, []))
+"""
+
+
+def test_ctrl_c_pressed_twice_stops_a_busy_node_in_order_with_exit_code_0():
+    """SIGINT ends the spin between turns (never under a take) and the node's shutdown() runs to its
+    end; a second SIGINT during it is ignored. With rclpy's own handler the second one raised
+    KeyboardInterrupt in the middle of the shutdown: a traceback and a failed node."""
+    import signal
+
+    code = _BUSY_NODE.format(src=str(REPO / "src" / "stud_common"))
+    for _ in range(3):
+        proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True)
+        try:
+            assert proc.stdout is not None and proc.stdout.readline().strip() == "ready"
+            time.sleep(0.3)
+            proc.send_signal(signal.SIGINT)
+            time.sleep(0.2)  # inside shutdown()
+            proc.send_signal(signal.SIGINT)
+            out, err = proc.communicate(timeout=15)
+        finally:
+            proc.kill()
+        assert proc.returncode == 0 and "Traceback" not in err, (proc.returncode, err[-2000:])
+        assert "shut down" in out, out

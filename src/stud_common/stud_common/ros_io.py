@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import gc
 import math
+import os
+import signal
 import sys
+import threading
 import time
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -328,9 +331,45 @@ AnyNode = TypeVar("AnyNode", bound=Node)
 SPIN_WAKE_S = 0.1
 
 
+#: Set by the first SIGINT or SIGTERM of a node process set up by :func:`init_node_process`: its
+#: spin loop (:func:`spin_until_shutdown`) ends at its next turn.
+STOP_REQUESTED = threading.Event()
+
+
+def init_node_process(args: list[str] | None = None) -> None:
+    """``rclpy.init`` for a node's own process, with our SIGINT/SIGTERM handlers instead of rclpy's.
+
+    rclpy's handler shuts the context down from its signal thread while the executor may be in the
+    middle of taking a message: the take then raises (RuntimeError "Unable to convert call argument")
+    or crashes the process (SIGSEGV), and the launch reports the node FAILED after a job that went
+    well (state_publisher, 2 launches in 8 on a loaded 2-core machine). Ours only asks the spin loop
+    to end; it ends between turns and the node is torn down in order, its context still valid.
+    Further SIGINTs (Ctrl-C pressed twice) are ignored from then on: the teardown is bounded anyway
+    (:func:`teardown_within`). A second SIGTERM (the launcher escalating, the teardown stuck) ends
+    the process at once."""
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    STOP_REQUESTED.clear()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _request_stop)
+
+
+def _request_stop(signum: int, _frame) -> None:
+    if signum == signal.SIGTERM and STOP_REQUESTED.is_set():
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        os.kill(os.getpid(), signal.SIGTERM)
+        return
+    # SIG_IGN, not this handler: Python's finalisation puts a Python handler back to SIG_DFL, and a
+    # second Ctrl-C would then kill the process as it exits (code 130 instead of its own)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    STOP_REQUESTED.set()
+
+
 def spin_until_shutdown(executor_or_node, until: Callable[[], int | None] | None = None) -> int | None:
-    """``rclpy.spin`` without its unbounded wait: spin until the context shuts down (returns None),
-    or until ``until()`` returns a value (returned).
+    """``rclpy.spin`` without its unbounded wait: spin until the context shuts down or a stop is
+    requested (:data:`STOP_REQUESTED`; returns None), or until ``until()`` returns a value (returned).
 
     On SIGINT rclpy's signal thread wakes the executors first and shuts the context down after
     (rclpy signal_handler.cpp, Jazzy and later). An executor that looks in between finds the
@@ -345,7 +384,7 @@ def spin_until_shutdown(executor_or_node, until: Callable[[], int | None] | None
         executor = SingleThreadedExecutor(context=executor_or_node.context)
         executor.add_node(executor_or_node)
     try:
-        while rclpy.ok(context=executor.context):
+        while rclpy.ok(context=executor.context) and not STOP_REQUESTED.is_set():
             executor.spin_once(timeout_sec=SPIN_WAKE_S)
             done = until() if until is not None else None
             if done is not None:
@@ -369,7 +408,7 @@ def spin_node(node_factory: Callable[[], AnyNode], args: list[str] | None = None
 
     keep_freed_memory()
     dump_stacks_on_signal()
-    rclpy.init(args=args if args is not None else sys.argv)
+    init_node_process(args if args is not None else sys.argv)
     node = None
     executor: Executor | None = None
     code = 0
