@@ -105,6 +105,7 @@ def _job(out, *args: str) -> dict:
     acc["welded"] = sum(bool(t.get("welded")) for t in report["targets"])
     acc["total"] = len(report["targets"])
     acc["code"] = code
+    acc["log_tail"] = text[-3000:]  # on a failure, the assertion shows why the job ended so
     return acc
 
 
@@ -112,7 +113,8 @@ def test_a_job_with_the_calibration_welds_within_1_mm_and_with_the_believed_valu
     out, code, _ = calibration
     assert code == 0
     calibrated = _job(tmp_path / "job_cal", "--var", f"hand_eye_file={out / 'hand_eye.yaml'}")
-    assert calibrated["code"] == 0 and calibrated["welded"] == calibrated["total"] == N_DEMO_STUDS, calibrated
+    assert calibrated["code"] == 0 and calibrated["welded"] == calibrated["total"] == N_DEMO_STUDS, \
+        calibrated["log_tail"]
     assert calibrated["max_xy_error_mm"] <= 1.0, calibrated
     believed = _job(tmp_path / "job_typed")
     assert believed["max_xy_error_mm"] > 3.0 * max(calibrated["max_xy_error_mm"], 1.0), (believed, calibrated)

@@ -107,6 +107,7 @@ class CellSequencer(Node):
         self.arm_state: ArmState | None = None
         self._arm_state_time: float | None = None  # monotonic arrival of the last /arm/state
         self._state_gap = False  # /arm/state paused during the running weld job
+        self._lost_result = None  # the result future of a weld job the driver was believed to have lost
         self._cond = threading.Condition()
         self._stop = threading.Event()
         self._paused = threading.Event()
@@ -329,23 +330,42 @@ class CellSequencer(Node):
         return None
 
     def weld(self, targets: list[cell_job.Target]) -> cell_job.WeldOutcome:
+        """Send ``targets`` as one weld job and wait for its result. After a DriverLost the job sends
+        them again: if the driver rejects that because a job is running, it was never lost (its state
+        stream only stalled) and is still on the first job, whose result is then waited for; a job
+        aborted here while the arm goes on welding would leave the studs it welds unrecorded."""
         p = self.p
+        lost, self._lost_result = self._lost_result, None
+        if lost is not None and lost.done():  # the "lost" job's result came after all
+            return self._outcome(lost.result().result)
         if not self.weld_action.wait_for_server(timeout_sec=min(p["step_timeout_s"], 10.0)):
             raise JobAborted("the arm driver's /arm/weld_job action is not available")
         goal = self._wait_future(self.weld_action.send_goal_async(
             WeldJob.Goal(targets=[t.payload for t in targets], resume=True), feedback_callback=self._on_feedback),
             p["step_timeout_s"], "/arm/weld_job goal")
-        if not goal.accepted:
+        if goal.accepted:
+            result = goal.get_result_async()
+        elif lost is not None and not lost.done():
+            self.get_logger().warn("the arm driver rejected the resent job: it is still on the job it was believed "
+                                   "to have lost (its /arm/state only paused); waiting for that job's result")
+            result = lost
+        elif lost is not None:
+            return self._outcome(lost.result().result)
+        else:
             raise JobAborted("the arm driver rejected the weld job (e-stop or another job running?)")
         self._state_gap = False
         try:
-            result = self._wait_future(goal.get_result_async(), p["weld_timeout_s"], "/arm/weld_job result",
-                                       alive=self._driver_still_on_the_job).result
+            return self._outcome(self._wait_future(result, p["weld_timeout_s"], "/arm/weld_job result",
+                                                   alive=self._driver_still_on_the_job).result)
         except DriverLost:
+            self._lost_result = result
             # its /arm/state is back; give discovery a moment to match its action server as well
             # (a killed one can linger in the graph, so wait_for_server proves nothing)
             time.sleep(1.0)
             raise
+
+    @staticmethod
+    def _outcome(result: WeldJob.Result) -> cell_job.WeldOutcome:
         return cell_job.WeldOutcome(welded=tuple(result.welded), failed=tuple(result.failed),
                                     messages=tuple(result.messages))
 
@@ -445,7 +465,7 @@ class CellSequencer(Node):
 
 def main(args=None) -> int:
     dump_stacks_on_signal()
-    rclpy.init(args=args)
+    ros_io.init_node_process(args)
     node = CellSequencer()
     executor = MultiThreadedExecutor(num_threads=4)
     executor.add_node(node)
