@@ -70,3 +70,39 @@ def test_a_stud_too_close_to_a_welded_one_is_refused_and_never_triggered(client,
     counts = welds_per_stud(sim, targets)
     assert all(counts[t.stud_id] == (1 if t in welded else 0) for t in targets)
     assert all(journal.status(sid) == "skipped" for sid in res.skipped)
+
+
+def test_studs_welded_by_an_earlier_job_are_obstacles_from_the_journal(client, sim, tmp_path):
+    """A station's job welds the centre stud; the next job (another station, a restarted driver: the
+    journal opened again) has only a ring stud 50 mm away, and the gun's foot needs 52 mm: it is
+    refused with the earlier job's stud named, though that stud is in none of this job's targets."""
+    centre, ring = dome_targets(rings=((0.0, 1), (0.05, 1)))
+    params = WeldParams(standoff_m=0.06, stud_length_m=0.05, tool_offset_m=0.15, pulse_s=0.01, dwell_s=0.01,
+                        joint_speed_pct=50, linear_speed_pct=20, motion_timeout_s=5.0, min_stud_spacing_m=0.052)
+
+    def job(targets):
+        with Journal(tmp_path / "weld.jsonl") as journal:
+            seq = WeldSequence(client, journal, SafetyChecker(RM65Kinematics(), SafetyLimits(), params.tool_T), params)
+            return seq.run(targets), journal.standing_studs()
+
+    first, standing = job([centre])
+    assert first.welded == [centre.stud_id]
+    (sid, pos, normal), = standing  # where the journal says the stud stands: its target, as welded
+    assert sid == centre.stud_id and np.allclose(pos, centre.position) and np.allclose(normal, centre.normal)
+    second, _ = job([ring])
+    assert second.welded == [] and second.skipped == [ring.stud_id], second
+    assert second.messages[0].startswith(f"{ring.stud_id}: welded stud {centre.stud_id} stands 50 mm")
+    assert welds_per_stud(sim, [centre, ring]) == {centre.stud_id: 1, ring.stud_id: 0}
+
+
+def test_the_studs_standing_are_the_welded_and_uncertain_ones_with_their_started_points(tmp_path):
+    with Journal(tmp_path / "weld.jsonl") as journal:
+        for sid, x in (("A", 0.1), ("B", 0.2), ("C", 0.3), ("D", 0.4)):
+            journal.started(sid, position=[x, 0.0, 0.01], normal=[0.0, 0.0, 1.0])
+        journal.welded("A")
+        journal.resolve("C", welded=False, note="no stud there")  # the operator looked: nothing stands
+        journal.resolve("D", welded=True)
+        journal.skipped("E", "unreachable")
+    with Journal(tmp_path / "weld.jsonl") as journal:  # the same, read back from the file
+        standing = {sid: pos for sid, pos, _n in journal.standing_studs()}
+    assert standing == {"A": (0.1, 0.0, 0.01), "B": (0.2, 0.0, 0.01), "D": (0.4, 0.0, 0.01)}

@@ -73,6 +73,7 @@ class Journal:
         self._lock = threading.Lock()
         self._status: dict[str, str] = {}
         self._last: dict[str, dict[str, Any]] = {}
+        self._where: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {}  # last started: point, normal
         self._fds: list[int] = []
         self.path.parent.mkdir(parents=True, exist_ok=True)
         plan = plan_open(self.path)
@@ -172,6 +173,8 @@ class Journal:
             stud = rec["stud"]
             self._status[stud] = TRANSITIONS[event](self._status.get(stud, STATUS_NEW), rec)
             self._last[stud] = rec
+            if event == STARTED and rec.get("position") is not None and rec.get("normal") is not None:
+                self._where[stud] = (tuple(rec["position"]), tuple(rec["normal"]))
         else:  # torn_tail / recovered: the studs they list are uncertain unless welded
             for stud in rec.get("uncertain", []):
                 if self._status.get(stud) != STATUS_WELDED:
@@ -252,6 +255,15 @@ class Journal:
     def uncertain_ids(self) -> set[str]:
         with self._lock:
             return {s for s, st in self._status.items() if st == STATUS_UNCERTAIN}
+
+    def standing_studs(self) -> list[tuple[str, tuple[float, ...], tuple[float, ...]]]:
+        """The studs that stand on the part now: welded, or uncertain (one may stand there), each with
+        the weld point and normal (world, m) of its last ``started`` record -- from every job this
+        journal has seen, not only the running one. A stud whose record has neither (a journal
+        written before they were recorded) is left out."""
+        with self._lock:
+            return [(sid, *self._where[sid]) for sid, st in self._status.items()
+                    if st in (STATUS_WELDED, STATUS_UNCERTAIN) and sid in self._where]
 
     def is_welded(self, stud_id: str) -> bool:
         return self.status(stud_id) == STATUS_WELDED

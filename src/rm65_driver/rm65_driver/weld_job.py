@@ -50,8 +50,8 @@ class WeldParams:
 
     ``min_stud_spacing_m``: the room the gun's foot needs around its axis beside a welded stud (the
     foot's radius, the stud head's and a margin: the gun's and the stud's, set by the cell). A stud
-    whose foot would pass closer to a stud already welded (or uncertain) in the job is refused
-    (skipped, the neighbour named): :mod:`.welded_studs`. 0: not checked.
+    whose foot would pass closer to a stud already welded (or uncertain), by this job or any the
+    journal has seen, is refused (skipped, the neighbour named): :mod:`.welded_studs`. 0: not checked.
     """
 
     standoff_m: float = 0.05

@@ -580,13 +580,18 @@ class WeldSequence:
         self._planned = (nxt.stud_id, np.array(q_from, dtype=np.float64), check)
 
     def _welded_too_close(self, t: StudTarget) -> str:
-        """Why the gun's foot has no room at ``t`` beside the job's studs already welded or uncertain
-        (a stud the journal cannot rule out stands there too); "" if it has, or is not checked."""
+        """Why the gun's foot has no room at ``t`` beside the studs standing on the part: welded or
+        uncertain (one the journal cannot rule out stands there too), by this job or any before it
+        (their weld points from the journal), and this job's by their targets where the journal has
+        no point; "" if it has room, or the check is off."""
         p = self.params
         if not p.min_stud_spacing_m > 0:
             return ""
-        welded = [(o.stud_id, o.position, o.normal) for o in self._job_targets
-                  if o.stud_id != t.stud_id and self.journal.status(o.stud_id) in ("welded", "uncertain")]
+        standing = {sid: (np.asarray(pos), np.asarray(n)) for sid, pos, n in self.journal.standing_studs()}
+        for o in self._job_targets:
+            if o.stud_id not in standing and self.journal.status(o.stud_id) in ("welded", "uncertain"):
+                standing[o.stud_id] = (o.position, o.normal)
+        welded = [(sid, pos, n) for sid, (pos, n) in standing.items() if sid != t.stud_id]
         near = nearest_welded(t.position, t.normal, welded, p.stud_length_m, p.stud_clearance_m)
         if near is None or near.distance_m >= p.min_stud_spacing_m:
             return ""
