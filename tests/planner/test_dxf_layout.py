@@ -487,6 +487,24 @@ def test_spacing_outlier_and_quadrant_warnings(tmp_path):
         read_layout(tmp_path / "w.dxf", min_spacing_m=0.1).warnings)
 
 
+def test_pairs_closer_than_the_gun_allows_are_warned_with_what_the_driver_will_do(tmp_path):
+    """The standard's spacing (2.5 d) passes a pair 30 mm apart; the gun's foot needing 35 mm does not."""
+    studs = np.vstack([STUDS, [[0.09, 0.09], [0.12, 0.09]]]) * 1e3  # the added pair: 30 mm apart, 50 mm from others
+    doc = _plain_doc(studs, diameters=[10.0] * len(studs))
+    doc.saveas(tmp_path / "g.dxf")
+    assert not any("closer than" in x for x in read_layout(tmp_path / "g.dxf").warnings)  # 25 mm: none
+    layout = read_layout(tmp_path / "g.dxf", gun_spacing_m=0.035)
+    gun = [x for x in layout.warnings if "gun" in x]
+    assert len(gun) == 1 and "closer than the weld gun's foot allows (gun_spacing_m) 35.0 mm" in gun[0], gun
+    a, b = (layout.studs[k].id for k in np.flatnonzero(np.isin(np.round(layout.studs_xy_m()[:, 0], 6), [0.09, 0.12])
+                                                       & np.isclose(layout.studs_xy_m()[:, 1], 0.09)))
+    assert f"{a}-{b} 30.0 mm" in gun[0] and "refuses the other" in gun[0], gun
+    pairs_under = int(gun[0].split(": ")[1].split()[0])  # every pair under 35 mm, the drawing's own ones too
+    xy = layout.studs_xy_m()
+    dist = np.linalg.norm(xy[:, None] - xy[None], axis=2)[np.triu_indices(len(xy), 1)]
+    assert pairs_under == int(np.sum(dist < 0.035))
+
+
 def test_radius_le_0_nonuniform_and_degenerate_inserts_are_skipped_with_warnings(tmp_path):
     doc = _plain_doc(STUDS * 1e3)
     msp = doc.modelspace()

@@ -37,6 +37,7 @@ def read_layout(
     collinear_tol_deg: float = 1.0,
     right_angle_ambiguity_deg: float = 2.0,
     include_hidden_layers: bool = False,
+    gun_spacing_m: float = 0.0,
 ) -> DrawingLayout:
     """Read the stud layout of a DXF drawing (see the module docstring for every rule).
 
@@ -57,6 +58,9 @@ def read_layout(
             than the runner-up, else the marks are ambiguous (error).
         include_hidden_layers: also read layers that are frozen or off (by default their
             entities are skipped with a warning, as CAD does not show them).
+        gun_spacing_m: warn about stud pairs closer than the weld gun's foot needs beside a
+            welded stud (the arm driver's ``min_stud_spacing_m``): of each such pair the driver
+            welds one and refuses the other. 0 = off.
 
     Raises:
         DrawingError: one line naming the file and the problem.
@@ -68,7 +72,7 @@ def read_layout(
             return _build_layout(path, cs, _Rules(
                 stud_layers, mark_layer, min_diameter_m, max_diameter_m, min_spacing_m,
                 duplicate_tol_m, diameter_outlier_ratio, label_distance_factor, perpendicular_tol_deg,
-                collinear_tol_deg, right_angle_ambiguity_deg,
+                collinear_tol_deg, right_angle_ambiguity_deg, gun_spacing_m,
             ))
         except DrawingError:
             raise
@@ -128,6 +132,7 @@ class _Rules:
     perpendicular_tol_deg: float
     collinear_tol_deg: float
     right_angle_ambiguity_deg: float
+    gun_spacing_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -253,17 +258,23 @@ def _check_studs(name: str, xy: np.ndarray, diam: np.ndarray, ids: list[str], ma
                          + ", ".join(f"{ids[k]} {diam[k] * 1e3:.2f} mm" for k in odd[:5])
                          + (f", ... (+{odd.size - 5})" if odd.size > 5 else ""))
     spacing = 2.5 * median_d if rules.min_spacing_m is None else float(rules.min_spacing_m)
-    if spacing > 0 and n > 1:
+    for limit, what, consequence in (
+            (spacing, "min spacing", ""),
+            (float(rules.gun_spacing_m), "the weld gun's foot allows (gun_spacing_m)",
+             ": the arm driver welds one stud of each pair and refuses the other")):
+        if not (limit > 0 and n > 1):
+            continue
         try:
-            i, j, d = close_pairs(xy, spacing)
+            i, j, d = close_pairs(xy, limit)
             if i.size:
                 o = np.argsort(d, kind="stable")[:5]
                 pairs = ", ".join(f"{ids[i[k]]}-{ids[j[k]]} {d[k] * 1e3:.1f} mm" for k in o)
                 more = f", ... (+{i.size - 5})" if i.size > 5 else ""
-                warns.append(f"{name}: {i.size} stud pairs closer than min spacing {spacing * 1e3:.1f} mm: {pairs}{more}")
+                warns.append(f"{name}: {i.size} stud pairs closer than {what} {limit * 1e3:.1f} mm: "
+                             f"{pairs}{more}{consequence}")
         except _TooDense as exc:
             warns.append(f"{name}: spacing check skipped: {exc.args[0]} candidate pairs closer than "
-                         f"{spacing * 1e3:.1f} mm (are the drawing units right?)")
+                         f"{limit * 1e3:.1f} mm (are the drawing units right?)")
     for k in _LABEL_LETTERS:  # a ring of the mark symbol drawn on a stud layer?
         m = marks[k]
         on_mark = np.flatnonzero(np.hypot(xy[:, 0] - m.x_m, xy[:, 1] - m.y_m)

@@ -30,6 +30,9 @@ PARAMS = [
     Param("max_diameter_m", 0.0, "ignore stud circles larger than this [m] (0: no limit)", min=0.0, max=1.0),
     Param("min_spacing_m", -1.0, "warn about studs closer than this [m]; -1: 2.5 x median diameter; 0: off",
           min=-1.0, max=10.0),
+    Param("gun_spacing_m", 0.0, "warn about stud pairs closer than the weld gun's foot needs beside a welded stud "
+          "(the arm driver's min_stud_spacing_m: it welds one of each pair, refuses the other) [m]; 0: off",
+          min=0.0, max=0.5),
     Param("include_hidden_layers", False, "also read frozen or off layers (skipped by default, as CAD hides them)"),
 ]
 
@@ -57,7 +60,7 @@ class DrawingNode(Node):
                 units_if_unitless=p["units_if_unitless"],
                 min_diameter_m=p["min_diameter_m"] or None, max_diameter_m=p["max_diameter_m"] or None,
                 min_spacing_m=None if p["min_spacing_m"] < 0 else p["min_spacing_m"],
-                include_hidden_layers=p["include_hidden_layers"])
+                include_hidden_layers=p["include_hidden_layers"], gun_spacing_m=p["gun_spacing_m"])
         except DrawingError as exc:
             self.get_logger().error(str(exc))
             self.diag.set(self.diag.ERROR, str(exc), file=path)
