@@ -157,6 +157,9 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=200)
     ap.add_argument("--algorithm", default="batch", choices=("batch", "fpm"))
     ap.add_argument("--no-transport", action="store_true", help="skip the bare-transport pass")
+    ap.add_argument("--baseline", action="append", default=[], metavar="NAME:=VALUE",
+                    help="also time, before ours, a matcher with this parameter (repeatable), e.g. "
+                         "noise_correlation_reuse_s:=0 (the noise measured on every frame before its targets)")
     ap.add_argument("--overlay", action="store_true",
                     help="subscribe to /weld_targets/overlay (as an open HMI does): the matcher then takes colour too")
     args = ap.parse_args()
@@ -208,11 +211,19 @@ def main() -> int:
             transport = _time_frames(node, pubs, template, echoes, args.frames, warmup)
             _stop(*procs.pop())
         needed = ("depth", "info", "pose") + (("color",) if args.overlay else ())
-        if not start(["ros2", "run", "stud_planner", "matcher", "--ros-args", "-p", f"algorithm:={args.algorithm}",
-                      "--log-level", "warn"], "matcher", "/weld_targets", needed):
-            return 1
-        latencies = _time_frames(node, pubs, template, arrivals, args.frames, warmup)
-        _report(args, latencies, transport, arrivals, overlays, warmup)
+        runs = ([("baseline: " + " ".join(args.baseline), args.baseline)] if args.baseline else []) + [("ours", [])]
+        for label, extra in runs:
+            params = [f"algorithm:={args.algorithm}", *extra]
+            if not start(["ros2", "run", "stud_planner", "matcher", "--ros-args",
+                          *[a for p in params for a in ("-p", p)], "--log-level", "warn"], "matcher",
+                         "/weld_targets", needed):
+                return 1
+            arrivals.clear()
+            overlays.clear()
+            latencies = _time_frames(node, pubs, template, arrivals, args.frames, warmup)
+            print(f"[{label}]")
+            _report(args, latencies, transport, arrivals, overlays, warmup)
+            _stop(*procs.pop())
         return 0
     finally:
         node.destroy_node()

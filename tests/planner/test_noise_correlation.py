@@ -186,3 +186,73 @@ def test_sampling_a_correlated_frame_sparsely_keeps_its_normals(correlation_px):
     # The 1-sigma follows the samples it has: the errors stay within the same few sigma.
     assert np.percentile(e_sparse / sparse.normal_sigma_deg[ok], 95) < 3.0
     assert np.max(e_sparse / sparse.normal_sigma_deg[ok]) < 4.5
+
+
+def _correlated_dome_view(seed: int, correlation_px: float = 1.5, camera=None):
+    from stud_perception.scene import demo_dome_scene, grid_stud_scene
+    from stud_perception.scene_cameras import view_camera
+    from stud_perception.scene_render import render
+
+    scene = grid_stud_scene(100, demo_dome_scene(), extent_m=(0.26, 0.2))
+    c = scene.component.centre_xy_m
+    cam = camera or view_camera((c[0], c[1], 0.0), 0.5, yaw_rad=math.radians(35), tilt_rad=math.radians(8),
+                                tilt_azimuth_rad=math.radians(60))
+    view = render(scene, cam, seed=seed, depth_noise_m=0.0005, hole_fraction=0.04,
+                  depth_noise_correlation_px=correlation_px)
+    return scene, cam, view
+
+
+def test_a_measurement_reused_on_the_next_frame_gives_what_measuring_it_there_gives():
+    """The matcher node measures a frame's noise correlation after its targets are out and gives it
+    to the same camera's next frame. Given the frame's own measurement, plan_view's result is the
+    same to the bit; given the previous frame's, the sigmas are as wide and as honest as measured."""
+    from stud_planner.matching.view_targets import PlannerConfig, plan_view, view_noise_correlation
+
+    scene, cam, first = _correlated_dome_view(seed=21)
+    _, _, second = _correlated_dome_view(seed=22)  # the next frame: the same camera, new noise
+    cfg = PlannerConfig(check_gun_clearance=False)
+
+    def plan(view, noise=None):
+        return plan_view(list(scene.stud_ids), np.asarray(scene.studs_drawing_m), scene.M_local2world,
+                         view.depth_m, cam, cfg, noise=noise)
+
+    measured_first = plan(first)
+    assert measured_first.poses.noise.measured and measured_first.sigma_inflation() > 1.5
+    again = view_noise_correlation(measured_first, first.depth_m, cam)
+    np.testing.assert_array_equal(again.rho_u, measured_first.poses.noise.rho_u)
+    assert again.sigma_m == measured_first.poses.noise.sigma_m
+    same = plan(first, noise=again)
+    np.testing.assert_array_equal(same.normal_w, measured_first.normal_w)
+    np.testing.assert_array_equal(same.normal_sigma_deg, measured_first.normal_sigma_deg)
+    np.testing.assert_array_equal(same.status, measured_first.status)
+
+    own, reused = plan(second), plan(second, noise=measured_first.poses.noise)
+    ok = own.poses.ok & reused.poses.ok & second.stud_visible
+    assert ok.sum() >= 90
+    assert reused.sigma_inflation() == pytest.approx(own.sigma_inflation(), rel=0.1)
+    err = np.degrees(np.arccos(np.clip(np.sum(reused.normal_w[ok] * second.stud_normals_w[ok], axis=1), -1, 1)))
+    assert np.percentile(err / reused.normal_sigma_deg[ok], 95) < 3.0
+
+
+def test_the_noise_memory_recalls_only_for_the_same_camera_at_the_same_pose_and_not_too_old():
+    from stud_perception.scene_cameras import view_camera
+    from stud_planner.matching.view_targets import NoiseMemory
+
+    cam = view_camera((0.1, 0.05, 0.0), 0.5, yaw_rad=0.3)
+    noise = NoiseCorrelation.independent(16)
+    memory = NoiseMemory(max_age_s=2.0)
+    assert memory.recall(cam, 0.0) is None  # nothing measured yet: the frame measures itself
+    memory.remember(cam, noise, 10.0)
+    assert memory.recall(cam, 11.9) is noise
+    assert memory.recall(cam.with_pose(cam.R_wc, cam.t_wc + [0.0008, 0.0, 0.0]), 11.0) is noise  # settling jitter
+    assert memory.recall(cam, 12.1) is None  # too old
+    assert memory.recall(cam.with_pose(cam.R_wc, cam.t_wc + [0.0, 0.002, 0.0]), 11.0) is None  # moved
+    turned = view_camera((0.1, 0.05, 0.0), 0.5, yaw_rad=0.3 + math.radians(0.2))
+    assert memory.recall(turned.with_pose(turned.R_wc, cam.t_wc), 11.0) is None  # turned
+    other_lens = type(cam)(K=cam.K * [[1.01], [1.01], [1.0]], width=cam.width, height=cam.height,
+                           R_wc=cam.R_wc, t_wc=cam.t_wc)
+    assert memory.recall(other_lens, 11.0) is None
+    assert not memory.refresh_due(10.9) and memory.refresh_due(11.0)  # measured again from half its age
+    off = NoiseMemory(max_age_s=0.0)
+    off.remember(cam, noise, 10.0)
+    assert off.recall(cam, 10.0) is None and not off.refresh_due(100.0)

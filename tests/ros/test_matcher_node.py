@@ -136,3 +136,33 @@ def test_poses_hold_only_the_usable_targets_in_target_order_and_no_nan():
                      p.orientation.w) for p in pa.poses])
     assert np.all(np.isfinite(got)) and pa.header.frame_id == "world"
     np.testing.assert_array_equal(got, np.hstack([targets.position_w, targets.message_quat_xyzw])[targets.ok])
+
+
+def test_a_steady_camera_reuses_its_noise_measurement_and_a_moved_one_measures_again(ros_node, procs, tmp_path: Path):
+    """The noise correlation is measured on a frame and reused for the same camera's next frames at
+    that pose (measured again after their targets are out); a shot from another pose, and every
+    frame with noise_correlation_reuse_s 0, is measured on itself. The view log says which."""
+    procs.append(ros2_run("stud_planner", "matcher", tmp_path / "matcher.log", params={"sensor_qos": "reliable"}))
+    pubs, shot = _camera_inputs(ros_node)
+    targets = []
+    ros_node.create_subscription(WeldTargetArray, "/weld_targets", targets.append, ros_io.RESULT_QOS)
+    wait_for(lambda: all(pubs[k].get_subscription_count() >= 1 for k in ("depth", "info", "pose")), 30,
+             spin=ros_node.spin, what="depth, camera info and pose matched by the matcher")
+
+    def view_line(stamp) -> str:
+        wait_for(lambda: any(t.header.stamp == stamp for t in targets), 10, spin=ros_node.spin, what="targets")
+        index = next(t.view_index for t in targets if t.header.stamp == stamp)
+        wait_for(lambda: f"view {index}:" in procs[-1].output(), 5, spin=ros_node.spin, what="its log line")
+        return next(line for line in procs[-1].output().splitlines() if f"view {index}:" in line)
+
+    first = view_line(_shoot(pubs, shot, 1, ("depth", "info", "pose")))
+    second = view_line(_shoot(pubs, shot, 2, ("depth", "info", "pose")))
+    assert "noise correlation of a frame" not in first and "noise correlation of a frame" in second
+    def poses(arr) -> np.ndarray:  # NaN where a stud has no pose
+        return np.array([(t.status, t.pose.position.x, t.pose.position.y, t.pose.position.z, t.normal.x, t.normal.y,
+                          t.normal.z) for t in arr.targets])
+    assert [t.stud_id for t in targets[1].targets] == [t.stud_id for t in targets[0].targets]
+    np.testing.assert_array_equal(poses(targets[1]), poses(targets[0]))  # the same frame, the same targets
+    moved = shot["pose"]
+    moved.pose.position.x += 0.01
+    assert "noise correlation of a frame" not in view_line(_shoot(pubs, shot, 3, ("depth", "info", "pose")))

@@ -35,6 +35,11 @@ is true), and the colour never holds back ``/weld_targets``: the overlay of a vi
 arrives. A 1280x960 colour frame costs as much transport as the matching (the lazy subscription of
 ROS image pipelines).
 
+The depth noise's correlation (it widens the normals' 1-sigma) is measured on a frame and reused
+for the same camera's next frames at the same pose (``noise_correlation_reuse_s``); it is measured
+again after a frame's targets are out, so a camera streaming from one pose never waits for it, and
+a shot from a new pose is measured on itself.
+
 Missing inputs give a throttled "waiting for ..." log; a registration older than
 ``max_registration_age_s`` (measured between stamps) is stale: nothing is published and
 the reason is logged.
@@ -61,7 +66,8 @@ from stud_planner.matching.gun_clearance import GunModel
 from stud_planner.msg_convert import LayoutView, layout_from_msg, registration_from_msg
 from stud_planner.matching.target_cdr import weld_target_array_cdr
 from stud_planner.matching.target_markers import target_markers
-from stud_planner.matching.view_targets import ALGORITHMS, PlannerConfig, draw_targets_overlay, plan_view
+from stud_planner.matching.view_targets import (ALGORITHMS, NoiseMemory, PlannerConfig, draw_targets_overlay, plan_view,
+                                               view_noise_correlation)
 from stud_common import names
 
 PARAMS = [
@@ -80,6 +86,10 @@ PARAMS = [
     Param("sample_step_max_loss", 0.05, "where the measured noise correlation makes neighbouring pixels redundant, "
           "the normal's patch is sampled every few pixels (faster) at a cost of at most this fraction of the "
           "normal's 1-sigma; 0: every pixel", min=0.0, max=1.0),
+    Param("noise_correlation_reuse_s", 2.0, "a frame's measured noise correlation is reused for the same camera's "
+          "frames at the same pose (1 mm, 0.1 deg) for up to this long, and measured again after a frame's targets "
+          "are published once it is half that old, so a steady stream never waits for it; a new pose is measured "
+          "on its own frame; 0: measured on every frame before its targets [s]", min=0.0, max=60.0),
     Param("lean_budget_deg", 5.0, "the most a welded stud may lean from the true normal (the code's 5 deg); a "
           "target whose normal is too uncertain for it is normal_uncertain -- the slope never refuses [deg]",
           min=0.1, max=45.0),
@@ -120,7 +130,8 @@ class MatcherNode(Node):
         params = [p if p.name not in _ODD else Param(p.name, p.default, p.description, p.min, p.max,
                                                      validate=functools.partial(_odd, p.name))
                   for p in PARAMS]
-        self.p = ros_io.declare_params(self, params, on_change=lambda _changes: self._update_color_subscription())
+        self.p = ros_io.declare_params(self, params, on_change=lambda _changes: self._on_params_changed())
+        self._noise = NoiseMemory(self.p["noise_correlation_reuse_s"])
         self.layout: StudLayout | None = None
         self._layout_view: LayoutView | None = None  # layout_from_msg(self.layout), once per layout
         self.registration: Registration | None = None
@@ -176,6 +187,10 @@ class MatcherNode(Node):
     def _on_input(self, name: str, msg) -> None:
         self._arrivals[name].append(time.monotonic())
         self.sync.add(name, msg)
+
+    def _on_params_changed(self) -> None:
+        self._noise = NoiseMemory(self.p["noise_correlation_reuse_s"])  # measured under the old settings: forgotten
+        self._update_color_subscription()
 
     def _update_color_subscription(self) -> None:
         """Subscribe to colour while the overlay is wanted and watched; unsubscribe otherwise."""
@@ -259,12 +274,20 @@ class MatcherNode(Node):
             return
         layout = self._layout_view
         assert layout is not None and self.registration is not None  # views wait for both
+        now = time.monotonic()
+        reused = self._noise.recall(camera, now)
         targets = plan_view(layout.ids, layout.xy_m, registration_from_msg(self.registration), depth, camera,
-                            self.planner_config())
-        self._publish(targets, camera, rectifier, stamp)
+                            self.planner_config(), noise=reused)
+        self._publish(targets, camera, rectifier, stamp,
+                      noise_age_s=None if reused is None else now - self._noise.measured_at_s)
         self.view_index += 1
+        # After the targets are out: this frame's noise, for the frames after it.
+        if reused is None:
+            self._noise.remember(camera, targets.poses.noise, time.monotonic())
+        elif self._noise.refresh_due(time.monotonic()):
+            self._noise.remember(camera, view_noise_correlation(targets, depth, camera), time.monotonic())
 
-    def _publish(self, targets, camera, rectifier, stamp) -> None:
+    def _publish(self, targets, camera, rectifier, stamp, noise_age_s: float | None = None) -> None:
         # First: it is what the cell waits for. Written as CDR bytes straight from the arrays (a
         # tenth of the cost of 100 WeldTarget objects through rclpy's conversion).
         self.pub_targets.publish(weld_target_array_cdr(targets, self.view_index, stamp.sec, stamp.nanosec, "world"))
@@ -287,10 +310,13 @@ class MatcherNode(Node):
         summary = (f"view {self.view_index}: {counts.get('ok', 0)}/{len(targets.ids)} ok "
                    f"({', '.join(f'{k} {v}' for k, v in sorted(counts.items()) if k != 'ok') or 'no failures'}), "
                    f"{targets.algorithm} {targets.match_time_s * 1e3:.1f} ms, {targets.matches.total_iterations} iterations"
-                   + (f", normal sigma x{widened:.1f} for the depth noise's correlation" if widened >= 1.5 else ""))
+                   + (f", normal sigma x{widened:.1f} for the depth noise's correlation" if widened >= 1.5 else "")
+                   + ("" if noise_age_s is None else f", noise correlation of a frame {noise_age_s:.2f} s before"))
         self.get_logger().info(summary)
         self.diag.set(self.diag.OK, summary, last_match_time_ms=f"{targets.match_time_s * 1e3:.2f}",
-                      normal_sigma_inflation=f"{widened:.2f}", **{f"count_{k}": v for k, v in counts.items()})
+                      normal_sigma_inflation=f"{widened:.2f}",
+                      noise_correlation_from=("this frame" if noise_age_s is None
+                                              else f"a frame {noise_age_s:.2f} s before"), **{f"count_{k}": v for k, v in counts.items()})
 
     def _publish_overlay(self, targets, camera, rectifier, color_msg: Image) -> None:
         try:

@@ -39,7 +39,7 @@ import numpy as np
 from stud_perception.camera_model import CameraModel
 from stud_common.rotations import frame_from_normal
 from stud_common.rotations import matrix_to_quaternion as quaternion_from_matrix
-from stud_planner.matching.noise_correlation import measure_noise_correlation
+from stud_planner.matching.noise_correlation import NoiseCorrelation, measure_noise_correlation
 from stud_planner.matching.quadric_fit import (_N_TERMS, _fast_fits, _fit_inverse_depth, _frame_noise_m,
                                                _InverseDepthFit, _window_blocks)
 from stud_planner.matching.window_moments import BlockMoments
@@ -72,7 +72,9 @@ class SurfacePoses:
     - ``fill_ratio`` (N,): valid depths / pixels sampled in the window;
     - ``outlier_ratio`` (N,): valid points rejected by the robust pass;
     - ``n_points`` (N,) int: inliers used;
-    - ``status`` (N,) int8 :class:`SurfaceStatus`.
+    - ``status`` (N,) int8 :class:`SurfaceStatus`;
+    - ``noise``: the depth noise's correlation the 1-sigmas were widened by (measured on this frame,
+      or given: one measured on an earlier frame of the same camera).
     NaN where a value could not be estimated.
     """
 
@@ -87,6 +89,7 @@ class SurfacePoses:
     outlier_ratio: np.ndarray
     n_points: np.ndarray
     status: np.ndarray
+    noise: NoiseCorrelation
 
     def __len__(self) -> int:
         return int(self.status.shape[0])
@@ -163,6 +166,7 @@ def estimate_surface_poses(
     fast_fit_floor_m: float = 1e-4,
     noise_correlation_max_lag_px: int = 16,
     sample_step_max_loss: float = 0.05,
+    noise: NoiseCorrelation | None = None,
 ) -> SurfacePoses:
     """Normals and weld poses at N matched points by a robust least-squares fit of the window.
 
@@ -187,7 +191,8 @@ def estimate_surface_poses(
     1-sigma uncertainty of the normal's direction about its least certain axis, from the fit's
     covariance, widened by the square root of the variance inflation of the frame's correlated depth
     noise, measured on the frame beside the studs up to ``noise_correlation_max_lag_px`` (0: the
-    noise is taken as independent; :mod:`stud_planner.matching.noise_correlation`). Correlated samples
+    noise is taken as independent; :mod:`stud_planner.matching.noise_correlation`), or ``noise`` where
+    given (:func:`frame_noise_correlation` of an earlier frame of the same camera). Correlated samples
     are redundant: the windows' pixels are sampled every s-th row and column, s the largest step (up
     to 4) that widens the normal's 1-sigma by at most ``sample_step_max_loss`` for the noise measured
     (every pixel on independent noise, or with 0; summed-area tables always sum every pixel). Status:
@@ -216,10 +221,8 @@ def estimate_surface_poses(
     robust = np.flatnonzero(ok_in)
     # The noise's correlation beside the studs: it widens every sigma, and the fast path's gate
     # needs the noise's whole standard deviation (8x8-pixel blocks see only its fast part).
-    # Measured along the windows' edges: the stud's own place may be a painted mark without depth.
-    z_cam = camera.world_to_camera(P0[robust])[:, 2] if robust.size else np.ones(1)
-    edge_px = float(np.median(0.5 * window_m * camera.fx / np.maximum(z_cam, 1e-6)))
-    noise = measure_noise_correlation(depth, uv[robust], max_lag_px=noise_correlation_max_lag_px, beside_px=edge_px)
+    if noise is None:
+        noise = _noise_beside(P0[robust], uv[robust], depth, camera, window_m, noise_correlation_max_lag_px)
     sample_step = noise.redundant_step(sample_step_max_loss)
     fitted = []  # (idx, fit, z0_w, z_cam, n_in, n_valid, n_window, step) of each path, stored together at the end
     if fast_fit and robust.size:
@@ -238,7 +241,31 @@ def estimate_surface_poses(
                                                                 else _concatenate(fitted))
         inflation = np.sqrt(np.minimum(noise.inflation(step), np.maximum(n_in, 1)))
         _store_poses(out, idx, fit, camera, target_xy[idx], z0_w, z_cam, n_in, n_valid, n_window, inflation, limits)
-    return SurfacePoses(**out)
+    return SurfacePoses(**out, noise=noise)
+
+
+def frame_noise_correlation(points_w: np.ndarray, pixel_uv: np.ndarray, depth_m: np.ndarray, camera: CameraModel,
+                            *, window_m: float = 0.02, max_lag_px: int = 16,
+                            valid: np.ndarray | None = None) -> NoiseCorrelation:
+    """The depth noise's correlation of this frame, measured as :func:`estimate_surface_poses`
+    measures it for studs at ``points_w`` / ``pixel_uv`` (``valid`` as there): to be given to the
+    fits of a later frame of the same camera (a camera's noise is the same from frame to frame).
+    The measurement costs about as much as matching a hundred studs."""
+    P0 = np.asarray(points_w, dtype=np.float64).reshape(-1, 3)
+    uv = np.asarray(pixel_uv, dtype=np.float64).reshape(-1, 2)
+    ok = np.all(np.isfinite(P0), axis=1) & np.all(np.isfinite(uv), axis=1)
+    if valid is not None:
+        ok &= np.asarray(valid, dtype=bool)
+    return _noise_beside(P0[ok], uv[ok], np.asarray(depth_m), camera, window_m, max_lag_px)
+
+
+def _noise_beside(points_w: np.ndarray, uv: np.ndarray, depth: np.ndarray, camera: CameraModel, window_m: float,
+                  max_lag_px: int) -> NoiseCorrelation:
+    """The noise's correlation along the windows' edges of studs at ``points_w`` / ``uv`` (all
+    usable): the stud's own place may be a painted mark without depth."""
+    z_cam = camera.world_to_camera(points_w)[:, 2] if points_w.shape[0] else np.ones(1)
+    edge_px = float(np.median(0.5 * window_m * camera.fx / np.maximum(z_cam, 1e-6)))
+    return measure_noise_correlation(depth, uv, max_lag_px=max_lag_px, beside_px=edge_px)
 
 
 def _fast_path_fits(idx: np.ndarray, P0: np.ndarray, uv: np.ndarray, depth: np.ndarray, camera: CameraModel,
@@ -357,6 +384,7 @@ __all__ = [
     "estimate_surface_poses",
     "estimate_surface_poses_for_matches",
     "frame_from_normal",
+    "frame_noise_correlation",
     "inclination_deg",
     "offset_along_normal",
     "quaternion_from_matrix",

@@ -31,8 +31,9 @@ from stud_common.vocabulary import VIEW_DEPENDENT, TargetStatus
 from stud_planner.matching.gun_clearance import Clearance, GunModel, gun_clearance
 from stud_planner.matching.match_common import observed_heights, z_range_of
 from stud_planner.matching.matchers import MatchResults, MatchStatus, match_batch, match_bfs, match_fpm
+from stud_planner.matching.noise_correlation import NoiseCorrelation
 from stud_planner.matching.surface_pose import (SurfacePoses, SurfaceStatus, estimate_surface_poses_for_matches,
-                                                offset_along_normal)
+                                                frame_noise_correlation, offset_along_normal)
 
 # The target statuses are stud_common.vocabulary.TargetStatus (the WeldTarget.STATUS_* values); the
 # names below are the arrays' spelling of them.
@@ -182,8 +183,12 @@ def match(algorithm: str, targets_xy_w: np.ndarray, depth_m: np.ndarray, camera:
 
 
 def plan_view(ids: list[str], drawing_xy_m: np.ndarray, M_local2world: np.ndarray, depth_m: np.ndarray,
-              camera: CameraModel, config: PlannerConfig = PlannerConfig()) -> ViewTargets:
-    """Match every stud of the drawing on this view and estimate its weld pose (see module doc)."""
+              camera: CameraModel, config: PlannerConfig = PlannerConfig(),
+              noise: NoiseCorrelation | None = None) -> ViewTargets:
+    """Match every stud of the drawing on this view and estimate its weld pose (see module doc).
+
+    ``noise``: the depth noise's correlation measured on an earlier frame of the same camera
+    (:func:`view_noise_correlation`), to skip measuring it on this one; None: measured here."""
     drawing_xy_m = np.asarray(drawing_xy_m, dtype=np.float64).reshape(-1, 2)
     target_xy_w = local_to_world(M_local2world, drawing_xy_m)
     t0 = time.perf_counter()
@@ -194,7 +199,7 @@ def plan_view(ids: list[str], drawing_xy_m: np.ndarray, M_local2world: np.ndarra
                                                max_samples_per_side=config.normal_samples_per_side,
                                                max_rms_m=config.max_normal_rms_m, target_xy_w=target_xy_w,
                                                noise_correlation_max_lag_px=config.noise_correlation_max_lag_px,
-                                               sample_step_max_loss=config.sample_step_max_loss)
+                                               sample_step_max_loss=config.sample_step_max_loss, noise=noise)
     status = matches.status.astype(np.uint8).copy()
     matched = status == MatchStatus.OK
     status[matched & ~poses.ok] = STATUS_NO_NORMAL
@@ -219,6 +224,59 @@ def plan_view(ids: list[str], drawing_xy_m: np.ndarray, M_local2world: np.ndarra
                        lean_bound_deg=np.where(poses.ok, lean_bound, np.nan), gun_clearance_m=clearance.clearance_m,
                        status=status, matches=matches, poses=poses, clearance=clearance, algorithm=config.algorithm,
                        match_time_s=match_time, config=config)
+
+
+def view_noise_correlation(targets: ViewTargets, depth_m: np.ndarray, camera: CameraModel) -> NoiseCorrelation:
+    """The depth noise's correlation of the frame ``targets`` were planned on, measured as
+    :func:`plan_view` measures it, for a later frame of the same camera (``plan_view(noise=...)``)."""
+    return frame_noise_correlation(targets.matches.point_w, targets.matches.pixel_uv, depth_m, camera,
+                                   window_m=targets.config.normal_window_m,
+                                   max_lag_px=targets.config.noise_correlation_max_lag_px, valid=targets.matches.ok)
+
+
+class NoiseMemory:
+    """The depth noise's correlation of a camera's last measured frame, for its next frames at the
+    same pose: measuring it costs about as much as matching a hundred studs, and a camera's noise
+    does not change from one frame to the next.
+
+    A measurement is recalled for up to ``max_age_s`` for a camera with the same intrinsics and
+    size, moved at most ``max_shift_m`` and turned at most ``max_turn_deg`` (a new station's shot
+    is measured on itself). From half that age on, :meth:`refresh_due` says to measure again on
+    the frame just planned, after its targets are out: a steady stream never measures before its
+    targets. ``max_age_s`` 0: nothing is recalled (every frame measured before its targets)."""
+
+    def __init__(self, max_age_s: float, max_shift_m: float = 0.001, max_turn_deg: float = 0.1) -> None:
+        self.max_age_s, self.max_shift_m, self.max_turn_deg = float(max_age_s), float(max_shift_m), float(max_turn_deg)
+        self._camera: CameraModel | None = None
+        self._noise: NoiseCorrelation | None = None
+        self._at = float("-inf")
+
+    def recall(self, camera: CameraModel, now_s: float) -> NoiseCorrelation | None:
+        """The measurement to reuse for a frame of ``camera`` at ``now_s`` (monotonic s), or None."""
+        if (self._noise is None or not self.max_age_s > 0 or not now_s - self._at <= self.max_age_s
+                or not self._same_camera(camera)):
+            return None
+        return self._noise
+
+    @property
+    def measured_at_s(self) -> float:
+        """When the measurement recalled was taken (monotonic s; -inf: none yet)."""
+        return self._at
+
+    def refresh_due(self, now_s: float) -> bool:
+        """Whether the frame just planned should be measured for the frames after it."""
+        return self.max_age_s > 0 and now_s - self._at >= 0.5 * self.max_age_s
+
+    def remember(self, camera: CameraModel, noise: NoiseCorrelation, now_s: float) -> None:
+        self._camera, self._noise, self._at = camera, noise, float(now_s)
+
+    def _same_camera(self, camera: CameraModel) -> bool:
+        was = self._camera
+        if was is None or (was.width, was.height) != (camera.width, camera.height) or not np.array_equal(was.K, camera.K):
+            return False
+        cos_turn = 0.5 * (np.trace(was.R_wc.T @ camera.R_wc) - 1.0)
+        return bool(np.linalg.norm(was.t_wc - camera.t_wc) <= self.max_shift_m
+                    and cos_turn >= np.cos(np.radians(self.max_turn_deg)))
 
 
 # -- overlay (the paper's Fig. 11) ---------------------------------------------------------------------
