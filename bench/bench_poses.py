@@ -23,6 +23,9 @@ Methods (what each figure includes):
 - ``ours, every pixel sampled`` (only with --noise-correlation-px): ``ours`` with
   ``sample_step_max_loss`` 0, every pixel of each window sampled however correlated the noise (the
   default samples every few pixels where the measured correlation makes neighbours redundant);
+- ``ours, streaming``: ``ours`` given the depth noise's correlation measured on an earlier frame of
+  the same camera (another noise draw), as the matcher node does for a camera streaming from one
+  pose (``noise_correlation_reuse_s``); a station's first shot pays ``ours``;
 - ``ours match only``: matching.match_batch;
 - ``peer A``: two re-projections of the stud's vertical line at the image's median height, a 7x7
   mean of valid depths each (matching only);
@@ -45,6 +48,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import inspect
 import math
 import os
 import sys
@@ -95,6 +99,7 @@ def bfs_seconds_per_pixel(xy, depth_m, camera, pixels: int) -> float:
 
 OURS = "ours: match+normal+sigma+status"
 EVERY_PIXEL = "ours, every pixel sampled"
+STREAMING = "ours, streaming (noise measured on an earlier frame)"
 PEER_A = "peer A: 2 re-projections + 7x7 (match only)"
 PEER_B = "peer B (SAT): A + summed-area-table normals"
 SCENES = {
@@ -261,6 +266,11 @@ def run_scene(name: str, sizes: list[int], repeat: int, fpm_max: int,
         fns = {OURS: pose(PlannerConfig(check_gun_clearance=False)), "ours + gun clearance": pose(PlannerConfig())}
         if correlation_px and "sample_step_max_loss" in {f.name for f in dataclasses.fields(PlannerConfig)}:
             fns[EVERY_PIXEL] = pose(PlannerConfig(check_gun_clearance=False, sample_step_max_loss=0.0))
+        if "noise" in inspect.signature(plan_view).parameters:  # older --src trees measure every frame
+            _, earlier = scene_and_view(n, name, seed=8, correlation_px=correlation_px)
+            noise = plan_view(ids, dxy, M, earlier.depth_m, cam, PlannerConfig(check_gun_clearance=False)).poses.noise
+            fns[STREAMING] = lambda: plan_view(ids, dxy, M, depth, cam, PlannerConfig(check_gun_clearance=False),
+                                               noise=noise)
         fns["ours match only"] = lambda: match_batch(xy, depth, cam)
         fns[PEER_A] = lambda: peer_a(xy, depth, cam)
         fns[PEER_B] = peer_b
