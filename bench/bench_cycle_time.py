@@ -9,6 +9,12 @@ Prints studs per hour and the seconds per stud of every category (stud_planner/c
 registration, station moves, shots, moves between studs, approach, descent, weld, dwell, retract,
 weld-job overhead, post-weld inspection. Target: <= 2 s per stud, everything included.
 
+Beside each measured figure, the floor at the run's own driver settings (its ``params/arm_driver.yaml``
+over the driver's defaults; :mod:`rm65_driver.cycle_floor`, the simulator's time law): the least a stud
+can take as the driver sequences it (its stops, with no move between studs and no per-job work) and
+with every corner blended (one stop a stud). A figure above the floor is what the moves between studs,
+the per-job work and the software cost; a target below the floor is out of reach at those settings.
+
 Usage (after ``bash tools/setup.sh && source ros2_ws/setup.bash``)::
 
     ROS_DOMAIN_ID=70 python bench/bench_cycle_time.py [--part dome shell] [--out /tmp/cycle] [--arm-port 18170]
@@ -33,6 +39,10 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from stud_welding_msgs.action import WeldJob
 from stud_welding_msgs.msg import CellStatus
 
+import yaml
+
+from rm65_driver import driver_params
+from rm65_driver.cycle_floor import StudTimeFloor, stud_time_floor
 from rm65_driver.journal_scan import read_records
 from stud_planner.cell.cycle_time import CycleEvent, format_split, motion_from_journal, split_cycle
 
@@ -64,6 +74,13 @@ class Listener(Node):
             self.events.append(CycleEvent(time.time(), "weld", msg.feedback.phase, msg.feedback.stud_id))
 
 
+def driver_floor(params_file: Path) -> StudTimeFloor:
+    """The stud time floor of the weld job a run's driver had: its parameters file over the defaults."""
+    values = {p.name: p.default for p in driver_params.PARAMS}
+    values.update(yaml.safe_load(params_file.read_text())["/**"]["ros__parameters"])
+    return stud_time_floor(driver_params.job_config(values)[0])
+
+
 def run_part(part: str, out: Path, arm_port: int, extra: list[str]) -> dict:
     rclpy.init()
     node = Listener()
@@ -92,10 +109,21 @@ def run_part(part: str, out: Path, arm_port: int, extra: list[str]) -> dict:
                               f"{summary.get('stations')} station(s), demo wall {wall:.0f} s)"))
     verdict = "met" if split.s_per_stud <= TARGET_S_PER_STUD else f"missed by {split.s_per_stud - 2.0:.2f} s"
     print(f"  target <= {TARGET_S_PER_STUD:.1f} s/stud: {verdict}", flush=True)
+    floor = driver_floor(out / "params" / "arm_driver.yaml")
+    in_station = sum(split.per_stud(k) for k in ("approach", "descent", "weld", "dwell", "retract"))
+    print(f"  floor at this run's driver settings (no move between studs, no per-job work): "
+          f"{floor.as_sequenced_s:.2f} s/stud as sequenced (approach {floor.approach_s:.2f}, weld + dwell "
+          f"{floor.weld_s:.2f}, retract {floor.retract_s:.2f}), {floor.blended_s:.2f} s with every corner blended; "
+          f"measured {in_station:.2f} s/stud in those phases, {split.per_stud('moves_between_studs'):.2f} moving "
+          f"between studs, {split.s_per_stud - in_station - split.per_stud('moves_between_studs'):.2f} the rest "
+          f"(registration, stations, shots, inspection, job overhead)", flush=True)
     return {"part": part, "exit": code, "ok": summary.get("ok"), "stations": summary.get("stations"),
             "studs": welded, "total_s": round(split.total_s, 2), "s_per_stud": round(split.s_per_stud, 3),
             "studs_per_hour": round(split.studs_per_hour, 0),
-            "per_stud_s": {k: round(split.per_stud(k), 3) for k in split.seconds}}
+            "per_stud_s": {k: round(split.per_stud(k), 3) for k in split.seconds},
+            "floor_s_per_stud": {"as_sequenced": round(floor.as_sequenced_s, 3), "blended": round(floor.blended_s, 3),
+                                 "approach": round(floor.approach_s, 3), "weld": round(floor.weld_s, 3),
+                                 "retract": round(floor.retract_s, 3)}}
 
 
 def main(argv: list[str] | None = None) -> int:
