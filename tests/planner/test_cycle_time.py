@@ -42,6 +42,11 @@ def test_every_second_from_registration_to_done_lands_in_its_category():
     assert s.s_per_stud == pytest.approx(4.2) and s.studs_per_hour == pytest.approx(3600 / 4.2)
 
 
+def test_an_idle_cell_before_its_job_is_not_cycle_time():
+    s = split_cycle([cell(-1.3, "idle")] + TIMELINE, studs=2)
+    assert s.total_s == pytest.approx(8.4) and sum(s.seconds.values()) == pytest.approx(s.total_s)
+
+
 def test_the_journal_motion_times_split_the_approach_phase():
     records = [{"event": "started", "stud": "A", "motion_s": {"move": 0.25, "approach": 0.15, "descend": 0.5}},
                {"event": "welded", "stud": "A"}, {"event": "started", "stud": "B"}]

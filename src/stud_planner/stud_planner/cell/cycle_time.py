@@ -65,7 +65,9 @@ class CycleSplit:
 
 def split_cycle(events: Iterable[CycleEvent], studs: int,
                 motion_s: Mapping[str, Mapping[str, float]] | None = None) -> CycleSplit:
-    """Seconds per category from the first event to the first ``done``/``failed`` cell state.
+    """Seconds per category from the job's first counted cell state (registration, usually) to the
+    first ``done``/``failed`` cell state: an idle cell before its job starts is not cycle time (a
+    listener that joins early hears the latched ``idle`` status first).
 
     ``studs``: studs welded (the per-stud denominator). ``motion_s``: per stud, the driver's measured
     motion durations (``{"move": s, "approach": s, ...}``); the ``approach`` phase of a stud is split
@@ -73,6 +75,8 @@ def split_cycle(events: Iterable[CycleEvent], studs: int,
     driver whose approach phase is the joint move alone) counts wholly as a move between studs.
     """
     evs = sorted(events, key=lambda e: e.t_s)
+    first = next((i for i, e in enumerate(evs) if e.kind == "cell" and e.name in CELL_CATEGORY), len(evs))
+    evs = evs[first:]
     out = CycleSplit(studs=int(studs))
     motion_s = motion_s or {}
     cell_state = ""
