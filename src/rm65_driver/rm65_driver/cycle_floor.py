@@ -51,9 +51,7 @@ def _line(length_m: float, speed_pct: float, limits: MotionLimits, start_m: floa
     the joints not binding."""
     frac = speed_pct / 100.0
     T, t_a = trapezoid_profile([length_m], [frac * limits.line_speed_m_s], [frac * limits.line_acc_m_s2])
-    cruise = max(T - t_a, 1e-9)
-    return LineSegment(start=np.array([0.0, 0.0, start_m]), end=np.array([0.0, 0.0, start_m - length_m]), turns=False,
-                       speed=length_m / cruise, accel=length_m / max(t_a * cruise, 1e-12))
+    return LineSegment.timed(np.array([0.0, 0.0, start_m]), np.array([0.0, 0.0, start_m - length_m]), False, T, t_a)
 
 
 def _rest_to_rest_s(line: LineSegment) -> float:

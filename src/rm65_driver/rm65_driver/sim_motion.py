@@ -90,6 +90,14 @@ class LineSegment:
     def length(self) -> float:
         return float(np.linalg.norm(self.end - self.start))
 
+    @classmethod
+    def timed(cls, start: np.ndarray, end: np.ndarray, turns: bool, duration_s: float, accel_s: float) -> LineSegment:
+        """The line from ``start`` to ``end`` (m) whose rest-to-rest move lasts ``duration_s`` and
+        accelerates for ``accel_s``: its speed and acceleration are what that trapezoid implies."""
+        L = float(np.linalg.norm(np.asarray(end) - np.asarray(start)))
+        cruise = max(duration_s - accel_s, 1e-9)
+        return cls(start=start, end=end, turns=turns, speed=L / cruise, accel=L / max(accel_s * cruise, 1e-12))
+
 
 #: Two lines join without a stop only if they continue each other within this angle.
 COLLINEAR_DEG = 1.0
@@ -239,10 +247,8 @@ def line_segment(kin: RM65Kinematics, path: np.ndarray, T_tool: np.ndarray, dura
                  accel_s: float) -> LineSegment:
     """The straight line of a planned ``movel`` (joint ``path``), with the speed and acceleration its timing implies."""
     T0, T1 = kin.fk(path[0], T_tool), kin.fk(path[-1], T_tool)
-    L = float(np.linalg.norm(T1[:3, 3] - T0[:3, 3]))
-    cruise = max(duration_s - accel_s, 1e-9)
-    return LineSegment(start=T0[:3, 3].copy(), end=T1[:3, 3].copy(), turns=rotation_angle(T0, T1) > np.radians(COLLINEAR_DEG),
-                       speed=L / cruise, accel=L / max(accel_s * cruise, 1e-12))
+    return LineSegment.timed(T0[:3, 3].copy(), T1[:3, 3].copy(), rotation_angle(T0, T1) > np.radians(COLLINEAR_DEG),
+                             duration_s, accel_s)
 
 
 def within_reach(kin: RM65Kinematics, T_goal: np.ndarray, T_tool: np.ndarray) -> bool:
