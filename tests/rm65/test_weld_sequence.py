@@ -13,13 +13,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from rm65_driver import protocol as P
-from rm65_driver.journal import Journal
-from rm65_driver.kinematics import RM65Kinematics
-from rm65_driver.safety import SafetyChecker, SafetyLimits
-from rm65_driver.simulator import ArmSimulator
-from rm65_driver.weld_job import StudTarget, WeldParams
-from rm65_driver.weld_sequence import WeldSequence
+from rm65_driver.journal.writer import Journal
+from rm65_driver.kinematics.rm65 import RM65Kinematics
+from rm65_driver.protocol import messages as P
+from rm65_driver.weld.safety import SafetyChecker, SafetyLimits
+from rm65_driver.weld.weld_job import StudTarget, WeldParams
+from rm65_driver.weld.weld_sequence import WeldSequence
+from rm65_sim.simulator import ArmSimulator
 from rm65_testing import FAST, dome_targets, wait_for, welds_per_stud
 
 PARAMS = WeldParams(standoff_m=0.04, tool_offset_m=0.15, pulse_s=0.01, dwell_s=0.01, joint_speed_pct=50,
@@ -493,7 +493,7 @@ def test_each_next_stud_is_planned_during_the_dwell_not_between_the_studs(client
 
 
 def test_a_plan_made_ahead_is_used_only_for_its_stud_and_from_where_the_arm_is(client, sim, tmp_path):
-    from rm65_driver.weld_sequence import LOOKAHEAD_TOL_RAD
+    from rm65_driver.weld.weld_sequence import LOOKAHEAD_TOL_RAD
 
     seq, _ = make_seq(client, tmp_path)
     t, other = dome_targets(rings=((0.05, 2),))

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rm65_driver.kinematics import RM65Kinematics
-from rm65_driver.journal import Journal
-from rm65_driver.safety import SafetyChecker, SafetyLimits
-from rm65_driver.weld_job import WeldParams
-from rm65_driver.weld_sequence import WeldSequence
-from rm65_driver.welded_studs import nearest_welded, segment_distances
+from rm65_driver.journal.writer import Journal
+from rm65_driver.kinematics.rm65 import RM65Kinematics
+from rm65_driver.weld.safety import SafetyChecker, SafetyLimits
+from rm65_driver.weld.weld_job import WeldParams
+from rm65_driver.weld.weld_sequence import WeldSequence
+from rm65_driver.weld.welded_neighbours import nearest_welded, segment_distances
 from rm65_testing import dome_targets, welds_per_stud
 
 

@@ -6,12 +6,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from rm65_driver import protocol as P
-from rm65_driver.cycle_floor import stud_time_floor
-from rm65_driver.kinematics import RM65Kinematics, matrix_to_pose6
-from rm65_driver.sim_motion import Motion, MotionLimits, SegmentProfile, line_segment, plan_motion
-from rm65_driver.simulator import ArmSimulator
-from rm65_driver.weld_job import WeldParams
+from rm65_driver.kinematics.rm65 import RM65Kinematics, matrix_to_pose6
+from rm65_driver.protocol import messages as P
+from rm65_driver.weld.weld_job import WeldParams
+from rm65_sim.cycle_floor import stud_time_floor
+from rm65_sim.motion import Motion, MotionLimits, SegmentProfile, line_segment, plan_motion
+from rm65_sim.simulator import ArmSimulator
 
 #: The cell's settings (cell.yaml): 60 mm standoff, the last 10 mm at 10 %, the rest at 30 %, 0.2 s + 0.5 s.
 CELL = WeldParams(standoff_m=0.06, final_approach_m=0.01, approach_speed_pct=30, linear_speed_pct=10, pulse_s=0.2,

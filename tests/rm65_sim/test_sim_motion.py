@@ -4,11 +4,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rm65_driver import protocol as P
-from rm65_driver.kinematics import RM65Kinematics, matrix_to_pose6, trapezoid_profile
-from rm65_driver.sim_motion import (LineSegment, Motion, MotionLimits, SegmentProfile, junction_speed, line_segment,
+from rm65_driver.kinematics.rm65 import RM65Kinematics, matrix_to_pose6, trapezoid_profile
+from rm65_driver.protocol import messages as P
+from rm65_sim.motion import (LineSegment, Motion, MotionLimits, SegmentProfile, junction_speed, line_segment,
                                    plan_motion)
-from rm65_driver.simulator import ArmSimulator
+from rm65_sim.simulator import ArmSimulator
 
 
 def test_a_long_move_cruises_and_a_short_one_is_a_triangle():

@@ -1,9 +1,9 @@
 """The simulated controller's state and its non-motion commands: arm state, the SDK's connect-time
 queries, tool and work frames (§1.7), controller and tool-flange IO (§1.8).
 
-:class:`ControllerCommands` is a part of :class:`~rm65_driver.simulator.ArmSimulator` (the state
+:class:`ControllerCommands` is a part of :class:`~rm65_sim.simulator.ArmSimulator` (the state
 lives there, under its lock): one ``_cmd_<command>(msg)`` per command, returning the reply.
-Units on the wire as in :mod:`.protocol` (0.001°, µm, mrad); inside, rad and m. Every change of a
+Units on the wire as in :mod:`~rm65_driver.protocol.messages` (0.001°, µm, mrad); inside, rad and m. Every change of a
 digital output is recorded as a :class:`DOEvent` with the tool pose at that instant.
 """
 from __future__ import annotations
@@ -15,8 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from . import protocol as P
-from .kinematics import JOINT_MAX_ACC_DEG_S2, JOINT_MAX_SPEED_DEG_S, RM65Kinematics, invert_transform, matrix_to_pose6, pose6_to_matrix
+from rm65_driver.protocol import messages as P
+from rm65_driver.kinematics.rm65 import (JOINT_MAX_ACC_DEG_S2, JOINT_MAX_SPEED_DEG_S, RM65Kinematics, invert_transform,
+                                         matrix_to_pose6, pose6_to_matrix)
 
 #: Controller IO (Gen-3: four multiplexed DI/DO) and tool-flange IO (two), §1.8.
 N_IO = 4
@@ -41,7 +42,7 @@ class DOEvent:
 
 
 class ControllerCommands:
-    """State queries, frames and IO of :class:`~rm65_driver.simulator.ArmSimulator` (state lives there)."""
+    """State queries, frames and IO of :class:`~rm65_sim.simulator.ArmSimulator` (state lives there)."""
 
     kin: RM65Kinematics
     err_format: str
@@ -51,7 +52,7 @@ class ControllerCommands:
     _lock: threading.RLock
     _changed: threading.Condition
     _joints: np.ndarray
-    _queue: Any  # deque of sim_motion.Motion
+    _queue: Any  # deque of motion.Motion
     _errors: list[int]
     _tool_frames: dict[str, tuple[np.ndarray, int, list[int]]]
     _work_frames: dict[str, np.ndarray]

@@ -2,11 +2,11 @@
 
 Whatever order the studs are welded in, whatever the stations, each stud costs at least its moves
 along the normal at their speeds and the weld itself. This module prices them with the arm
-simulator's own time law (:mod:`.sim_motion`: ``v`` % scales the line's speed *and* acceleration,
+simulator's own time law (:mod:`.motion`: ``v`` % scales the line's speed *and* acceleration,
 every move from rest to rest unless the controller joins two collinear lines), so that a measured
 cycle time can be set against what no planner could beat at the same settings:
 
-* ``as_sequenced_s`` -- the stops :mod:`.weld_sequence` makes: the fast approach and the slow final
+* ``as_sequenced_s`` -- the stops :mod:`~rm65_driver.weld.weld_sequence` makes: the fast approach and the slow final
   move (one connected trajectory with ``connected_approach``, else two moves), the trigger pulse,
   the dwell, the retract (a ``movel`` from rest to rest over the standoff). The joint move to the
   next stud is taken as nothing (the next stud at the same place) and the job's own time
@@ -16,7 +16,7 @@ cycle time can be set against what no planner could beat at the same settings:
   sideways: the driver's ``stud_length_mm`` + ``stud_clearance_m``) and down again at the fast
   speed, slowing only to the slow speed for the final stretch: no real controller does better.
 
-Both are lower bounds under the controller's limits given (:class:`.sim_motion.MotionLimits`: the
+Both are lower bounds under the controller's limits given (:class:`.motion.MotionLimits`: the
 documentation's example values unless the arm's own are read); a measured figure above them is
 what the moves between studs and the per-job work cost. Pure Python; no ROS.
 """
@@ -26,9 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .kinematics import trapezoid_profile
-from .sim_motion import LineSegment, MotionLimits, SegmentProfile, junction_speed
-from .weld_job import WeldParams
+from rm65_driver.kinematics.rm65 import trapezoid_profile
+from rm65_driver.weld.weld_job import WeldParams
+from rm65_sim.motion import LineSegment, MotionLimits, SegmentProfile, junction_speed
 
 
 @dataclass(frozen=True)
@@ -47,7 +47,7 @@ class StudTimeFloor:
 
 def _line(length_m: float, speed_pct: float, limits: MotionLimits, start_m: float = 0.0) -> LineSegment:
     """A straight ``movel`` down the z axis from height ``start_m`` over ``length_m`` at ``speed_pct`` %,
-    timed as the simulator times one (:func:`.sim_motion.plan_motion`, :func:`.sim_motion.line_segment`);
+    timed as the simulator times one (:func:`.motion.plan_motion`, :func:`.motion.line_segment`);
     the joints not binding."""
     frac = speed_pct / 100.0
     T, t_a = trapezoid_profile([length_m], [frac * limits.line_speed_m_s], [frac * limits.line_acc_m_s2])

@@ -1,6 +1,6 @@
 """Fault injection for the controller simulator (tests): drops, refusals, controller errors, stalls.
 
-:class:`FaultInjection` is a part of :class:`~rm65_driver.simulator.ArmSimulator`: each call
+:class:`FaultInjection` is a part of :class:`~rm65_sim.simulator.ArmSimulator`: each call
 queues a :class:`Fault` (or sets the connection refusal count) under the simulator's lock; the
 command handling, the motion thread and the accept loop take them from there
 (:meth:`FaultInjection._take_fault`).
@@ -27,7 +27,7 @@ class Fault:
 
 
 class FaultInjection:
-    """The fault-injection methods of :class:`~rm65_driver.simulator.ArmSimulator` (state lives there)."""
+    """The fault-injection methods of :class:`~rm65_sim.simulator.ArmSimulator` (state lives there)."""
 
     _lock: threading.RLock
     _faults: list[Fault]

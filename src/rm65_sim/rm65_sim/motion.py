@@ -3,13 +3,13 @@
 Pure (no sockets, no threads): :func:`plan_motion` turns a ``movej`` / ``movej_p`` / ``movel``
 request into a joint path (rad) and a simulated duration (s) -- or the controller's refusal code
 (0x1002 joint limits, 0x1003 unreachable) -- and :class:`Motion` is one queued motion, advanced
-by :class:`~rm65_driver.simulator.ArmSimulator`'s motion thread along a trapezoidal time law.
+by :class:`~rm65_sim.simulator.ArmSimulator`'s motion thread along a trapezoidal time law.
 
 Timing: ``v`` % scales the speeds *and* the accelerations (RealMan's motion documentation). A
 joint move lasts as long as the slowest joint needs at ``v`` % of its maximum speed and
 acceleration, a linear move as long as the path needs at ``v`` % of the line (m/s, m/s^2) and
 angular (rad/s, rad/s^2) limits and of the joints' own; every move starts and ends at rest
-(:func:`~rm65_driver.kinematics.trapezoid_profile`), so a stop between two moves costs what it
+(:func:`~rm65_driver.kinematics.rm65.trapezoid_profile`), so a stop between two moves costs what it
 costs a real arm.
 """
 from __future__ import annotations
@@ -22,10 +22,11 @@ from typing import Any, Callable
 
 import numpy as np
 
-from . import protocol as P
-from .kinematics import RM65Kinematics, invert_transform, pose6_to_matrix, rotation_angle, trapezoid_profile
+from rm65_driver.protocol import messages as P
+from rm65_driver.kinematics.rm65 import (RM65Kinematics, invert_transform, pose6_to_matrix, rotation_angle,
+                                         trapezoid_profile)
 
-_log = logging.getLogger("rm65_driver.simulator")  # one logger for all parts of the simulator
+_log = logging.getLogger("rm65_sim.simulator")  # one logger for all parts of the simulator
 
 
 @dataclass

@@ -1,8 +1,8 @@
 """The controller simulator's TCP side: listening, one thread per client, sending replies and events.
 
-:class:`TcpServer` is a part of :class:`~rm65_driver.simulator.ArmSimulator`: it binds
+:class:`TcpServer` is a part of :class:`~rm65_sim.simulator.ArmSimulator`: it binds
 ``host:port`` (127.0.0.1 by default), accepts clients (or refuses them while a refusal is
-injected), decodes their ``\\r\\n``-framed JSON with :class:`~rm65_driver.protocol.FrameDecoder`
+injected), decodes their ``\\r\\n``-framed JSON with :class:`~rm65_driver.protocol.messages.FrameDecoder`
 and hands every message to the simulator's ``_handle``; it also starts the motion thread.
 """
 from __future__ import annotations
@@ -14,9 +14,9 @@ import threading
 import time
 from typing import Any, Callable, Self
 
-from . import protocol as P
+from rm65_driver.protocol import messages as P
 
-_log = logging.getLogger("rm65_driver.simulator")  # one logger for all parts of the simulator
+_log = logging.getLogger("rm65_sim.simulator")  # one logger for all parts of the simulator
 
 
 class Connection:
@@ -54,7 +54,7 @@ class Connection:
 
 
 class TcpServer:
-    """Life cycle and networking of :class:`~rm65_driver.simulator.ArmSimulator` (state lives there)."""
+    """Life cycle and networking of :class:`~rm65_sim.simulator.ArmSimulator` (state lives there)."""
 
     host: str
     pretty_replies: bool

@@ -10,7 +10,7 @@ current (``err`` list) or the older error formats.
 The arm moves in (scaled) real time along trapezoidal profiles: ``v`` % scales speeds and
 accelerations alike, as RealMan documents; a joint move lasts as long as the slowest joint needs
 at ``v`` % of its maximum speed and acceleration (``get_joint_max_acc``), a linear move as long
-as the path needs at ``v`` % of the line and angular limits (:class:`.sim_motion.MotionLimits`),
+as the path needs at ``v`` % of the line and angular limits (:class:`.motion.MotionLimits`),
 starting and ending at rest; ``time_scale`` multiplies every duration (0.02 makes tests 50x faster). Targets outside
 the joint limits are refused with ``receive_state:false`` and error 0x1002 in the state,
 unreachable poses with 0x1003 (the exact channel is [UNCERTAIN] in the docs; this is the one
@@ -23,12 +23,12 @@ digital-output change with the tool pose at that instant (``do_events``,
 :meth:`drop_after_commands`, :meth:`drop_mid_motion`, :meth:`refuse_connections`,
 :meth:`fail_next`, :meth:`stall_next_motion`, :meth:`set_error`).
 
-Parts, by concern: the motion model (:mod:`.sim_motion`), the controller's state and its
-non-motion commands (:mod:`.sim_controller`), the TCP server (:mod:`.sim_server`) and the fault
-injection (:mod:`.sim_faults`); this module holds the state, dispatches the commands, runs the
+Parts, by concern: the motion model (:mod:`.motion`), the controller's state and its
+non-motion commands (:mod:`.controller`), the TCP server (:mod:`.server`) and the fault
+injection (:mod:`.faults`); this module holds the state, dispatches the commands, runs the
 motion thread and the command line.
 
-Run stand-alone: ``python -m rm65_driver.simulator --port 8080`` (binds 127.0.0.1 unless told
+Run stand-alone: ``python -m rm65_sim.simulator --port 8080`` (binds 127.0.0.1 unless told
 otherwise). Usage from pytest::
 
     sim = ArmSimulator(port=0, time_scale=0.02); sim.start(); ... sim.port ...; sim.stop()
@@ -48,12 +48,13 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from . import protocol as P
-from .kinematics import DHModel, RM65Kinematics, matrix_to_pose6
-from .sim_controller import N_IO, N_TOOL_IO, ControllerCommands, DOEvent
-from .sim_faults import Fault, FaultInjection
-from .sim_motion import Motion, MotionLimits, SegmentProfile, junction_speed, line_segment, plan_motion, trajectory_msg
-from .sim_server import Connection, TcpServer
+from rm65_driver.kinematics.rm65 import DHModel, RM65Kinematics, matrix_to_pose6
+from rm65_driver.protocol import messages as P
+from rm65_sim.controller import N_IO, N_TOOL_IO, ControllerCommands, DOEvent
+from rm65_sim.faults import Fault, FaultInjection
+from rm65_sim.motion import (Motion, MotionLimits, SegmentProfile, junction_speed, line_segment, plan_motion,
+                             trajectory_msg)
+from rm65_sim.server import Connection, TcpServer
 from stud_common.stacks import dump_stacks_on_signal
 
 _log = logging.getLogger(__name__)
@@ -261,7 +262,7 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
 
     # -- motion --------------------------------------------------------------------------
     def _plan(self, name: str, msg: dict[str, Any], q_start: np.ndarray) -> tuple[np.ndarray | None, float, float, int]:
-        """Joint path, duration and acceleration time, or (None, 0, 0, error code) (:func:`.sim_motion.plan_motion`)."""
+        """Joint path, duration and acceleration time, or (None, 0, 0, error code) (:func:`.motion.plan_motion`)."""
         return plan_motion(self.kin, name, msg, q_start, self._frames, self.limits)
 
     def _frames(self) -> tuple[np.ndarray, np.ndarray]:
@@ -307,7 +308,7 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
     def _join(prev: Motion, nxt: Motion) -> None:
         """``nxt`` follows ``prev`` (sent with trajectory_connect=1), which has not started: pass the junction at speed.
 
-        Only where one line continues the other (:func:`.sim_motion.junction_speed`); anywhere else
+        Only where one line continues the other (:func:`.motion.junction_speed`); anywhere else
         the arm stops at the junction, as it does between unconnected motions.
         """
         if prev.line is None or nxt.line is None or prev.elapsed_s > 0:

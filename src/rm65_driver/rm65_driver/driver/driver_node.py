@@ -1,10 +1,10 @@
 """RM-65 driver node: `ros2 run rm65_driver driver` — a thin rclpy adapter over the ROS-free core.
 
-Talks to the controller's JSON-over-TCP port (:mod:`.arm_client`), runs weld jobs
-(:mod:`.weld_sequence`) with the journal (:mod:`.journal`) and the pre-motion checks
-(:mod:`.safety`). Everything that decides anything lives there. The adapter itself, by concern:
-the parameters (:mod:`.driver_params`), state polling and publishing with the diagnostics
-(:mod:`.driver_status`), the services and the e-stop (:mod:`.driver_services`); this module
+Talks to the controller's JSON-over-TCP port (:mod:`~rm65_driver.protocol.arm_client`), runs weld jobs
+(:mod:`~rm65_driver.weld.weld_sequence`) with the journal (:mod:`~rm65_driver.journal.writer`) and the pre-motion checks
+(:mod:`~rm65_driver.weld.safety`). Everything that decides anything lives there. The adapter itself, by concern:
+the parameters (:mod:`.params`), state polling and publishing with the diagnostics
+(:mod:`.status`), the services and the e-stop (:mod:`.services`); this module
 converts messages, opens the journal, runs the WeldJob action and holds ``main``.
 
 Interfaces
@@ -23,11 +23,11 @@ Weld-journal FAULT: a journal found damaged at start-up (anything but a torn las
 that fails or changes while the driver runs, puts the driver in ``ArmState.MODE_FAULT``;
 ``/arm/state.message`` and ``/diagnostics`` (ERROR) name the file and the lines. Every weld job is
 aborted at once with that message until an operator resolves it with /arm/resolve_journal
-(accept the intact part, or load the intact copy); see :func:`.journal_repair.repair_journal`.
+(accept the intact part, or load the intact copy); see :func:`~rm65_driver.journal.repair.repair_journal`.
 
-Parameters (:mod:`.driver_params`) are checked at start-up, each against its range and all
-together against what the weld job accepts (:class:`~.weld_job.WeldParams`,
-:class:`~.safety.SafetyLimits`): a bad value ends the node with one line naming it and exit code 2.
+Parameters (:mod:`.params`) are checked at start-up, each against its range and all
+together against what the weld job accepts (:class:`~rm65_driver.weld.weld_job.WeldParams`,
+:class:`~rm65_driver.weld.safety.SafetyLimits`): a bad value ends the node with one line naming it and exit code 2.
 
 The e-stop here is a *software* stop (``set_arm_stop`` + trigger output low + a latch that refuses
 new jobs until released). It is not a safety-rated emergency stop: the cell's hardware e-stop
@@ -57,17 +57,17 @@ from stud_welding_msgs.srv import MoveTo, ResolveJournal, ResolveStud
 
 from stud_common import hand_eye_ros, ros_io
 
-from .arm_client import ArmClient
-from .driver_params import PARAMS, default_journal, job_config, job_config_problem
-from .driver_services import DriverServices
-from .driver_status import DriverStatus
-from .journal import Journal
-from .journal_records import JournalError
-from .journal_scan import JournalCorrupt
-from .kinematics import D6_BY_VARIANT, DHModel, RM65Kinematics
-from .safety import SafetyChecker
-from .weld_job import JobResult, StudTarget
-from .weld_sequence import WeldSequence
+from rm65_driver.driver.params import PARAMS, default_journal, job_config, job_config_problem
+from rm65_driver.driver.services import DriverServices
+from rm65_driver.driver.status import DriverStatus
+from rm65_driver.journal.records import JournalError
+from rm65_driver.journal.scan import JournalCorrupt
+from rm65_driver.journal.writer import Journal
+from rm65_driver.kinematics.rm65 import D6_BY_VARIANT, DHModel, RM65Kinematics
+from rm65_driver.protocol.arm_client import ArmClient
+from rm65_driver.weld.safety import SafetyChecker
+from rm65_driver.weld.weld_job import JobResult, StudTarget
+from rm65_driver.weld.weld_sequence import WeldSequence
 from stud_common import names
 
 WELDS_QOS = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)

@@ -1,10 +1,10 @@
 """The arm driver's parameters: their declarations (range, type, choices) and what the weld job makes of them.
 
-:data:`PARAMS` is declared by :class:`~rm65_driver.driver_node.DriverNode` through
+:data:`PARAMS` is declared by :class:`~rm65_driver.driver.driver_node.DriverNode` through
 :func:`stud_common.ros_io.declare_params`, which checks each value and then all of them together
 with :func:`job_config_problem` (at start-up: a bad value ends the node with exit code 2; at run
 time: the change is refused). :func:`job_config` maps the values to the job's
-:class:`~rm65_driver.weld_job.WeldParams` and :class:`~rm65_driver.safety.SafetyLimits`.
+:class:`~rm65_driver.weld.weld_job.WeldParams` and :class:`~rm65_driver.weld.safety.SafetyLimits`.
 Units are in the names: ``_m`` metres, ``_s`` seconds, ``_hz``, ``_deg``, ``_pct`` % of the
 controller maximum, ``_kg``; ``stud_length_mm`` is in millimetres, as the post-weld inspection's ``nominal_length_mm``
 (the cell gives both the same value). No node here.
@@ -16,10 +16,10 @@ import os
 from stud_common import hand_eye_ros
 from stud_common.ros_io import Param, three_numbers
 
-from . import protocol as P
-from .kinematics import D6_BY_VARIANT
-from .safety import SafetyLimits
-from .weld_job import WeldParams
+from rm65_driver.kinematics.rm65 import D6_BY_VARIANT
+from rm65_driver.protocol import messages as P
+from rm65_driver.weld.safety import SafetyLimits
+from rm65_driver.weld.weld_job import WeldParams
 
 
 def default_journal() -> str:

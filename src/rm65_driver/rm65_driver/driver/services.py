@@ -1,7 +1,7 @@
 """The arm driver's services: stop, pause, resume, e-stop (service and topic), move_to,
 resolve_stud and resolve_journal.
 
-:class:`DriverServices` is a part of :class:`~rm65_driver.driver_node.DriverNode` (the services
+:class:`DriverServices` is a part of :class:`~rm65_driver.driver.driver_node.DriverNode` (the services
 are created there). The e-stop is a *software* stop (``set_arm_stop`` + trigger output low + a
 latch that refuses new jobs until ``false`` on ``/arm/estop``), not a safety-rated one.
 ``move_to`` checks the workspace box (m) and the IK within the joint limits before anything moves.
@@ -16,18 +16,18 @@ from stud_welding_msgs.srv import MoveTo, ResolveJournal, ResolveStud
 from stud_common import ros_io
 from stud_common.hand_eye_in_use import tool_in_world
 
-from .arm_client import ArmError
-from .driver_base import DriverBase
-from .journal_records import JournalError
-from .journal_repair import ACTION_ACCEPT_INTACT, ACTION_LOAD_BACKUP, repair_journal
+from rm65_driver.driver.shared_state import DriverBase
+from rm65_driver.journal.records import JournalError
+from rm65_driver.journal.repair import ACTION_ACCEPT_INTACT, ACTION_LOAD_BACKUP, repair_journal
+from rm65_driver.protocol.arm_client import ArmError
 
-#: ResolveJournal.action -> journal_repair.repair_journal action
+#: ResolveJournal.action -> journal.repair.repair_journal action
 JOURNAL_ACTIONS = {ResolveJournal.Request.ACTION_ACCEPT_INTACT: ACTION_ACCEPT_INTACT,
                    ResolveJournal.Request.ACTION_LOAD_BACKUP: ACTION_LOAD_BACKUP}
 
 
 class DriverServices(DriverBase):
-    """Service and e-stop handlers of :class:`~rm65_driver.driver_node.DriverNode` (state lives there)."""
+    """Service and e-stop handlers of :class:`~rm65_driver.driver.driver_node.DriverNode` (state lives there)."""
 
     # -- services ---------------------------------------------------------------------------------
     def _stop_now(self, reason: str) -> tuple[bool, str]:

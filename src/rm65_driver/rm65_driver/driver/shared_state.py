@@ -1,5 +1,5 @@
 """What the arm driver's parts share: :class:`DriverBase` declares the state that
-:class:`~rm65_driver.driver_node.DriverNode` sets up and its status (``driver_status``) and service
+:class:`~rm65_driver.driver.driver_node.DriverNode` sets up and its status (``driver_status``) and service
 (``driver_services``) parts use, so each part reads as a class of its own and is type checked."""
 from __future__ import annotations
 
@@ -10,11 +10,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from rclpy.node import Node
 
-from .arm_client import ArmClient
-from .journal import Journal
-from .journal_records import JournalError
-from .kinematics import RM65Kinematics
-from .weld_sequence import WeldSequence
+from rm65_driver.journal.records import JournalError
+from rm65_driver.journal.writer import Journal
+from rm65_driver.kinematics.rm65 import RM65Kinematics
+from rm65_driver.protocol.arm_client import ArmClient
+from rm65_driver.weld.weld_sequence import WeldSequence
 
 
 class DriverBase(Node):

@@ -1,7 +1,7 @@
 """The arm driver's state side: polling the controller, ``/arm/state``, ``/joint_states``,
 ``/camera/pose``, ``/arm/welds`` and ``/diagnostics``.
 
-:class:`DriverStatus` is a part of :class:`~rm65_driver.driver_node.DriverNode` (its publishers,
+:class:`DriverStatus` is a part of :class:`~rm65_driver.driver.driver_node.DriverNode` (its publishers,
 client and journal are made there): a thread polls the arm state at ``state_rate_hz`` (Hz), with
 a back-off of 0.2 s doubling to 5 s while the controller is not connected, and publishes each
 reading -- joints in rad, the ``weld_tool`` pose in ``world`` (m) from the driver's own forward
@@ -23,15 +23,15 @@ from stud_welding_msgs.msg import ArmState, WeldRecord
 from stud_common import ros_io
 from stud_common.hand_eye_in_use import camera_in_world
 
-from .arm_client import ArmError
-from .driver_base import DriverBase
-from .journal_scan import JournalCorrupt
+from rm65_driver.driver.shared_state import DriverBase
+from rm65_driver.journal.scan import JournalCorrupt
+from rm65_driver.protocol.arm_client import ArmError
 
 JOINT_NAMES = [f"joint{i}" for i in range(1, 7)]
 
 
 class DriverStatus(DriverBase):
-    """State polling and publishing of :class:`~rm65_driver.driver_node.DriverNode` (state lives there)."""
+    """State polling and publishing of :class:`~rm65_driver.driver.driver_node.DriverNode` (state lives there)."""
 
     hand_eye: Any
     diag: ros_io.Diagnostics

@@ -6,7 +6,7 @@ Records (one JSON object per line; ``t`` = UTC ISO time)::
      "journal": "9f0c2d4e6a1b", "t": "...", "position": [...], ..., "crc": "5d1e0a7f"}
 
 * ``seq``: 1, 2, 3 ... in file order (a missing, repeated or reordered line breaks the count);
-* ``job``: the id :class:`~rm65_driver.weld_sequence.WeldSequence` gives each job ("" for an
+* ``job``: the id :class:`~rm65_driver.weld.weld_sequence.WeldSequence` gives each job ("" for an
   operator's decision outside a job); ``journal``: the id of this journal, the same in every
   record (created with the file: lines of another cell's journal do not belong here);
 * ``crc``: CRC32 (8 hex digits) of the record's *canonical* JSON without the ``crc`` field:
@@ -27,7 +27,7 @@ it, say as "needs an operator decision", does not make it weldable). ``resolved:
 -> not_welded (may be welded by a later job); ``torn_tail`` / ``recovered`` make the studs they
 list uncertain unless welded.
 
-Pure: no files here (reading them is :mod:`.journal_scan`, writing :mod:`.journal`).
+Pure: no files here (reading them is :mod:`.scan`, writing :mod:`.writer`).
 """
 from __future__ import annotations
 
@@ -44,7 +44,7 @@ DECISION_WELDED, DECISION_NOT_WELDED = "welded", "not_welded"
 _STUD_EVENTS = frozenset({STARTED, WELDED, SKIPPED, RESOLVED})
 _EVENTS = _STUD_EVENTS | {TORN_TAIL, RECOVERED}
 
-#: Status names returned by :meth:`~rm65_driver.journal.Journal.status`.
+#: Status names returned by :meth:`~rm65_driver.journal.writer.Journal.status`.
 STATUS_NEW, STATUS_UNCERTAIN, STATUS_WELDED, STATUS_SKIPPED, STATUS_NOT_WELDED = (
     "new", "uncertain", "welded", "skipped", "not_welded")
 

@@ -17,8 +17,8 @@ import uuid
 from pathlib import Path
 from typing import Any, Iterable
 
-from .journal_files import atomic_write, free_name
-from .journal_records import (
+from rm65_driver.journal.files import atomic_write, free_name
+from rm65_driver.journal.records import (
     RECOVERED,
     STATUS_NEW,
     STATUS_UNCERTAIN,
@@ -30,7 +30,7 @@ from .journal_records import (
     plain_json,
     studs_in,
 )
-from .journal_scan import (
+from rm65_driver.journal.scan import (
     DamageReport,
     FileScan,
     JournalCorrupt,
@@ -41,7 +41,7 @@ from .journal_scan import (
     uncertain_from_torn,
 )
 
-_log = logging.getLogger("rm65_driver.journal")  # the journal's one logger, whichever part writes
+_log = logging.getLogger("rm65_driver.journal.writer")  # the journal's one logger, whichever part writes
 
 #: Operator actions of :func:`repair_journal` (the ResolveJournal service's ACTION_* constants).
 ACTION_ACCEPT_INTACT, ACTION_LOAD_BACKUP = "accept_intact", "load_backup"
@@ -109,7 +109,7 @@ def _what_to_keep(p: FileScan, m: FileScan, report: DamageReport,
 
 
 def _kept_status(kept: list[ScanLine]) -> dict[str, str]:
-    """Each stud's status after the kept records (the status rules of :mod:`.journal_records`)."""
+    """Each stud's status after the kept records (the status rules of :mod:`.records`)."""
     status: dict[str, str] = {}
     for ln in kept:
         rec = ln.rec

@@ -12,7 +12,7 @@
   a checksum mismatch in the middle, a record of an unknown event or of another journal, a
   missing or repeated ``seq``, or journal and mirror that disagree beyond what one interrupted
   append explains -- makes the journal **corrupt**: :class:`JournalCorrupt` names the file(s)
-  and line(s) and nothing is written. An operator resolves it with :func:`~rm65_driver.journal_repair.repair_journal`:
+  and line(s) and nothing is written. An operator resolves it with :func:`~rm65_driver.journal.repair.repair_journal`:
   ``accept_intact`` keeps the records before the first damage and marks every stud mentioned
   after it (in either file) uncertain; ``load_backup`` takes the intact copy. The damaged file
   is moved aside (``<name>.corrupt-<UTC time>``) and a clean journal and mirror are written.
@@ -22,7 +22,7 @@ as a *read-only prefix* with a warning ("legacy records without checksum"): thei
 (welded stays welded, started stays uncertain) but cannot be verified; new records appended after
 them are checksummed, and a record without checksum after a checksummed one is damage.
 
-:func:`plan_open` is what :class:`~rm65_driver.journal.Journal` and the repair run first: it scans
+:func:`plan_open` is what :class:`~rm65_driver.journal.writer.Journal` and the repair run first: it scans
 both files and decides how to open them, or raises :class:`JournalCorrupt` with a
 :class:`DamageReport` (file, lines, what an operator can do). Reads only, never writes.
 """
@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
 
-from .journal_records import (
+from rm65_driver.journal.records import (
     STARTED,
     STATUS_NEW,
     STATUS_UNCERTAIN,

@@ -5,10 +5,10 @@ line, written (``os.write``) and then ``os.fsync``'ed -- to the journal and then
 *before* the driver sends its next command, so after a crash or a power cut the files tell the
 truth up to the last completed step.
 
-The parts: the record format, its checksum and the status rules (:mod:`.journal_records`);
+The parts: the record format, its checksum and the status rules (:mod:`.records`);
 reading the files back, telling a torn last line from corruption, and the damage report
-(:mod:`.journal_scan`); the operator's repair (:mod:`.journal_repair`); durable writes
-(:mod:`.journal_files`). This module is the writer, :class:`Journal`.
+(:mod:`.scan`); the operator's repair (:mod:`.repair`); durable writes
+(:mod:`.files`). This module is the writer, :class:`Journal`.
 
 **Mirror.** ``<journal>.mirror`` in the same directory receives every record right after the
 journal (each fsynced), so one damaged file is not the only truth; on load the two are compared
@@ -29,8 +29,8 @@ import zlib
 from pathlib import Path
 from typing import Any
 
-from .journal_files import atomic_write, fsync_dir, write_all
-from .journal_records import (
+from rm65_driver.journal.files import atomic_write, fsync_dir, write_all
+from rm65_driver.journal.records import (
     DECISION_NOT_WELDED,
     DECISION_WELDED,
     RESOLVED,
@@ -48,7 +48,7 @@ from .journal_records import (
     plain_json,
     record_crc,
 )
-from .journal_scan import JournalCorrupt, plan_open
+from rm65_driver.journal.scan import JournalCorrupt, plan_open
 
 _log = logging.getLogger(__name__)
 
@@ -59,7 +59,7 @@ _log = logging.getLogger(__name__)
 class Journal:
     """Append-only weld journal at ``path`` with its mirror (created with their directory if missing).
 
-    Raises :class:`JournalCorrupt` when the files are damaged (see :mod:`.journal_scan`). Thread-safe.
+    Raises :class:`JournalCorrupt` when the files are damaged (see :mod:`.scan`). Thread-safe.
     ``warnings`` lists what was tolerated while loading; :attr:`fault` is set once an append or
     :meth:`verify` failed (no more appends until the journal is opened again).
     """

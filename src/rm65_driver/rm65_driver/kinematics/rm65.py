@@ -1,7 +1,7 @@
 """RM-65 kinematics: modified DH forward kinematics, damped-least-squares IK, pose helpers.
 
 Units: radians and metres throughout (the controller's millidegrees / micrometres /
-milliradians are converted in :mod:`rm65_driver.protocol`, never here).
+milliradians are converted in :mod:`rm65_driver.protocol.messages`, never here).
 
 Model (RM65_PROTOCOL.md §4.2, RealMan "RM65 ontology parameters"; identical to the values the
 official SDK's ``rm_algo_get_dh()`` returns): modified (Craig) DH, per link

@@ -1,4 +1,4 @@
-"""Blocking, thread-safe client of the RM-65 controller (JSON over TCP, see :mod:`.protocol`).
+"""Blocking, thread-safe client of the RM-65 controller (JSON over TCP, see :mod:`.messages`).
 
 One reader thread per connection decodes the stream and dispatches each message:
 
@@ -11,7 +11,7 @@ so :meth:`ArmClient.stop` reaches the controller within milliseconds even while 
 blocks in :meth:`ArmClient.move_joints_and_wait` (the e-stop latency test measures this). A stop
 also wakes every motion waiter at once with :class:`ArmStopped`.
 
-Units are SI (rad, m) on this API; :mod:`.protocol` converts at the wire.
+Units are SI (rad, m) on this API; :mod:`.messages` converts at the wire.
 """
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from . import protocol as P
+from rm65_driver.protocol import messages as P
 
 _log = logging.getLogger(__name__)
 

@@ -10,7 +10,7 @@ Every check returns a reason string a person can act on (``None``/``ok`` when it
 nothing here talks to the controller: a rejected target is never sent.
 
 Frames: ``world`` is the arm base frame (the controller's work frame must be the base, which
-:class:`~rm65_driver.weld_sequence.WeldSequence` verifies); the tool is ``weld_tool``, given as
+:class:`~rm65_driver.weld.weld_sequence.WeldSequence` verifies); the tool is ``weld_tool``, given as
 the flange -> tool transform ``tool_T`` (4x4, m).
 """
 from __future__ import annotations
@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .kinematics import SHOULDER_M, WORKING_RADIUS_M, RM65Kinematics, tool_pose_facing
+from rm65_driver.kinematics.rm65 import SHOULDER_M, WORKING_RADIUS_M, RM65Kinematics, tool_pose_facing
 
 
 @dataclass(frozen=True)

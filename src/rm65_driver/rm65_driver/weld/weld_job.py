@@ -2,7 +2,7 @@
 
 Pure data (no arm, no journal): :class:`StudTarget` (world frame, m), :class:`WeldParams`
 (lengths m, times s, speeds % of the controller maximum; checked when built), :class:`JobResult`,
-the callback types :class:`~rm65_driver.weld_sequence.WeldSequence` reports through, and the job
+the callback types :class:`~rm65_driver.weld.weld_sequence.WeldSequence` reports through, and the job
 ids every journal record of a job carries.
 """
 from __future__ import annotations
@@ -51,7 +51,7 @@ class WeldParams:
     ``min_stud_spacing_m``: the room the gun's foot needs around its axis beside a welded stud (the
     foot's radius, the stud head's and a margin: the gun's and the stud's, set by the cell). A stud
     whose foot would pass closer to a stud already welded (or uncertain), by this job or any the
-    journal has seen, is refused (skipped, the neighbour named): :mod:`.welded_studs`. 0: not checked.
+    journal has seen, is refused (skipped, the neighbour named): :mod:`.welded_neighbours`. 0: not checked.
     """
 
     standoff_m: float = 0.05

@@ -1,9 +1,9 @@
 """The weld job: approach, descend, trigger, dwell, retract — for each stud, resumable, never twice.
 
-Pure Python on top of :class:`~rm65_driver.arm_client.ArmClient`,
-:class:`~rm65_driver.journal.Journal` and :class:`~rm65_driver.safety.SafetyChecker`; the ROS
-node only converts ``WeldTarget`` messages to :class:`~rm65_driver.weld_job.StudTarget` and forwards
-feedback. The job's inputs and result (:class:`~rm65_driver.weld_job.WeldParams`, ``JobResult``) are in
+Pure Python on top of :class:`~rm65_driver.protocol.arm_client.ArmClient`,
+:class:`~rm65_driver.journal.writer.Journal` and :class:`~rm65_driver.weld.safety.SafetyChecker`; the ROS
+node only converts ``WeldTarget`` messages to :class:`~rm65_driver.weld.weld_job.StudTarget` and forwards
+feedback. The job's inputs and result (:class:`~rm65_driver.weld.weld_job.WeldParams`, ``JobResult``) are in
 :mod:`.weld_job`.
 
 Per target, in order:
@@ -14,7 +14,7 @@ Per target, in order:
 2. safety check (gun tilt from vertical, workspace, reach/IK inside the joint limits for the
    free rotation about the stud's axis nearest the current joints, straight descent
    feasible; with ``min_stud_spacing_m``, room for the gun's foot beside the job's studs
-   already welded or uncertain: :mod:`.welded_studs`): a rejection is journaled
+   already welded or uncertain: :mod:`.welded_neighbours`): a rejection is journaled
    ``skipped(reason)`` and nothing is sent;
 3. ``approach``: ``movej`` to the checked joint solution of the approach (clearance) pose,
    ``standoff_m`` out along the surface normal, tool z pointing into the surface; then, with
@@ -69,14 +69,15 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .arm_client import ArmClient, ArmCommandError, ArmConnectionError, ArmError, ArmStopped, ArmTimeout
-from .journal import Journal
-from .journal_records import JournalError
-from .kinematics import matrix_to_pose6, tool_pose_facing
-from .safety import SafetyChecker, StudPlan, TargetCheck
-from .stud_order import order_by_path
-from .welded_studs import nearest_welded
-from .weld_job import JobResult, PhaseCallback, StudTarget, WeldedCallback, WeldParams, new_job_id
+from rm65_driver.journal.records import JournalError
+from rm65_driver.journal.writer import Journal
+from rm65_driver.kinematics.rm65 import matrix_to_pose6, tool_pose_facing
+from rm65_driver.protocol.arm_client import (ArmClient, ArmCommandError, ArmConnectionError, ArmError, ArmStopped,
+                                             ArmTimeout)
+from rm65_driver.weld.safety import SafetyChecker, StudPlan, TargetCheck
+from rm65_driver.weld.stud_order import order_by_path
+from rm65_driver.weld.weld_job import JobResult, PhaseCallback, StudTarget, WeldedCallback, WeldParams, new_job_id
+from rm65_driver.weld.welded_neighbours import nearest_welded
 
 _log = logging.getLogger(__name__)
 
