@@ -1,11 +1,12 @@
 """RM-65 driver node: `ros2 run rm65_driver driver` — a thin rclpy adapter over the ROS-free core.
 
-Talks to the controller's JSON-over-TCP port (:mod:`~rm65_driver.protocol.arm_client`), runs weld jobs
-(:mod:`~rm65_driver.weld.weld_sequence`) with the journal (:mod:`~rm65_driver.journal.writer`) and the pre-motion checks
-(:mod:`~rm65_driver.weld.safety`). Everything that decides anything lives there. The adapter itself, by concern:
-the parameters (:mod:`.params`), state polling and publishing with the diagnostics
-(:mod:`.status`), the services and the e-stop (:mod:`.services`); this module
-converts messages, opens the journal, runs the WeldJob action and holds ``main``.
+Talks to the controller's JSON-over-TCP port (:mod:`~rm65_driver.protocol.arm_client`), runs weld
+jobs (:mod:`~rm65_driver.weld.weld_sequence`) with the journal (:mod:`~rm65_driver.journal.writer`)
+and the pre-motion checks (:mod:`~rm65_driver.weld.safety`). Everything that decides anything lives
+there. The adapter itself, by concern: the parameters (:mod:`.params`), the state its parts share
+(:mod:`.shared_state`), state polling and publishing with the diagnostics (:mod:`.status`), the
+services and the e-stop (:mod:`.services`) -- each an object the node owns; this module converts
+messages, runs the WeldJob action and holds ``main``.
 
 Interfaces
   publishes  /arm/state (stud_welding_msgs/ArmState, reliable depth 10), /joint_states
@@ -27,7 +28,8 @@ aborted at once with that message until an operator resolves it with /arm/resolv
 
 Parameters (:mod:`.params`) are checked at start-up, each against its range and all
 together against what the weld job accepts (:class:`~rm65_driver.weld.weld_job.WeldParams`,
-:class:`~rm65_driver.weld.safety.SafetyLimits`): a bad value ends the node with one line naming it and exit code 2.
+:class:`~rm65_driver.weld.safety.SafetyLimits`): a bad value ends the node with one line naming it
+and exit code 2.
 
 The e-stop here is a *software* stop (``set_arm_stop`` + trigger output low + a latch that refuses
 new jobs until released). It is not a safety-rated emergency stop: the cell's hardware e-stop
@@ -39,38 +41,27 @@ real RM-65 controller is 192.168.1.18, port 8080.
 """
 from __future__ import annotations
 
-import threading
 from pathlib import Path
 
 import numpy as np
-from geometry_msgs.msg import PoseStamped
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from sensor_msgs.msg import JointState
-from std_msgs.msg import Bool
-from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
-from stud_welding_msgs.msg import ArmState, WeldRecord, WeldTarget
-from stud_welding_msgs.srv import MoveTo, ResolveJournal, ResolveStud
+from stud_welding_msgs.msg import WeldTarget
 
 from stud_common import hand_eye_ros, ros_io
 
 from rm65_driver.driver.params import PARAMS, default_journal, job_config, job_config_problem
 from rm65_driver.driver.services import DriverServices
+from rm65_driver.driver.shared_state import DriverState
 from rm65_driver.driver.status import DriverStatus
-from rm65_driver.journal.records import JournalError
-from rm65_driver.journal.scan import JournalCorrupt
-from rm65_driver.journal.writer import Journal
 from rm65_driver.kinematics.rm65 import D6_BY_VARIANT, DHModel, RM65Kinematics
 from rm65_driver.protocol.arm_client import ArmClient
 from rm65_driver.weld.safety import SafetyChecker
 from rm65_driver.weld.weld_job import JobResult, StudTarget
 from rm65_driver.weld.weld_sequence import WeldSequence
 from stud_common import names
-
-WELDS_QOS = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 # -- message <-> core conversions --------------------------------------------------------------
@@ -103,118 +94,62 @@ def result_to_msg(res: JobResult, pre_skipped: list[tuple[str, str]]) -> WeldJob
     return out
 
 
-class DriverNode(DriverStatus, DriverServices, Node):
-    """The driver: parameters, journal and weld-job action here; state in :class:`DriverStatus`,
-    services in :class:`DriverServices`."""
+class DriverNode(Node):
+    """The driver: parameters and the weld-job action here; what its parts share in :attr:`state`
+    (:class:`DriverState`), state publishing in :attr:`status`, services in :attr:`arm_services` (not
+    ``services``: rclpy's :class:`Node` lists its service servers under that name)."""
 
     def __init__(self) -> None:
         super().__init__("rm65_driver")
-        self.p = ros_io.declare_params(self, PARAMS, check=job_config_problem)
-        p = self.p
+        p = ros_io.declare_params(self, PARAMS, check=job_config_problem)
         if not p["stud_length_mm"] > 0:
             self.get_logger().warn(f"stud_length_mm not set: the retract (standoff_m={p['standoff_m']:g} m) is not "
                                    "checked against the welded stud's height; set it to the stud's standing height")
-        self.hand_eye = hand_eye_ros.hand_eye_in_use(self, p)
-        self.calibration_topic = hand_eye_ros.CalibrationTopic(self, self.hand_eye)
-        self.kin = RM65Kinematics(dh=DHModel.rm65(D6_BY_VARIANT[p["arm_variant"]]))
-        self.client = ArmClient(p["arm_ip"], p["tcp_port"], p["connect_timeout_s"], p["reply_timeout_s"])
-        self.journal_path = Path(p["journal_file"] or default_journal()).expanduser()
-        self.journal: Journal | None = None
-        self._journal_fault: JournalError | None = None  # damage found when opening (the FAULT)
+        hand_eye = hand_eye_ros.hand_eye_in_use(self, p)
+        self.calibration_topic = hand_eye_ros.CalibrationTopic(self, hand_eye)
+        self.state = DriverState(p, self.get_logger(), ArmClient(p["arm_ip"], p["tcp_port"], p["connect_timeout_s"],
+                                                                 p["reply_timeout_s"]),
+                                 RM65Kinematics(dh=DHModel.rm65(D6_BY_VARIANT[p["arm_variant"]])), hand_eye,
+                                 Path(p["journal_file"] or default_journal()).expanduser())
         try:
-            self._open_journal()
+            self.state.open_journal()
         except OSError as exc:
-            self.get_logger().fatal(f"cannot open the weld journal '{self.journal_path}': {exc}")
+            self.get_logger().fatal(f"cannot open the weld journal '{self.state.journal_path}': {exc}")
             raise SystemExit(2) from None
-        self.sequence: WeldSequence | None = None
-        self._job_lock = threading.Lock()
-        self._estop = False
-        self._message = ""
-        self._last_state = None
-        self._connected_logged: bool | None = None
 
         group = ReentrantCallbackGroup()
-        self.pub_state = self.create_publisher(ArmState, names.ARM_STATE, ros_io.RESULT_QOS)
-        self.pub_joints = self.create_publisher(JointState, names.JOINT_STATES, 10)
-        # Every confirmed weld, for the QA record and the inspection: reliable, and transient local
-        # with a deep history so a subscriber that (re)starts mid-job still gets this job's welds.
-        self.pub_welds = self.create_publisher(WeldRecord, names.ARM_WELDS, WELDS_QOS)
-        self.pub_camera = (self.create_publisher(PoseStamped, names.CAMERA_POSE, ros_io.CAMERA_PUB_QOS)
-                           if p["publish_camera_pose"] else None)
-        self.diag = ros_io.Diagnostics(self, hardware_id=f"RM65 {p['arm_ip']}:{p['tcp_port']}")
-        self.create_timer(1.0, self.diag.publish, callback_group=group)
-        self.create_service(Trigger, names.ARM_STOP, self._on_stop, callback_group=group)
-        self.create_service(Trigger, names.ARM_PAUSE, self._on_pause, callback_group=group)
-        self.create_service(Trigger, names.ARM_RESUME, self._on_resume, callback_group=group)
-        self.create_service(Trigger, names.ARM_ESTOP, self._on_estop_srv, callback_group=group)
-        self.create_service(ResolveStud, names.ARM_RESOLVE_STUD, self._on_resolve, callback_group=group)
-        self.create_service(ResolveJournal, names.ARM_RESOLVE_JOURNAL, self._on_resolve_journal, callback_group=group)
-        self.create_service(MoveTo, names.ARM_MOVE_TO, self._on_move_to, callback_group=group)
-        self.create_subscription(Bool, names.ARM_ESTOP, self._on_estop_topic, 10, callback_group=group)
+        self.status = DriverStatus(self, self.state, group)
+        self.arm_services = DriverServices(self, self.state, group)
         self.action = ActionServer(self, WeldJob, names.ARM_WELD_JOB, execute_callback=self._execute,
                                    goal_callback=self._on_goal, cancel_callback=self._on_cancel,
                                    callback_group=group)
-        self._running = True
-        self._wake = threading.Event()
-        self._poller = threading.Thread(target=self._poll_loop, name="rm65-state", daemon=True)
-        self._poller.start()
+        self.status.start()
         self.get_logger().info(f"RM65 driver for {p['arm_ip']}:{p['tcp_port']} ({p['arm_variant']}), "
                                f"state at {p['state_rate_hz']:.1f} Hz, trigger DO{p['trigger_io']}"
                                f"{' (tool)' if p['trigger_on_tool'] else ''}")
 
-    # -- the weld journal ------------------------------------------------------------------------
-    def _open_journal(self) -> None:
-        """Open the journal; damage puts the driver in FAULT instead (OSError: cannot read it at all)."""
-        try:
-            self.journal = Journal(self.journal_path)
-        except JournalCorrupt as exc:
-            self.journal, self._journal_fault = None, exc
-            self.get_logger().error(f"FAULT: {exc}")
-            return
-        self._journal_fault = None
-        for w in self.journal.warnings:
-            self.get_logger().warn(f"weld journal: {w}")
-        self.get_logger().info(f"weld journal {self.journal_path}: {len(self.journal.welded_ids)} welded, "
-                               f"{len(self.journal.uncertain_ids)} uncertain stud(s)")
-
-    @property
-    def journal_fault(self) -> JournalError | None:
-        """Why the journal cannot be trusted or written now (None: it can)."""
-        if self._journal_fault is not None:
-            return self._journal_fault
-        j = self.journal
-        return j.fault if j is not None else None
-
-    def _fault_text(self, fault: JournalError) -> str:
-        return f"weld journal FAULT: {fault} (weld jobs refused until /arm/resolve_journal)"
-
     # -- configuration per job ------------------------------------------------------------------
     def _make_sequence(self) -> WeldSequence:
-        params, limits = job_config(self.p)
-        assert self.journal is not None
-        return WeldSequence(self.client, self.journal, SafetyChecker(self.kin, limits, params.tool_T), params)
-
-    @property
-    def tool_T(self) -> np.ndarray:
-        T = np.eye(4)
-        T[2, 3] = self.p["tool_offset_m"]
-        return T
+        s = self.state
+        params, limits = job_config(s.p)
+        assert s.journal is not None
+        return WeldSequence(s.client, s.journal, SafetyChecker(s.kin, limits, params.tool_T), params)
 
     # -- weld job action --------------------------------------------------------------------------
     def _on_goal(self, goal) -> GoalResponse:
-        seq = self.sequence
-        if self._estop:
+        seq = self.state.sequence
+        if self.state.estop:
             self.get_logger().warn("weld job rejected: e-stop engaged")
             return GoalResponse.REJECT
         if seq is not None and seq.running:
             self.get_logger().warn("weld job rejected: a job is already running")
             return GoalResponse.REJECT
-        if self.journal_fault is not None:  # accepted, to be aborted with the reason (a rejection carries none)
+        if self.state.journal_fault is not None:  # accepted, to be aborted with the reason (a rejection carries none)
             self.get_logger().warn("weld job refused: the weld journal is in FAULT")
         return GoalResponse.ACCEPT
 
     def _on_cancel(self, _goal_handle) -> CancelResponse:
-        seq = self.sequence
+        seq = self.state.sequence
         if seq is not None and seq.running:
             self.get_logger().info("weld job cancel requested: stopping at the next safe point")
             seq.cancel()
@@ -222,9 +157,10 @@ class DriverNode(DriverStatus, DriverServices, Node):
 
     def _execute(self, goal_handle) -> WeldJob.Result:
         goal = goal_handle.request
-        fault = self.journal_fault
+        s = self.state
+        fault = s.journal_fault
         if fault is not None:
-            out = WeldJob.Result(success=False, message=f"refused: {self._fault_text(fault)}")
+            out = WeldJob.Result(success=False, message=f"refused: {s.fault_text(fault)}")
             goal_handle.abort()
             return out
         targets, pre_skipped = [], []
@@ -234,7 +170,7 @@ class DriverNode(DriverStatus, DriverServices, Node):
                 pre_skipped.append((t.stud_id, why))
             else:
                 targets.append(st)
-        with self._job_lock:
+        with s.job_lock:
             seq = self._make_sequence()
             total = len(goal.targets)
 
@@ -243,8 +179,8 @@ class DriverNode(DriverStatus, DriverServices, Node):
                 goal_handle.publish_feedback(fb)
 
             seq.on_phase = feedback
-            seq.on_welded = lambda stud_id, q, job=seq: self._publish_weld(stud_id, q, job.job_id)
-            self.sequence = seq
+            seq.on_welded = lambda stud_id, q, job=seq: self.status.publish_weld(stud_id, q, job.job_id)
+            s.sequence = seq
             self.get_logger().info(f"weld job: {len(targets)} target(s), {len(pre_skipped)} not usable, "
                                    f"resume={goal.resume}")
             try:
@@ -253,9 +189,9 @@ class DriverNode(DriverStatus, DriverServices, Node):
                 self.get_logger().error(f"weld job crashed: {exc!r}")
                 seq.halt("internal error")
                 res = JobResult(message=f"internal error: {exc!r}")
-        self._message = res.message
-        if self.journal_fault is not None:
-            self.get_logger().error(f"FAULT: {self.journal_fault}")
+        s.message = res.message
+        if s.journal_fault is not None:
+            self.get_logger().error(f"FAULT: {s.journal_fault}")
         out = result_to_msg(res, pre_skipped)
         if goal_handle.is_cancel_requested:
             goal_handle.canceled()
@@ -275,15 +211,15 @@ class DriverNode(DriverStatus, DriverServices, Node):
 
     # -- shutdown ---------------------------------------------------------------------------------
     def shutdown(self) -> None:
-        self._running = False
-        self._wake.set()
-        seq = self.sequence
+        s = self.state
+        self.status.stop()
+        seq = s.sequence
         if seq is not None and seq.running:
             seq.halt("driver shutting down")
-        self._poller.join(timeout=2.0)
-        self.client.close()
-        if self.journal is not None:
-            self.journal.close()
+        self.status.join(timeout_s=2.0)
+        s.client.close()
+        if s.journal is not None:
+            s.journal.close()
 
 
 def main(args=None) -> int:

@@ -1,8 +1,8 @@
 """The arm driver's services: stop, pause, resume, e-stop (service and topic), move_to,
 resolve_stud and resolve_journal.
 
-:class:`DriverServices` is a part of :class:`~rm65_driver.driver.driver_node.DriverNode` (the services
-are created there). The e-stop is a *software* stop (``set_arm_stop`` + trigger output low + a
+:class:`DriverServices` is a member of :class:`~rm65_driver.driver.driver_node.DriverNode` (it creates
+the services; the state they act on is the node's :class:`~rm65_driver.driver.shared_state.DriverState`). The e-stop is a *software* stop (``set_arm_stop`` + trigger output low + a
 latch that refuses new jobs until ``false`` on ``/arm/estop``), not a safety-rated one.
 ``move_to`` checks the workspace box (m) and the IK within the joint limits before anything moves.
 """
@@ -10,13 +10,16 @@ from __future__ import annotations
 
 
 import numpy as np
+from rclpy.callback_groups import CallbackGroup
+from rclpy.node import Node
 from std_msgs.msg import Bool
+from std_srvs.srv import Trigger
 from stud_welding_msgs.srv import MoveTo, ResolveJournal, ResolveStud
 
-from stud_common import ros_io
+from stud_common import names, ros_io
 from stud_common.hand_eye_in_use import tool_in_world
 
-from rm65_driver.driver.shared_state import DriverBase
+from rm65_driver.driver.shared_state import DriverState
 from rm65_driver.journal.records import JournalError
 from rm65_driver.journal.repair import ACTION_ACCEPT_INTACT, ACTION_LOAD_BACKUP, repair_journal
 from rm65_driver.protocol.arm_client import ArmError
@@ -26,21 +29,35 @@ JOURNAL_ACTIONS = {ResolveJournal.Request.ACTION_ACCEPT_INTACT: ACTION_ACCEPT_IN
                    ResolveJournal.Request.ACTION_LOAD_BACKUP: ACTION_LOAD_BACKUP}
 
 
-class DriverServices(DriverBase):
-    """Service and e-stop handlers of :class:`~rm65_driver.driver.driver_node.DriverNode` (state lives there)."""
+class DriverServices:
+    """Service and e-stop handlers of :class:`~rm65_driver.driver.driver_node.DriverNode` (state lives in
+    :class:`~rm65_driver.driver.shared_state.DriverState`)."""
+
+    def __init__(self, node: Node, state: DriverState, group: CallbackGroup) -> None:
+        self._node = node
+        self.state = state
+        node.create_service(Trigger, names.ARM_STOP, self._on_stop, callback_group=group)
+        node.create_service(Trigger, names.ARM_PAUSE, self._on_pause, callback_group=group)
+        node.create_service(Trigger, names.ARM_RESUME, self._on_resume, callback_group=group)
+        node.create_service(Trigger, names.ARM_ESTOP, self._on_estop_srv, callback_group=group)
+        node.create_service(ResolveStud, names.ARM_RESOLVE_STUD, self._on_resolve, callback_group=group)
+        node.create_service(ResolveJournal, names.ARM_RESOLVE_JOURNAL, self._on_resolve_journal, callback_group=group)
+        node.create_service(MoveTo, names.ARM_MOVE_TO, self._on_move_to, callback_group=group)
+        node.create_subscription(Bool, names.ARM_ESTOP, self._on_estop_topic, 10, callback_group=group)
 
     # -- services ---------------------------------------------------------------------------------
     def _stop_now(self, reason: str) -> tuple[bool, str]:
-        seq = self.sequence
+        s = self.state
+        seq = s.sequence
         if seq is not None and seq.running:
             seq.halt(reason)  # stop + trigger low + the job ends
             return True, f"stop sent; weld job halting ({reason})"
         try:
-            self.client.stop(wait_reply=False)
+            s.client.stop(wait_reply=False)
         except ArmError as exc:
             return False, f"stop not sent: {exc}"
         try:
-            self.client.set_do(self.p["trigger_io"], False, tool=self.p["trigger_on_tool"])
+            s.client.set_do(s.p["trigger_io"], False, tool=s.p["trigger_on_tool"])
         except ArmError:
             pass  # the output may not be configured yet; the stop went out
         return True, "stop sent"
@@ -53,43 +70,44 @@ class DriverServices(DriverBase):
         return resp
 
     def move_to(self, pose, camera: bool) -> tuple[bool, str]:
-        if self._estop:
+        s = self.state
+        if s.estop:
             return False, "e-stop engaged"
-        seq = self.sequence
+        seq = s.sequence
         if seq is not None and seq.running:
             return False, "a weld job is running"
         R, t = ros_io.pose_to_rt(pose)
         T_goal = np.eye(4)
         T_goal[:3, :3], T_goal[:3, 3] = R, t
         if camera:
-            T_goal = tool_in_world(T_goal, self._hand_eye())  # camera pose -> weld_tool pose
-        lo, hi = np.asarray(self.p["workspace_min_m"]), np.asarray(self.p["workspace_max_m"])
+            T_goal = tool_in_world(T_goal, s.hand_eye_T())  # camera pose -> weld_tool pose
+        lo, hi = np.asarray(s.p["workspace_min_m"]), np.asarray(s.p["workspace_max_m"])
         if np.any(T_goal[:3, 3] < lo) or np.any(T_goal[:3, 3] > hi):
             return False, f"tool position {np.round(T_goal[:3, 3], 3).tolist()} m is outside the workspace box"
-        seed = self._last_state.joints_rad if self._last_state is not None else None
-        ik = self.kin.ik(T_goal, q_seed=seed, tool=self.tool_T, prefer_signs=self.p["preferred_joint_signs"])
+        seed = s.last_state.joints_rad if s.last_state is not None else None
+        ik = s.kin.ik(T_goal, q_seed=seed, tool=s.tool_T, prefer_signs=s.p["preferred_joint_signs"])
         if not ik.success:
             return False, f"unreachable: {ik.message or 'no IK solution within the joint limits'}"
-        speed = min(self.p["joint_speed_pct"], self.p["max_joint_speed_pct"])
+        speed = min(s.p["joint_speed_pct"], s.p["max_joint_speed_pct"])
         try:
-            with self._job_lock:
-                self.client.move_joints_and_wait(ik.q, speed, timeout_s=self.p["motion_timeout_s"])
+            with s.job_lock:
+                s.client.move_joints_and_wait(ik.q, speed, timeout_s=s.p["motion_timeout_s"])
         except ArmError as exc:
             return False, f"move failed: {exc}"
         what = "camera" if camera else "tool"
-        self.get_logger().info(f"moved the {what} to {np.round(t, 3).tolist()} m")
+        self._node.get_logger().info(f"moved the {what} to {np.round(t, 3).tolist()} m")
         return True, f"{what} at {np.round(t, 4).tolist()} m"
 
     def _on_stop(self, _req, resp):
         resp.success, resp.message = self._stop_now("stop requested")
-        self.get_logger().warn(f"/arm/stop: {resp.message}")
+        self._node.get_logger().warn(f"/arm/stop: {resp.message}")
         return resp
 
     def _on_pause(self, _req, resp):
         return self._pause_or_resume("pause", resp)
 
     def _on_resume(self, _req, resp):
-        if self._estop:
+        if self.state.estop:
             resp.success, resp.message = False, "e-stop engaged: publish false on /arm/estop first"
             return resp
         return self._pause_or_resume("resume", resp)
@@ -97,18 +115,18 @@ class DriverServices(DriverBase):
     def _pause_or_resume(self, verb: str, resp):
         """``verb`` ("pause"/"resume") the running weld job, or the arm itself when no job runs."""
         try:
-            seq = self.sequence
-            getattr(seq if seq is not None and seq.running else self.client, verb)()
+            seq = self.state.sequence
+            getattr(seq if seq is not None and seq.running else self.state.client, verb)()
             resp.success, resp.message = True, f"{verb}d"
         except ArmError as exc:
             resp.success, resp.message = False, f"{verb} failed: {exc}"
         return resp
 
     def _engage_estop(self, source: str) -> tuple[bool, str]:
-        self._estop = True
+        self.state.estop = True
         ok, text = self._stop_now(f"e-stop ({source})")
-        self._message = f"e-stop engaged ({source})"
-        self.get_logger().error(f"E-STOP from {source}: {text}")
+        self.state.message = f"e-stop engaged ({source})"
+        self._node.get_logger().error(f"E-STOP from {source}: {text}")
         return ok, text
 
     def _on_estop_srv(self, _req, resp):
@@ -118,25 +136,25 @@ class DriverServices(DriverBase):
     def _on_estop_topic(self, msg: Bool) -> None:
         if msg.data:
             self._engage_estop("/arm/estop topic")
-        elif self._estop:
-            self._estop = False
-            self._message = "e-stop released"
-            self.get_logger().warn("e-stop released from /arm/estop topic")
+        elif self.state.estop:
+            self.state.estop = False
+            self.state.message = "e-stop released"
+            self._node.get_logger().warn("e-stop released from /arm/estop topic")
 
     def _on_resolve(self, req, resp):
-        if self.journal is None or self.journal_fault is not None:
+        if self.state.journal is None or self.state.journal_fault is not None:
             resp.success = False
-            resp.message = f"{self._fault_text(self.journal_fault)}: resolve the journal first"
+            resp.message = f"{self.state.fault_text(self.state.journal_fault)}: resolve the journal first"
             return resp
         welded = req.decision == ResolveStud.Request.DECISION_WELDED
         if req.decision not in (ResolveStud.Request.DECISION_WELDED, ResolveStud.Request.DECISION_NOT_WELDED):
             resp.success, resp.message = False, f"unknown decision {req.decision}"
             return resp
         try:
-            self.journal.resolve(req.stud_id, welded=welded, note="operator via /arm/resolve_stud")
+            self.state.journal.resolve(req.stud_id, welded=welded, note="operator via /arm/resolve_stud")
             resp.success = True
             resp.message = f"{req.stud_id} recorded as {'welded' if welded else 'not welded'}"
-            self.get_logger().info(f"resolve_stud: {resp.message}")
+            self._node.get_logger().info(f"resolve_stud: {resp.message}")
         except JournalError as exc:
             resp.success, resp.message = False, str(exc)
         return resp
@@ -144,38 +162,39 @@ class DriverServices(DriverBase):
     def _on_resolve_journal(self, req, resp):
         resp.success, resp.message = self.resolve_journal(req.action, req.note)
         if resp.success:
-            self.get_logger().warn(f"resolve_journal: {resp.message}")
+            self._node.get_logger().warn(f"resolve_journal: {resp.message}")
         else:
-            self.get_logger().error(f"resolve_journal: {resp.message}")
+            self._node.get_logger().error(f"resolve_journal: {resp.message}")
         return resp
 
     def resolve_journal(self, action_code: int, note: str) -> tuple[bool, str]:
         """Leave the journal FAULT by an operator's ``action_code`` (ResolveJournal.ACTION_*)."""
+        s = self.state
         action = JOURNAL_ACTIONS.get(action_code)
         if action is None:
             return False, f"unknown action {action_code}: expected {sorted(JOURNAL_ACTIONS)}"
-        if self.journal_fault is None:
-            return False, f"the weld journal {self.journal_path} is not in FAULT: nothing to resolve"
-        seq = self.sequence
+        if s.journal_fault is None:
+            return False, f"the weld journal {s.journal_path} is not in FAULT: nothing to resolve"
+        seq = s.sequence
         if seq is not None and seq.running:
             return False, "a weld job is running"
-        with self._job_lock:
-            if self.journal is not None:
-                self.journal.close()  # it failed or changed while open: read it again from the disk
-                self.journal = None
+        with s.job_lock:
+            if s.journal is not None:
+                s.journal.close()  # it failed or changed while open: read it again from the disk
+                s.journal = None
             done = ""
             try:
-                done = repair_journal(self.journal_path, action, note=note or "operator via /arm/resolve_journal")
+                done = repair_journal(s.journal_path, action, note=note or "operator via /arm/resolve_journal")
             except (JournalError, OSError) as exc:
                 done = f"not repaired: {exc}"
             try:
-                self._open_journal()
+                s.open_journal()
             except OSError as exc:
-                self._journal_fault = JournalError(f"cannot open the weld journal {self.journal_path}: {exc}")
-        fault = self.journal_fault
+                s.open_fault = JournalError(f"cannot open the weld journal {s.journal_path}: {exc}")
+        fault = s.journal_fault
         if fault is not None:
             return False, f"{done}; still in FAULT: {fault}"
-        assert self.journal is not None
-        self._message = f"weld journal resolved ({action}): {done}"
-        return True, (f"{done}; journal: {len(self.journal.welded_ids)} welded, "
-                      f"{len(self.journal.uncertain_ids)} uncertain stud(s)")
+        assert s.journal is not None
+        s.message = f"weld journal resolved ({action}): {done}"
+        return True, (f"{done}; journal: {len(s.journal.welded_ids)} welded, "
+                      f"{len(s.journal.uncertain_ids)} uncertain stud(s)")

@@ -1,8 +1,9 @@
 """The arm driver's state side: polling the controller, ``/arm/state``, ``/joint_states``,
 ``/camera/pose``, ``/arm/welds`` and ``/diagnostics``.
 
-:class:`DriverStatus` is a part of :class:`~rm65_driver.driver.driver_node.DriverNode` (its publishers,
-client and journal are made there): a thread polls the arm state at ``state_rate_hz`` (Hz), with
+:class:`DriverStatus` is a member of :class:`~rm65_driver.driver.driver_node.DriverNode` (the client and
+the journal it reads are the node's :class:`~rm65_driver.driver.shared_state.DriverState`; its publishers
+are its own): a thread polls the arm state at ``state_rate_hz`` (Hz), with
 a back-off of 0.2 s doubling to 5 s while the controller is not connected, and publishes each
 reading -- joints in rad, the ``weld_tool`` pose in ``world`` (m) from the driver's own forward
 kinematics, whatever the controller's tool frame.
@@ -12,48 +13,72 @@ from __future__ import annotations
 import threading
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
-from rclpy.publisher import Publisher
+from rclpy.callback_groups import CallbackGroup
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from stud_welding_msgs.msg import ArmState, WeldRecord
 
-from stud_common import ros_io
+from stud_common import names, ros_io
 from stud_common.hand_eye_in_use import camera_in_world
 
-from rm65_driver.driver.shared_state import DriverBase
+from rm65_driver.driver.shared_state import DriverState
 from rm65_driver.journal.scan import JournalCorrupt
 from rm65_driver.protocol.arm_client import ArmError
 
 JOINT_NAMES = [f"joint{i}" for i in range(1, 7)]
+WELDS_QOS = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-class DriverStatus(DriverBase):
-    """State polling and publishing of :class:`~rm65_driver.driver.driver_node.DriverNode` (state lives there)."""
+class DriverStatus:
+    """State polling and publishing of :class:`~rm65_driver.driver.driver_node.DriverNode`: its publishers, the
+    diagnostics and the polling thread (:meth:`start`, :meth:`stop`)."""
 
-    hand_eye: Any
-    diag: ros_io.Diagnostics
-    pub_state: Publisher
-    pub_joints: Publisher
-    pub_welds: Publisher
-    pub_camera: Publisher | None
-    _running: bool
-    _wake: threading.Event
-    _connected_logged: bool | None
+    def __init__(self, node: Node, state: DriverState, group: CallbackGroup) -> None:
+        self._node = node
+        self.state = state
+        p = state.p
+        self.pub_state = node.create_publisher(ArmState, names.ARM_STATE, ros_io.RESULT_QOS)
+        self.pub_joints = node.create_publisher(JointState, names.JOINT_STATES, 10)
+        # Every confirmed weld, for the QA record and the inspection: reliable, and transient local
+        # with a deep history so a subscriber that (re)starts mid-job still gets this job's welds.
+        self.pub_welds = node.create_publisher(WeldRecord, names.ARM_WELDS, WELDS_QOS)
+        self.pub_camera = (node.create_publisher(PoseStamped, names.CAMERA_POSE, ros_io.CAMERA_PUB_QOS)
+                           if p["publish_camera_pose"] else None)
+        self.diag = ros_io.Diagnostics(node, hardware_id=f"RM65 {p['arm_ip']}:{p['tcp_port']}")
+        node.create_timer(1.0, self.diag.publish, callback_group=group)
+        self._running = True
+        self._wake = threading.Event()
+        self._connected_logged: bool | None = None
+        self._poller = threading.Thread(target=self._poll_loop, name="rm65-state", daemon=True)
+
+    def start(self) -> None:
+        """Start polling (once the node is set up: the thread reads its state)."""
+        self._poller.start()
+
+    def stop(self) -> None:
+        """Ask the polling thread to end (:meth:`join` waits for it)."""
+        self._running = False
+        self._wake.set()
+
+    def join(self, timeout_s: float) -> None:
+        self._poller.join(timeout=timeout_s)
 
     # -- state publishing -------------------------------------------------------------------------
     def _poll_loop(self) -> None:
         backoff = 0.2
+        s = self.state
         while self._running:
-            period = 1.0 / self.p["state_rate_hz"]
+            period = 1.0 / s.p["state_rate_hz"]
             t0 = time.monotonic()
-            seq = self.sequence
+            seq = s.sequence
             job_running = seq is not None and seq.running
-            if not self.client.connected and not job_running:  # a running job reconnects by itself
+            if not s.client.connected and not job_running:  # a running job reconnects by itself
                 try:
-                    self.client.connect()
+                    s.client.connect()
                     backoff = 0.2
                 except ArmError as exc:
                     self._log_connection(False, str(exc))
@@ -62,12 +87,12 @@ class DriverStatus(DriverBase):
                     backoff = min(backoff * 2, 5.0)
                     continue
             reading = None
-            if self.client.connected:
+            if s.client.connected:
                 try:
-                    reading = self.client.get_state()
+                    reading = s.client.get_state()
                 except ArmError as exc:
-                    self.get_logger().warn(f"arm state not read: {exc}", throttle_duration_sec=5.0)
-            self._log_connection(self.client.connected, self.client.last_error)
+                    self._node.get_logger().warn(f"arm state not read: {exc}", throttle_duration_sec=5.0)
+            self._log_connection(s.client.connected, s.client.last_error)
             self._publish(reading)
             self._sleep(period - (time.monotonic() - t0))
 
@@ -76,44 +101,47 @@ class DriverStatus(DriverBase):
 
     def _log_connection(self, connected: bool, why: str) -> None:
         if connected != self._connected_logged:
+            p = self.state.p
             if connected:
-                self.get_logger().info(f"connected to the controller at {self.p['arm_ip']}:{self.p['tcp_port']}")
+                self._node.get_logger().info(f"connected to the controller at {p['arm_ip']}:{p['tcp_port']}")
             else:
-                self.get_logger().warn(f"controller {self.p['arm_ip']}:{self.p['tcp_port']} not connected: {why}")
+                self._node.get_logger().warn(f"controller {p['arm_ip']}:{p['tcp_port']} not connected: {why}")
             self._connected_logged = connected
 
     def _mode(self, reading) -> int:
-        seq = self.sequence
-        if self._estop:
+        s = self.state
+        seq = s.sequence
+        if s.estop:
             return ArmState.MODE_ESTOP
-        if self.journal_fault is not None:
+        if s.journal_fault is not None:
             return ArmState.MODE_FAULT
-        if not self.client.connected:
+        if not s.client.connected:
             return ArmState.MODE_DISCONNECTED
         if reading is not None and reading.error_codes:
             return ArmState.MODE_FAULT
-        if self.client.paused:
+        if s.client.paused:
             return ArmState.MODE_PAUSED
         if seq is not None and seq.running:
             return ArmState.MODE_WELDING if seq.phase in ("weld", "dwell") else ArmState.MODE_MOVING
         return ArmState.MODE_IDLE
 
     def _publish(self, reading) -> None:
-        stamp = self.get_clock().now().to_msg()
+        s = self.state
+        stamp = self._node.get_clock().now().to_msg()
         msg = ArmState()
         msg.header.stamp = stamp
         msg.header.frame_id = "world"
         msg.mode = self._mode(reading)
-        msg.connected = self.client.connected
-        seq = self.sequence
+        msg.connected = s.client.connected
+        seq = s.sequence
         if seq is not None and seq.running:
             msg.current_stud, msg.done, msg.total = seq.current_stud, seq.done, seq.total
-        fault = self.journal_fault
-        msg.message = self._fault_text(fault) if fault is not None else self._message
+        fault = s.journal_fault
+        msg.message = s.fault_text(fault) if fault is not None else s.message
         msg.uncertain_studs = self.uncertain_studs()
         if reading is not None:
-            self._last_state = reading
-            T_tool = self.kin.fk(reading.joints_rad) @ self.tool_T  # weld_tool in world, whatever the controller's tool frame
+            s.last_state = reading
+            T_tool = s.kin.fk(reading.joints_rad) @ s.tool_T  # weld_tool in world, whatever the controller's tool frame
             msg.joints = [float(v) for v in reading.joints_rad]
             msg.tool_pose = ros_io.rt_to_pose(T_tool[:3, :3], T_tool[:3, 3])
             msg.error_codes = [int(c) & 0xFFFF for c in reading.error_codes]
@@ -124,7 +152,7 @@ class DriverStatus(DriverBase):
             js.position = [float(v) for v in reading.joints_rad]
             self.pub_joints.publish(js)
             if self.pub_camera is not None:
-                T_cam = camera_in_world(T_tool, self._hand_eye())
+                T_cam = camera_in_world(T_tool, s.hand_eye_T())
                 cam = PoseStamped()
                 cam.header.stamp = stamp
                 cam.header.frame_id = "world"
@@ -133,42 +161,39 @@ class DriverStatus(DriverBase):
         self.pub_state.publish(msg)
         self._update_diagnostics(msg)
 
-    def _publish_weld(self, stud_id: str, joints_rad: np.ndarray, job_id: str) -> None:
-        T_tool = self.kin.fk(joints_rad) @ self.tool_T
+    def publish_weld(self, stud_id: str, joints_rad: np.ndarray, job_id: str) -> None:
+        T_tool = self.state.kin.fk(joints_rad) @ self.state.tool_T
         msg = WeldRecord(stud_id=stud_id, job_id=job_id, joints=[float(v) for v in joints_rad],
                          tool_pose=ros_io.rt_to_pose(T_tool[:3, :3], T_tool[:3, 3]))
-        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.stamp = self._node.get_clock().now().to_msg()
         msg.header.frame_id = "world"
         self.pub_welds.publish(msg)
-
-    def _hand_eye(self) -> np.ndarray:
-        return self.hand_eye.T_tool_cam
 
     def uncertain_studs(self) -> list[str]:
         """The journal's uncertain studs that wait for an operator decision (/arm/resolve_stud):
         not the stud being welded now -- started and not yet confirmed is every weld's normal course."""
-        journal = self.journal
+        journal = self.state.journal
         if journal is None:
             return []
-        seq = self.sequence
+        seq = self.state.sequence
         busy = seq.current_stud if seq is not None and seq.running else ""
         return sorted(s for s in journal.uncertain_ids if s != busy)
 
     def _update_diagnostics(self, msg: ArmState) -> None:
-        d = self.diag
-        journal, fault = self.journal, self.journal_fault
+        d, s = self.diag, self.state
+        journal, fault = s.journal, s.journal_fault
         values = dict(connected=msg.connected, mode=msg.mode, job=f"{msg.done}/{msg.total}",
                       current_stud=msg.current_stud, errors="; ".join(msg.errors) or "none",
                       uncertain_studs=len(msg.uncertain_studs) if journal is not None else "unknown",
-                      journal_file=str(self.journal_path),
+                      journal_file=str(s.journal_path),
                       journal_damaged_lines=(", ".join(f"{Path(f).name}:{n}" for f, n in fault.report.lines[:20])
                                              if isinstance(fault, JournalCorrupt) else "none"))
-        if self._estop:
+        if s.estop:
             d.set(d.ERROR, "e-stop engaged (publish false on /arm/estop to release)", **values)
         elif fault is not None:
-            d.set(d.ERROR, self._fault_text(fault), **values)
+            d.set(d.ERROR, s.fault_text(fault), **values)
         elif not msg.connected:
-            d.set(d.ERROR, f"controller not connected: {self.client.last_error}", **values)
+            d.set(d.ERROR, f"controller not connected: {s.client.last_error}", **values)
         elif msg.errors:
             d.set(d.ERROR, "controller error: " + "; ".join(msg.errors), **values)
         elif msg.uncertain_studs:
