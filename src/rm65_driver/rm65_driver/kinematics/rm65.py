@@ -417,28 +417,7 @@ class RM65Kinematics:
             dq *= np.minimum(1.0, 0.4 / np.maximum(step, 1e-12))
             q[active] = np.clip(q[active] + dq, lo, hi)
         converged = (e_pos < tol_position_m) & (e_rot < tol_rotation_rad)
-        # Equivalent copies (q ± 2π) nearest the seed, where still inside the limits.
-        for k in (-1, 1):
-            alt = q + k * 2 * np.pi
-            better = (np.abs(alt - q0) < np.abs(q - q0)) & (alt >= lo) & (alt <= hi)
-            q = np.where(better, alt, q)
-        dist = np.linalg.norm(q - q0, axis=1)
-        wanted = converged & in_branch(q)
-        if wanted.any():
-            converged = wanted
-        if converged.any():
-            idx = int(np.flatnonzero(converged)[np.argmin(dist[converged])])
-            return IKResult(True, q[idx].copy(), float(e_pos[idx]), float(e_rot[idx]), it)
-        idx = int(np.argmin(e_pos + 0.1 * e_rot))
-        return IKResult(
-            False,
-            q[idx].copy(),
-            float(e_pos[idx]),
-            float(e_rot[idx]),
-            it,
-            f"no IK solution inside the joint limits (best residual {e_pos[idx] * 1e3:.2f} mm, "
-            f"{np.degrees(e_rot[idx]):.2f} deg)",
-        )
+        return _best_solution(q, q0, converged, e_pos, e_rot, it, in_branch, lo, hi)
 
     def linear_path(
         self, q_start, T_goal: np.ndarray, tool: np.ndarray | None = None, step_m: float = 0.005,
@@ -470,6 +449,34 @@ class RM65Kinematics:
             q = res.q
             path.append(q)
         return np.array(path), ""
+
+
+def _best_solution(q: np.ndarray, q0: np.ndarray, converged: np.ndarray, e_pos: np.ndarray, e_rot: np.ndarray,
+                   iterations: int, in_branch, lo: np.ndarray, hi: np.ndarray) -> IKResult:
+    """Of the IK seeds' end joints ``q`` (n, 6), the converged one in the preferred branch nearest ``q0``
+    (any converged one when none is in it), or the least wrong with a reason; rad, m."""
+    # Equivalent copies (q ± 2π) nearest the seed, where still inside the limits.
+    for k in (-1, 1):
+        alt = q + k * 2 * np.pi
+        better = (np.abs(alt - q0) < np.abs(q - q0)) & (alt >= lo) & (alt <= hi)
+        q = np.where(better, alt, q)
+    dist = np.linalg.norm(q - q0, axis=1)
+    wanted = converged & in_branch(q)
+    if wanted.any():
+        converged = wanted
+    if converged.any():
+        idx = int(np.flatnonzero(converged)[np.argmin(dist[converged])])
+        return IKResult(True, q[idx].copy(), float(e_pos[idx]), float(e_rot[idx]), iterations)
+    idx = int(np.argmin(e_pos + 0.1 * e_rot))
+    return IKResult(
+        False,
+        q[idx].copy(),
+        float(e_pos[idx]),
+        float(e_rot[idx]),
+        iterations,
+        f"no IK solution inside the joint limits (best residual {e_pos[idx] * 1e3:.2f} mm, "
+        f"{np.degrees(e_rot[idx]):.2f} deg)",
+    )
 
 
 def _branch_test(prefer_signs: Sequence[int] | None):
