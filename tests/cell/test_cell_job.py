@@ -1,4 +1,4 @@
-"""The cell's weld job (stud_planner.cell.job) over a cell made of plain Python: a camera that sees the
+"""The cell's weld job (stud_cell.job) over a cell made of plain Python: a camera that sees the
 studs inside its footprint, an arm driver with a journal (a stud it holds as welded is never welded
 again, whatever is sent), an inspector judging by a table of defects. What is checked is the job's
 logic: every stud welded once, inspected after its station, the QA record written even after a stop,
@@ -11,10 +11,10 @@ import math
 import numpy as np
 import pytest
 
-from stud_planner.cell import job as cell_job
-from stud_planner.cell.job import CellJob, DriverLost, InspectionOutcome, InspectionUnavailable, JobAborted, JobConfig
-from stud_planner.cell.rework import append_record, make_record
-from stud_planner.cell.stations import footprint_m
+from stud_cell import job as cell_job
+from stud_cell.job import CellJob, DriverLost, InspectionOutcome, InspectionUnavailable, JobAborted, JobConfig
+from stud_inspection.rework import append_record, make_record
+from stud_cell.stations import footprint_m
 
 
 class FakeCell:

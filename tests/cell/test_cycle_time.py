@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from stud_planner.cell.cycle_time import CycleEvent, format_split, motion_from_journal, split_cycle
+from stud_cell.cycle_time import CycleEvent, format_split, motion_from_journal, split_cycle
 
 
 def cell(t, state):

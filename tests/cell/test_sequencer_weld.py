@@ -18,8 +18,8 @@ from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 
 from stud_common import names, ros_io
-from stud_planner.cell import job as cell_job
-from stud_planner.cell.sequencer_node import CellSequencer
+from stud_cell import job as cell_job
+from stud_cell.sequencer_node import CellSequencer
 from stud_welding_msgs.action import WeldJob
 from stud_welding_msgs.msg import ArmState, WeldTarget
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from stud_perception.camera_model import CameraModel, nadir_rotation
-from stud_planner.cell.stations import StationPlanningError, footprint_m, plan_stations
+from stud_cell.stations import StationPlanningError, footprint_m, plan_stations
 
 #: The camera the footprint stands for: 640x480 (aspect 0.75), spanning 0.46 m at 0.5 m.
 CAMERA = CameraModel.from_fov(640, 480, 0.46, 0.5)
@@ -67,7 +67,7 @@ def test_bad_settings_are_named(kwargs, match):
 
 
 def test_a_reshoot_station_sees_the_stud_from_a_new_direction_each_attempt():
-    from stud_planner.cell.stations import reshoot_station
+    from stud_cell.stations import reshoot_station
 
     stud = np.array([0.30, -0.05])
     seen = []

@@ -18,7 +18,7 @@ from stud_welding_msgs.srv import Inspect, RecordRework
 from rosproc import REPO, ros2_run, wait_for
 from stud_common import ros_io
 from stud_common.rotations import frame_from_normal, matrix_to_quaternion
-from stud_planner.cell.qa_report import empty_row, write_qa_report
+from stud_inspection.qa_report import empty_row, write_qa_report
 from stud_perception.scene import surface_height, surface_normal
 from stud_perception.scene_file import load_scene, scene_to_dict
 

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from stud_planner.cell.qa_report import CSV_FIELDS, apply_rework, empty_row, locked, write_qa_report
+from stud_inspection.qa_report import CSV_FIELDS, apply_rework, empty_row, locked, write_qa_report
 
 
 def test_the_three_files_carry_the_same_rows(tmp_path):

@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from stud_planner.cell.rework import ReworkError, append_record, latest_decisions, make_record
+from stud_inspection.rework import ReworkError, append_record, latest_decisions, make_record
 
 
 def test_a_decision_on_a_failed_stud_is_appended_as_one_json_line_with_its_time(tmp_path):

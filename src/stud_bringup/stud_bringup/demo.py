@@ -59,7 +59,7 @@ def calibration_residual_vars(user_vars: list[str]) -> list[str]:
     typed hand-eye (cell.yaml's ``hand_eye_xyz_m`` / ``hand_eye_rpy_deg``); none when ``user_vars``
     set a hand-eye of their own."""
     from stud_common.rotations import matrix_to_rpy, transform_xyz_rpy
-    from stud_planner.cell.launch import default_config_path, load_config
+    from stud_bringup.launch import default_config_path, load_config
 
     if sets_hand_eye(user_vars):
         return []

@@ -3,7 +3,7 @@
 Reads the cell description (``config/cell.yaml``: which processes each mode runs, their parameters),
 merges the command line's overrides, writes one ROS 2 parameter file per node into the run's output
 folder (``--ros-args --params-file FILE``, types kept), and hands the processes to
-:mod:`stud_planner.cell.launcher`, which prefixes and logs their output, respawns what should be respawned
+:mod:`stud_bringup.launcher`, which prefixes and logs their output, respawns what should be respawned
 and stops everything on Ctrl-C. The node list is data: a new node is a new section in the YAML;
 one marked ``optional`` is skipped with a note while it is not installed.
 
@@ -34,7 +34,7 @@ from typing import Any, NoReturn, Sequence
 import yaml
 
 from stud_common.stacks import STACK_DUMP_SIGNAL
-from stud_planner.cell.launcher import ChildSpec, LaunchError, Launcher
+from stud_bringup.launcher import ChildSpec, LaunchError, Launcher
 
 TOP_KEYS = {"launch", "vars", "nodes", "modes"}
 LAUNCH_KEYS = {"sigint_timeout_s": float, "sigterm_timeout_s": float, "report_lines": int}
@@ -46,7 +46,8 @@ VAR_OPTIONS = {"bag": "--bag DIR", "drawing": "--drawing FILE", "out": "--out DI
 DRIVER_NODE = "arm_driver"   # --respawn-driver
 HMI_NODE = "hmi"             # --no-hmi
 #: Packages whose executables arm ``stud_common.stacks`` (a stuck one is asked for its stacks).
-OUR_PACKAGES = frozenset({"stud_planner", "stud_perception", "rm65_driver"})
+OUR_PACKAGES = frozenset({"stud_planner", "stud_perception", "rm65_driver", "stud_inspection", "stud_cell",
+                          "stud_hmi", "stud_bringup"})
 _SUBST_RE = re.compile(r"\$\{([^}]*)\}")
 _PARAM_SCALARS = (bool, int, float, str)
 
@@ -57,19 +58,19 @@ class CellConfigError(Exception):
 
 # -- the description ----------------------------------------------------------------------------
 def default_config_path() -> Path:
-    """The installed ``share/stud_planner/config/cell.yaml``; from a source tree, the file beside this package."""
+    """The installed ``share/stud_bringup/config/cell.yaml``; from a source tree, the file beside this package."""
     try:
         from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 
         try:
-            installed = Path(get_package_share_directory("stud_planner")) / "config" / "cell.yaml"
+            installed = Path(get_package_share_directory("stud_bringup")) / "config" / "cell.yaml"
             if installed.is_file():
                 return installed
         except PackageNotFoundError:
             pass
     except ImportError:
         pass
-    return Path(__file__).resolve().parents[2] / "config" / "cell.yaml"  # the source tree
+    return Path(__file__).resolve().parents[1] / "config" / "cell.yaml"  # the source tree
 
 
 def load_config(path: str | os.PathLike) -> dict:
@@ -439,7 +440,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="cell", description="Start the weld cell's nodes as one supervised group (Ctrl-C stops all).")
     p.add_argument("--mode", required=True, help="a mode of the cell description: sim, replay or hardware")
     p.add_argument("--bag", help="bag directory to play (replay mode)")
-    p.add_argument("--params", help="cell description YAML (default: stud_planner's config/cell.yaml)")
+    p.add_argument("--params", help="cell description YAML (default: stud_bringup's config/cell.yaml)")
     p.add_argument("--drawing", help="DXF drawing (sets ${drawing})")
     p.add_argument("--out", help="output folder for logs, parameter files, the weld journal "
                                  "(default: $ROS_HOME/stud_welding/cell/<mode>-<time>)")

@@ -1,7 +1,7 @@
 """Process supervisor for the weld cell: start child processes, prefix and log their output, report
 deaths, respawn, and stop everything on Ctrl-C. ROS-free (standard library only).
 
-ROS 2's ``launch`` does this on a full install; it has no PyPI wheel, so :mod:`stud_planner.cell.launch`
+ROS 2's ``launch`` does this on a full install; it has no PyPI wheel, so :mod:`stud_bringup.launch`
 builds on this module instead. Any command can be a child (a node's executable, ``ros2 bag play``,
 the arm simulator); nothing here knows about ROS.
 

@@ -2,17 +2,17 @@
 
 ``task:=calibrate``: finds the marking board from the registration station, then moves the arm
 through ``/arm/move_to`` to the views of
-:func:`~stud_planner.cell.hand_eye_views.plan_calibration_views` (a view the driver refuses is skipped
+:func:`~stud_cell.hand_eye_views.plan_calibration_views` (a view the driver refuses is skipped
 and counted): the first through the believed hand-eye (camera frame), the rest, once a few shots
 agree on one, through the estimate so far (tool frame;
-:class:`~stud_planner.cell.hand_eye_views.ViewAimer`, so a camera mounted degrees off its believed
+:class:`~stud_cell.hand_eye_views.ViewAimer`, so a camera mounted degrees off its believed
 pose still sees the board in the tilted views). At each view it waits for the arm to settle, takes
 the weld-tool pose from ``/arm/state``, shoots (``/camera/trigger``), finds O, A, B (sub-pixel, ``markers.py``) and lifts
 them with Eq. 1 into the camera frame. :func:`~stud_perception.hand_eye.calibrate_hand_eye` solves
 the camera-to-tool transform; ``<output_dir>/hand_eye.yaml`` gets the result, accepted or refused
 with the reasons (:mod:`stud_perception.hand_eye_file`).
 
-``task:=verify``: a few views (:func:`~stud_planner.cell.hand_eye_views.plan_check_views`), the residual
+``task:=verify``: a few views (:func:`~stud_cell.hand_eye_views.plan_check_views`), the residual
 of the hand-eye in use (``hand_eye_file`` or the typed value) with
 :func:`~stud_perception.hand_eye.check_hand_eye`; prints PASS or FAIL against the limits and writes
 ``<output_dir>/hand_eye_check.yaml``.
@@ -47,7 +47,7 @@ from stud_perception.markers import MarkDetectorConfig, detect_marks
 from stud_perception.registration import layout_marks_m
 from stud_common.ros_io import Param, three_numbers
 from stud_perception.view_registration import config_for_layout
-from stud_planner.cell.hand_eye_views import (CalibrationView, ViewAimer, ViewPlanError, board_centre_w,
+from stud_cell.hand_eye_views import (CalibrationView, ViewAimer, ViewPlanError, board_centre_w,
                                               plan_calibration_views, plan_check_views, station_view)
 from stud_common import names
 

@@ -13,7 +13,7 @@
    shot again from other directions, ``reshoot_attempts`` times; never welded blind.
 
 At the end -- also when the job stops early -- the job writes the weld report (``report_file``) and
-the QA record (``qa_dir``: qa_report.json/.csv/.html, stud_planner.cell.qa_report): every drawing stud with
+the QA record (``qa_dir``: qa_report.json/.csv/.html, stud_inspection.qa_report): every drawing stud with
 its verdict. A stud that fails inspection is listed for the operator and never welded again: rework
 is a person's decision.
 
@@ -33,9 +33,9 @@ import numpy as np
 from stud_common.vocabulary import VIEW_DEPENDENT, CellState
 from stud_perception.registration import local_to_world
 from stud_common.strict_json import write_json
-from stud_planner.cell import qa_report, rework
-from stud_planner.cell.inspection import InspectionLimits
-from stud_planner.cell.stations import footprint_m, plan_stations, reshoot_station
+from stud_inspection import qa_report, rework
+from stud_inspection.inspection import InspectionLimits
+from stud_cell.stations import footprint_m, plan_stations, reshoot_station
 
 #: Job states (CellStatus state_text): stud_common.vocabulary's, by name.
 IDLE, REGISTERING, MOVING, SHOOTING, MATCHING, WELDING, INSPECTING, PAUSED, DONE, FAILED = (

@@ -1,6 +1,6 @@
 """Cell sequencer: `ros2 run stud_planner cell_sequencer` runs a whole weld job.
 
-The job's steps are stud_planner.cell.job's (registration, stations, welds, post-weld inspection,
+The job's steps are stud_cell.job's (registration, stations, welds, post-weld inspection,
 leftovers, re-shoots, the reports); this node is its adapter to the cell:
 
 - camera moves: ``/arm/move_to`` (camera frame), then two ``/arm/state`` from after the move;
@@ -41,8 +41,8 @@ from stud_common.stacks import dump_stacks_on_signal
 from stud_perception.camera_model import nadir_rotation
 from stud_common.ros_io import Param, three_numbers
 from stud_common.vocabulary import CellState
-from stud_planner.cell import job as cell_job
-from stud_planner.cell.job import DriverLost, InspectionUnavailable, JobAborted, MoveRefused
+from stud_cell import job as cell_job
+from stud_cell.job import DriverLost, InspectionUnavailable, JobAborted, MoveRefused
 from stud_planner.msg_convert import (inspection_extras, inspection_rows, layout_from_msg, registration_from_msg,
                                       target_report_entry)
 from stud_common import names

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 import os
 
-from stud_planner.hmi.alarms import Code
+from stud_hmi.alarms import Code
 
 
 def same_hand_eye(a: dict, b: dict, tol_m: float = 1e-4, tol_deg: float = 0.01) -> bool:

@@ -1,7 +1,7 @@
 """Operator HMI node: `ros2 run stud_planner hmi`, then open http://127.0.0.1:8090/ on the cell PC.
 
 A thin adapter between ROS and the web page: messages become plain values for
-:mod:`stud_planner.hmi.model` (what a row says) and JSON for :mod:`stud_planner.hmi.server`
+:mod:`stud_hmi.model` (what a row says) and JSON for :mod:`stud_hmi.server`
 (HTTP + one WebSocket, ``/ws``); the page's buttons become std_srvs/Trigger calls. Everything an
 integrator needs to build another HMI on the same interfaces is in docs/HMI.md.
 
@@ -19,7 +19,7 @@ integrator needs to build another HMI on the same interfaces is in docs/HMI.md.
   publishes   /diagnostics (address, connected browsers)
 
 What the page says (alarms, the safety banner, which buttons are valid, progress and timing) is
-decided in :mod:`stud_planner.hmi.model` (CellView); this node feeds it and sends its messages.
+decided in :mod:`stud_hmi.model` (CellView); this node feeds it and sends its messages.
 
 The server binds to 127.0.0.1 unless ``bind_address`` says otherwise: the page can start and
 stop the cell, so opening it to a network is the integrator's decision, and takes an
@@ -54,9 +54,9 @@ from stud_welding_msgs.srv import RecordRework, ResolveStud
 from stud_common import hand_eye_ros, ros_io
 from stud_perception import image_io
 from stud_common.ros_io import Param
-from stud_planner.hmi.model import STUD_DECISIONS, ArmInfo, ArmMode, CellInfo, CellView, TargetInfo, Timeouts
-from stud_planner.cell.inspector_node import REWORK_QOS
-from stud_planner.hmi.server import INSPECTION_OVERLAY_URL, HmiServer, WebSocketConnection, default_static_dir
+from stud_hmi.model import STUD_DECISIONS, ArmInfo, ArmMode, CellInfo, CellView, TargetInfo, Timeouts
+from stud_inspection.inspector_node import REWORK_QOS
+from stud_hmi.server import INSPECTION_OVERLAY_URL, HmiServer, WebSocketConnection, default_static_dir
 from stud_common import names
 
 PARAMS = [
@@ -71,7 +71,7 @@ PARAMS = [
           "buttons move the arm)", read_only=True),
     Param("part_name", "", "the part shown on the page beside the drawing (empty: the drawing file's name without "
           "its extension)"),
-    Param("static_dir", "", "folder holding index.html (a custom page); empty: the page shipped with stud_planner",
+    Param("static_dir", "", "folder holding index.html (a custom page); empty: the page shipped with stud_hmi",
           read_only=True),
     Param("inspection_overlay_dir", "", "serve inspection overlays (the PNG an /inspection/result names) only from "
           "this folder, the inspector's overlay_dir (empty: any PNG file)", read_only=True),
@@ -202,8 +202,8 @@ class HmiNode(Node):
         static_dir = self.p["static_dir"] or default_static_dir()
         origins = [o.strip() for o in self.p["allowed_origins"].split(",") if o.strip()]
         self._log_handler = _RosLogHandler(self.get_logger())
-        logging.getLogger("stud_planner.hmi.server").addHandler(self._log_handler)
-        logging.getLogger("stud_planner.hmi.server").setLevel(logging.INFO)
+        logging.getLogger("stud_hmi.server").addHandler(self._log_handler)
+        logging.getLogger("stud_hmi.server").setLevel(logging.INFO)
         try:
             self.server = HmiServer(static_dir, self.p["bind_address"], self.p["port"], on_command=self._on_command,
                                     allowed_origins=origins, hello={"version": 1, "commands": list(COMMANDS)},
@@ -501,7 +501,7 @@ class HmiNode(Node):
         # After Ctrl-C the ROS context is already shut down: the server's last lines cannot go to rosout.
         handler = getattr(self, "_log_handler", None)
         if handler is not None:
-            logging.getLogger("stud_planner.hmi.server").removeHandler(handler)
+            logging.getLogger("stud_hmi.server").removeHandler(handler)
         server = getattr(self, "server", None)
         if server is not None:
             server.stop()

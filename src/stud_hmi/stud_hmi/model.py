@@ -4,9 +4,9 @@ safety banner, which buttons are valid now, and the decisions waiting for the op
 The node (hmi_node) converts messages to the plain values taken here; this module decides
 what the page says, and builds the JSON-ready dicts it renders (see docs/HMI.md).
 
-By concern: :mod:`~stud_planner.hmi.stud_table` (the per-stud table: targets, weld states,
-inspection, rework), :mod:`~stud_planner.hmi.alarms` (codes, severities, the alarm list),
-:mod:`~stud_planner.hmi.job_clock` (the job's states and its clock), :mod:`~stud_planner.hmi.hand_eye`
+By concern: :mod:`~stud_hmi.stud_table` (the per-stud table: targets, weld states,
+inspection, rework), :mod:`~stud_hmi.alarms` (codes, severities, the alarm list),
+:mod:`~stud_hmi.job_clock` (the job's states and its clock), :mod:`~stud_hmi.calibration_display`
 (the calibration display); here :class:`CellView` puts them together with the arm, the cell, the
 buttons and the decisions. The names of those modules are importable from here too.
 
@@ -24,10 +24,10 @@ from dataclasses import dataclass
 from typing import Any, Iterable
 
 from stud_common.vocabulary import ArmMode, CellState, TargetStatus
-from stud_planner.hmi.alarms import ALARMS, DIAG_CODE, STATE_SOURCES, Alarm, AlarmDef, AlarmList, Code, Severity
-from stud_planner.hmi.hand_eye import HandEyeDisplay, hand_eye_text, same_hand_eye
-from stud_planner.hmi.job_clock import ENDED_STATES, OPERATOR_STOP_TEXT, RUNNING_STATES, JobClock
-from stud_planner.hmi.stud_table import (FINAL_WELD_STATES, STATUS_NOT_SEEN, STATUS_OUT_OF_VIEW, WELD_ACTIVE,
+from stud_hmi.alarms import ALARMS, DIAG_CODE, STATE_SOURCES, Alarm, AlarmDef, AlarmList, Code, Severity
+from stud_hmi.calibration_display import HandEyeDisplay, hand_eye_text, same_hand_eye
+from stud_hmi.job_clock import ENDED_STATES, OPERATOR_STOP_TEXT, RUNNING_STATES, JobClock
+from stud_hmi.stud_table import (FINAL_WELD_STATES, STATUS_NOT_SEEN, STATUS_OUT_OF_VIEW, WELD_ACTIVE,
                                          WELD_FAILED, WELD_NONE, WELD_SKIPPED, WELD_WELDED, StudTable, TargetInfo)
 
 __all__ = [
@@ -356,7 +356,7 @@ class CellView:
                 return "no stud_id given"
             if not isinstance(msg.get("note", ""), str):
                 return "note must be a string"
-            return None  # the inspector checks the decision and the verdict (one place: stud_planner.cell.rework)
+            return None  # the inspector checks the decision and the verdict (one place: stud_inspection.rework)
         return f"unknown command {cmd!r}; expected one of {list(COMMANDS)}"
 
     def progress(self, now: float) -> dict:

@@ -62,7 +62,7 @@ from websockets.http11 import Request, Response
 from websockets.protocol import State
 
 from stud_common.strict_json import dumps, json_safe
-from stud_planner.hmi.guards import MAX_MESSAGE_BURST, MAX_MESSAGES_PER_S, MessageRate, inside_folder, read_png
+from stud_hmi.guards import MAX_MESSAGE_BURST, MAX_MESSAGES_PER_S, MessageRate, inside_folder, read_png
 
 __all__ = ["HmiServer", "WebSocketConnection", "WebSocketError", "json_safe", "to_json", "json_depth"]
 _log = logging.getLogger(__name__)

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from typing import Iterable
 
 from stud_common.vocabulary import TargetStatus
-from stud_planner.cell.rework import NEEDS_DECISION
+from stud_inspection.rework import NEEDS_DECISION
 
 #: Weld states of a stud, as sent in the rows' ``weld`` field.
 WELD_NONE, WELD_ACTIVE, WELD_WELDED, WELD_SKIPPED, WELD_FAILED = "", "active", "welded", "skipped", "failed"

@@ -3,12 +3,12 @@
 Keeps the last ``view_cache`` RGB-D views of the camera topics (depth, camera info, pose, colour; one
 stamp each, as the matcher takes them). ``/inspection/inspect`` (stud_welding_msgs/srv/Inspect) names
 the view the targets were matched on (before the welds) and asks for a later shot of the same
-station; the node measures and judges every welded stud (stud_planner.cell.inspection), publishes the
+station; the node measures and judges every welded stud (stud_inspection.inspection), publishes the
 result on ``/inspection/result`` (reliable, transient local: the last station's stays for a late
 HMI) and, with ``overlay_dir``, writes the shot with every stud coloured by its verdict.
 
 ``/inspection/record_rework`` (stud_welding_msgs/srv/RecordRework) records an operator's decision
-on a stud that did not pass (``rework`` or ``accept``, stud_planner.cell.rework): one JSON line with its
+on a stud that did not pass (``rework`` or ``accept``, stud_inspection.rework): one JSON line with its
 time in ``rework_file``, and a ReworkDecision on ``/inspection/rework`` (reliable, transient local,
 deep history: a late HMI gets every decision). A decision never makes the cell weld a stud again.
 """
@@ -34,8 +34,8 @@ from stud_welding_msgs.srv import Inspect, RecordRework
 from stud_common import ros_io
 from stud_perception import image_io
 from stud_common.ros_io import Param
-from stud_planner.cell import qa_report, rework
-from stud_planner.cell.inspection import InspectionLimits, Verdict, draw_inspection_overlay, inspect_studs
+from stud_inspection import qa_report, rework
+from stud_inspection.inspection import InspectionLimits, Verdict, draw_inspection_overlay, inspect_studs
 from stud_common import names
 
 _LIMITS = InspectionLimits()

@@ -21,7 +21,7 @@ from dataclasses import asdict, dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
-from stud_planner.cell.inspection import Verdict
+from stud_inspection.inspection import Verdict
 
 FILE_NAME = "rework_decisions.jsonl"
 MAX_NOTE_CHARS = 2000
