@@ -36,6 +36,7 @@ from stud_common.strict_json import write_json
 from stud_inspection import qa_report, rework
 from stud_inspection.inspection import InspectionLimits
 from stud_cell.stations import footprint_m, plan_stations, reshoot_station
+from stud_planner.matching.target_table import TargetTable
 
 #: Job states (CellStatus state_text): stud_common.vocabulary's, by name.
 IDLE, REGISTERING, MOVING, SHOOTING, MATCHING, WELDING, INSPECTING, PAUSED, DONE, FAILED = (
@@ -68,8 +69,21 @@ class Target:
     ok: bool                  # usable: weld it
     status_text: str          # "ok", "normal_uncertain", "no_depth", ...
     lean_bound_deg: float     # how far the welded stud could lean from the normal, from its uncertainty
-    entry: dict               # its weld-report fields (msg_convert.target_report_entry)
+    entry: dict               # its weld-report fields (TargetTable.report_entries)
     payload: object = None    # what the arm driver welds (a WeldTarget message in the node)
+    centre_offset: float = math.nan  # the match's distance from the image centre (target_table.centre_offset)
+
+
+def table_targets(table: TargetTable, payloads=None) -> tuple[Target, ...]:
+    """The job's targets of one view's :class:`TargetTable`; ``payloads`` (one per target): what the
+    arm driver welds of each (None: nothing)."""
+    entries = table.report_entries(drawing=False)
+    payloads = [None] * len(table.ids) if payloads is None else payloads
+    return tuple(Target(stud_id=sid, ok=ok, status_text=entry["status"], lean_bound_deg=lean, entry=entry,
+                        payload=payload, centre_offset=offset)
+                 for sid, ok, lean, offset, entry, payload in zip(table.ids, table.ok.tolist(),
+                                                                  table.lean_bound_deg.tolist(),
+                                                                  table.centre_offset.tolist(), entries, payloads))
 
 
 @dataclass(frozen=True)

@@ -44,7 +44,7 @@ from stud_common.vocabulary import CellState
 from stud_cell import job as cell_job
 from stud_cell.job import DriverLost, InspectionUnavailable, JobAborted, MoveRefused
 from stud_planner.msg_convert import (inspection_extras, inspection_rows, layout_from_msg, registration_from_msg,
-                                      target_report_entry)
+                                      weld_target_table)
 from stud_common import names
 
 
@@ -320,10 +320,7 @@ class CellSequencer(Node):
                 if self._stop.is_set():
                     raise
                 continue
-            targets = tuple(cell_job.Target(stud_id=t.stud_id, ok=t.status == t.STATUS_OK, status_text=t.status_text,
-                                            lean_bound_deg=float(t.lean_bound),
-                                            entry=target_report_entry(t, msg.view_index), payload=t)
-                            for t in msg.targets)
+            targets = cell_job.table_targets(weld_target_table(msg), payloads=msg.targets)
             return cell_job.View(index=int(msg.view_index), stamp_ns=ros_io.stamp_to_ns(msg.header.stamp),
                                  camera_xyz_w=tuple(float(v) for v in camera_xyz_w), yaw_rad=float(yaw_rad),
                                  targets=targets)

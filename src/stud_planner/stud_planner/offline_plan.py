@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import math
 import struct
 import sys
 import time
@@ -33,8 +32,8 @@ from stud_perception.markers import MarkDetectorConfig
 from stud_perception.view_registration import config_for_layout, register_view
 from stud_planner.drawing import DrawingError, read_layout
 from stud_planner.matching.gun_clearance import GunModel
-from stud_planner.matching.view_targets import (ALGORITHMS, STATUS_OK, STATUS_OUT_OF_VIEW, STATUS_TEXT, PlannerConfig,
-                                                draw_targets_overlay, plan_view)
+from stud_planner.matching.target_table import TargetTable
+from stud_planner.matching.view_targets import ALGORITHMS, PlannerConfig, draw_targets_overlay, plan_view
 from stud_common import names
 
 DEFAULT_TOPICS = {"color": names.COLOR_IMAGE, "depth": names.DEPTH_IMAGE,
@@ -288,15 +287,15 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
 
     ids = [s.id for s in layout.studs]
     xy = layout.studs_xy_m()
-    chosen = _BestTargets(len(ids))
+    chosen = TargetTable.unseen(ids, xy)
     totals = {"iterations": 0, "views": 0}
     match_time = 0.0
 
     def match_view(v: View, camera, color, depth) -> None:
-        nonlocal match_time
+        nonlocal match_time, chosen
         assert registration is not None  # matching starts once a view is registered
         _progress(totals["views"], len(views), quiet, "matching")
-        t = plan_view(ids, xy, registration.M_local2world, depth, camera, config)
+        t = plan_view(ids, xy, registration.M_local2world, depth, camera, config, view_index=v.index)
         totals["iterations"] += t.matches.total_iterations
         match_time += t.match_time_s
         totals["views"] += 1
@@ -305,7 +304,7 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
 
             overlay_dir.mkdir(parents=True, exist_ok=True)
             cv2.imwrite(str(overlay_dir / f"view_{v.index:03d}.png"), draw_targets_overlay(color, t, camera))
-        chosen.add_view(t, v.index, camera)
+        chosen = chosen.merge(t)
 
     # One pass over the bag: register on the first view (in logged order) where the marks are found,
     # then match it and every later view; the views before it take a second pass.
@@ -330,7 +329,7 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
                         "two reads of the bag (was it written to meanwhile?)")
     iterations_total = totals["iterations"]
     _progress(len(views), len(views), quiet, "matching")
-    targets = chosen.entries(ids, xy)
+    targets = chosen.report_entries()
     return {
         "drawing": str(drawing), "bag": str(bag), "algorithm": config.algorithm,
         "registration": {"M_local2world": registration.M_local2world.tolist(),
@@ -338,100 +337,6 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
         "views": len(views), "total_iterations": int(iterations_total), "match_time_s": match_time,
         "targets": targets, "warnings": warnings,
     }
-
-
-class _BestTargets:
-    """Per stud, the view whose target the report keeps, updated one view at a time (arrays over
-    all studs: a bridge has 250,000 of them, and a bag many views).
-
-    A usable (``ok``) target wins over any other; among usable ones the match most central in
-    its image (distance from the principal point over the half diagonal), ties to the earlier
-    view. A stud with no usable target anywhere keeps its first view (lowest index) that saw it
-    with another status; a stud out of every view is ``out_of_view``."""
-
-    NONE, OK, FALLBACK = 2, 0, 1
-
-    def __init__(self, n: int):
-        self.rank = np.full(n, self.NONE, np.int8)
-        self.centrality = np.full(n, np.inf)
-        self.view = np.full(n, np.iinfo(np.int64).max, np.int64)
-        self.status = np.zeros(n, np.uint8)
-        self.position = np.full((n, 3), np.nan)
-        self.normal = np.full((n, 3), np.nan)
-        self.pixel = np.full((n, 2), np.nan)
-        self.iterations = np.zeros(n, np.int64)
-        self.xy_error_mm = np.full(n, np.nan)
-        self.inclination = np.full(n, np.nan)
-        self.normal_sigma = np.full(n, np.nan)
-        self.lean_bound = np.full(n, np.nan)
-        self.fill_ratio = np.full(n, np.nan)
-        self.gun_clearance_mm = np.full(n, np.nan)
-        self.reason: dict[int, str] = {}  # why a stud kept as a fallback is not usable
-
-    def add_view(self, t, view_index: int, camera) -> None:
-        ok = t.status == STATUS_OK
-        centre = np.array([camera.cx, camera.cy])
-        half_diag = np.hypot(camera.width, camera.height) / 2
-        centrality = np.linalg.norm(t.matches.pixel_uv - centre, axis=1) / half_diag
-        take_ok = ok & ((self.rank != self.OK) | (centrality < self.centrality)
-                        | ((centrality == self.centrality) & (view_index < self.view)))
-        take_other = (~ok & (t.status != STATUS_OUT_OF_VIEW) & (self.rank != self.OK)
-                      & (view_index < self.view))
-        take = take_ok | take_other
-        self.rank[take_ok], self.rank[take_other] = self.OK, self.FALLBACK
-        self.centrality[take_ok] = centrality[take_ok]
-        self.view[take] = view_index
-        self.status[take] = t.status[take]
-        self.position[take] = t.position_w[take]
-        self.normal[take] = t.normal_w[take]
-        self.pixel[take] = t.matches.pixel_uv[take]
-        self.iterations[take] = t.matches.iterations[take]
-        self.xy_error_mm[take] = t.matches.xy_residual_m[take] * 1e3
-        self.inclination[take] = t.inclination_deg[take]
-        self.normal_sigma[take] = t.normal_sigma_deg[take]
-        self.lean_bound[take] = t.lean_bound_deg[take]
-        self.fill_ratio[take] = t.poses.fill_ratio[take]
-        self.gun_clearance_mm[take] = t.gun_clearance_m[take] * 1e3
-        for i in np.flatnonzero(take_ok).tolist():
-            self.reason.pop(i, None)
-        for i in np.flatnonzero(take_other).tolist():  # the few studs not usable here: a text each
-            self.reason[i] = t.reason(i)
-
-    def entries(self, ids: list[str], xy_m: np.ndarray) -> list[dict]:
-        """The report's ``targets``, one per stud in drawing order (INTERFACES.md)."""
-        xy_mm = (np.asarray(xy_m, dtype=np.float64).reshape(-1, 2) * 1e3).tolist()
-        out = [{"stud_id": sid, "drawing_xy_mm": xy, "status": STATUS_TEXT[STATUS_OUT_OF_VIEW]}
-               for sid, xy in zip(ids, xy_mm)]
-        seen = np.flatnonzero(self.rank != self.NONE)
-        names = [STATUS_TEXT[s] for s in self.status[seen].tolist()]
-        pos, nrm, pix = (_nullable(a[seen]) for a in (self.position, self.normal, self.pixel))
-        err, inc = _nullable(self.xy_error_mm[seen]), _nullable(self.inclination[seen])
-        views, its = self.view[seen].tolist(), self.iterations[seen].tolist()
-        sig, lean, fill, clear = (_nullable(a[seen]) for a in (self.normal_sigma, self.lean_bound, self.fill_ratio,
-                                                                self.gun_clearance_mm))
-        for k, i in enumerate(seen.tolist()):
-            # the schema's keys, then ours: the normal's 1-sigma, the lean it could give, the
-            # window's fill, the gun's clearance, and why a stud is not usable
-            out[i].update(status=names[k], position_m=pos[k], normal=nrm[k], pixel=pix[k], view=views[k],
-                          iterations=its[k], xy_error_mm=err[k], inclination_deg=inc[k], normal_sigma_deg=sig[k],
-                          lean_bound_deg=lean[k], fill_ratio=fill[k], gun_clearance_mm=clear[k])
-            if self.reason.get(i):
-                out[i]["reason"] = self.reason[i]
-        return out
-
-
-def _nullable(values: np.ndarray) -> list:
-    """``values.tolist()`` with None where a value is not finite (JSON's null: no value)."""
-    values = np.asarray(values, dtype=np.float64)
-    out = values.tolist()
-    bad = ~np.isfinite(values)
-    if values.ndim == 1:
-        for i in np.flatnonzero(bad).tolist():
-            out[i] = None
-    else:
-        for i in np.flatnonzero(bad.any(axis=1)).tolist():
-            out[i] = [v if math.isfinite(v) else None for v in out[i]]
-    return out
 
 
 def write_csv(report: dict, path: Path) -> None:
