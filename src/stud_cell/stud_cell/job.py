@@ -30,13 +30,13 @@ from typing import Protocol
 
 import numpy as np
 
-from stud_common.vocabulary import VIEW_DEPENDENT, CellState
+from stud_common.vocabulary import VIEW_DEPENDENT, CellState, TargetStatus
 from stud_perception.registration import local_to_world
 from stud_common.strict_json import write_json
 from stud_inspection import qa_report, rework
 from stud_inspection.inspection import InspectionLimits
 from stud_cell.stations import footprint_m, plan_stations, reshoot_station
-from stud_planner.matching.target_table import TargetTable
+from stud_planner.matching.target_table import BestViewKey, TargetTable, choose_best
 
 #: Job states (CellStatus state_text): stud_common.vocabulary's, by name.
 IDLE, REGISTERING, MOVING, SHOOTING, MATCHING, WELDING, INSPECTING, PAUSED, DONE, FAILED = (
@@ -190,7 +190,7 @@ class CellJob:
         self.ports, self.c = ports, config
         self.stud_report: dict[str, dict] = {}     # stud id -> weld-report entry
         self.qa: dict[str, dict] = {}              # stud id -> QA row (qa_report)
-        self.best: dict[str, tuple[float, Target, View]] = {}   # surest usable target per stud, over all views
+        self.best: dict[str, tuple[BestViewKey, Target, View]] = {}  # best usable target per stud, over all views
         self.views: dict[int, View] = {}
         self.stations_total = 0
         self.unreachable: list[str] = []
@@ -284,14 +284,15 @@ class CellJob:
         return view
 
     def _remember_best(self, view: View) -> None:
-        """Keep, per stud, the usable target with the surest normal (smallest lean bound) over all
-        views (targets are in `world`: one matched from any station can be welded from anywhere)."""
+        """Keep, per stud, its best usable target over all views by the rule ``plan`` keeps its views by
+        (target_table.choose_best: the smallest lean bound; targets are in `world`: one matched from any
+        station can be welded from anywhere)."""
         for t in view.targets:
             if not t.ok or t.stud_id not in self.stud_report:
                 continue
-            score = t.lean_bound_deg if math.isfinite(t.lean_bound_deg) else math.inf
-            if t.stud_id not in self.best or score < self.best[t.stud_id][0]:
-                self.best[t.stud_id] = (score, t, view)
+            key = BestViewKey(TargetStatus.OK, t.lean_bound_deg, t.centre_offset, view.index)
+            if t.stud_id not in self.best or choose_best(self.best[t.stud_id][0], key):
+                self.best[t.stud_id] = (key, t, view)
 
     def _take_entry(self, t: Target, view: View) -> None:
         report = self.stud_report[t.stud_id]

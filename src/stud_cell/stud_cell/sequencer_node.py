@@ -31,6 +31,7 @@ from rclpy.action import ActionClient
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo
 from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
 from stud_welding_msgs.msg import ArmState, CellStatus, Registration, StudLayout, WeldTargetArray
@@ -122,6 +123,11 @@ class CellSequencer(Node):
         self.create_subscription(WeldTargetArray, names.WELD_TARGETS, self._on_targets, ros_io.RESULT_QOS,
                                  callback_group=cb)
         self.create_subscription(ArmState, names.ARM_STATE, self._on_arm_state, ros_io.RESULT_QOS, callback_group=cb)
+        # The camera's principal point and size: how central each target's match is, the tie-break of the
+        # best-view rule (target_table.choose_best). K: the raw images' camera, as the matcher models them.
+        self._image: tuple[float, float, int, int] | None = None
+        self.create_subscription(CameraInfo, names.CAMERA_INFO, self._on_camera_info, ros_io.SENSOR_QOS,
+                                 callback_group=cb)
         self.cli_move = self.create_client(MoveTo, names.ARM_MOVE_TO, callback_group=cb)
         self.cli_shot = self.create_client(Trigger, names.CAMERA_TRIGGER, callback_group=cb)
         self.cli_register = self.create_client(Trigger, names.REGISTRATION_TRIGGER, callback_group=cb)
@@ -154,6 +160,10 @@ class CellSequencer(Node):
             self.targets.append(msg)
             del self.targets[:-5]
             self._cond.notify_all()
+
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        if msg.width > 0 and msg.height > 0:
+            self._image = (float(msg.k[2]), float(msg.k[5]), int(msg.width), int(msg.height))
 
     def _on_arm_state(self, msg: ArmState) -> None:
         with self._cond:
@@ -320,7 +330,7 @@ class CellSequencer(Node):
                 if self._stop.is_set():
                     raise
                 continue
-            targets = cell_job.table_targets(weld_target_table(msg), payloads=msg.targets)
+            targets = cell_job.table_targets(weld_target_table(msg, self._image), payloads=msg.targets)
             return cell_job.View(index=int(msg.view_index), stamp_ns=ros_io.stamp_to_ns(msg.header.stamp),
                                  camera_xyz_w=tuple(float(v) for v in camera_xyz_w), yaw_rad=float(yaw_rad),
                                  targets=targets)

@@ -2,10 +2,10 @@
 
 Reads a rosbag2 MCAP sensor bag (colour, depth, camera info and /camera/pose, topic names
 overridable), groups the messages into views by stamp, registers the drawing on the first
-view where the marks are found, matches every stud on every view, keeps for each stud the
-view where its match lies most central in the image, and writes the JSON report of
-../shared/INTERFACES.md (one entry per drawing stud, in drawing order), optionally overlay
-PNGs and a CSV. Errors are one line on stderr and exit code 2.
+view where the marks are found, matches every stud on every view, keeps for each stud its best
+view (matching/target_table.choose_best, the cell's rule too: the usable target with the smallest
+lean bound), and writes the JSON report of docs/INTERFACES.md (one entry per drawing stud, in
+drawing order), optionally overlay PNGs and a CSV. Errors are one line on stderr and exit code 2.
 
 Memory stays flat with the bag's length: a first pass keeps only stamps of the images (read from
 their CDR headers) and the small camera-info and pose messages; a second pass deserialises each

@@ -170,11 +170,12 @@ def choose_best(held: BestViewKey, offered: BestViewKey) -> np.ndarray:
     target replaces nothing."""
     ok, fallback = int(TargetStatus.OK), 1
     rank_h, rank_o = _rank(held.status), _rank(offered.status)
+    lean_h, lean_o = _worst_if_nan(held.lean_bound_deg), _worst_if_nan(offered.lean_bound_deg)
     centre_h, centre_o = _worst_if_nan(held.centre_offset), _worst_if_nan(offered.centre_offset)
     view_h, view_o = np.asarray(held.view_index), np.asarray(offered.view_index)
     same = rank_o == rank_h
     earlier = view_o < view_h
-    better_ok = (centre_o < centre_h) | ((centre_o == centre_h) & earlier)  # TEMPORARY: the old plan rule
+    better_ok = (lean_o < lean_h) | ((lean_o == lean_h) & ((centre_o < centre_h) | ((centre_o == centre_h) & earlier)))
     return (rank_o < rank_h) | (same & (rank_o == ok) & better_ok) | (same & (rank_o == fallback) & earlier)
 
 
