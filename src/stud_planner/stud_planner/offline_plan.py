@@ -234,20 +234,14 @@ def views_with_images(bag_path: Path, topics: dict[str, str], views: list[View])
         raise PlanError(str(exc)) from None
 
 
-def _decode(view: View, bag: Path, images_rectified: bool):
-    """The view's pinhole camera and images (raw images with lens distortion rectified onto it)."""
+def _decode(view: View, bag: Path, images_rectified: bool, topics: dict[str, str]):
+    """The view's pinhole camera and images (raw images with lens distortion rectified onto it),
+    checked by :func:`image_io.decode_view`."""
     try:
-        camera = image_io.camera_model_from_msgs(view.info, view.pose.pose, images_rectified)
-        rectifier = image_io.camera_rectifier(view.info, images_rectified)
-        color = image_io.color_to_bgr(view.color, rectifier)
-        depth = image_io.depth_to_metres(view.depth, rectifier)
-    except (ros_io.MessageError, ValueError) as exc:
+        decoded = image_io.decode_view(view.info, view.pose.pose, view.depth, view.color, images_rectified, topics)
+    except ros_io.MessageError as exc:
         raise PlanError(f"{bag}: view {view.index} (depth stamp {view.stamp_ns} ns): {exc}") from None
-    if depth.shape != (camera.height, camera.width) or color.shape[:2] != depth.shape:
-        raise PlanError(f"{bag}: view {view.index}: colour {color.shape[1]}x{color.shape[0]}, depth {depth.shape[1]}x"
-                        f"{depth.shape[0]} and camera_info {camera.width}x{camera.height} differ (depth must be "
-                        "registered to colour)")
-    return camera, color, depth
+    return decoded.camera, decoded.color_bgr, decoded.depth_m
 
 
 def _progress(i: int, n: int, quiet: bool, what: str) -> None:
@@ -310,7 +304,7 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
     # then match it and every later view; the views before it take a second pass.
     registration, reg_view, reasons, before = None, None, [], []
     for v in views_with_images(bag, topics, views):
-        camera, color, depth = _decode(v, bag, images_rectified)
+        camera, color, depth = _decode(v, bag, images_rectified, topics)
         if registration is None:
             result = register_view(color, depth, camera, marks, det_config)
             if not result.ok:
@@ -323,7 +317,7 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
         raise PlanError(f"the marks O, A, B of {drawing} were found on none of the {len(views)} views of {bag} "
                         f"(drawing and bag do not match?): " + "; ".join(reasons[:3]))
     for v in views_with_images(bag, topics, before):
-        match_view(v, *_decode(v, bag, images_rectified))
+        match_view(v, *_decode(v, bag, images_rectified, topics))
     if totals["views"] != len(views):
         raise PlanError(f"{bag}: {len(views) - totals['views']} of {len(views)} views lost their images between "
                         "two reads of the bag (was it written to meanwhile?)")

@@ -140,7 +140,7 @@ class MatcherNode(Node):
         self._arrivals: dict[str, deque] = {k: deque(maxlen=20) for k in ("color", "depth", "info", "pose")}
         self._color_sub: Subscription | None = None  # only while the overlay has a subscriber
         self._colors: OrderedDict[int, Image] = OrderedDict()  # stamp ns -> colour image, newest last
-        self._overlays_due: OrderedDict[int, tuple] = OrderedDict()  # stamp ns -> (targets, camera, rectifier)
+        self._overlays_due: OrderedDict[int, tuple] = OrderedDict()  # stamp ns -> (targets, decoded view)
         self.pub_targets = self.create_publisher(WeldTargetArray, names.WELD_TARGETS, ros_io.RESULT_QOS)
         self.pub_poses = self.create_publisher(PoseArray, names.WELD_TARGET_POSES, ros_io.RESULT_QOS)
         self.pub_markers = self.create_publisher(MarkerArray, names.WELD_TARGET_MARKERS, ros_io.RESULT_QOS)
@@ -212,8 +212,7 @@ class MatcherNode(Node):
         stamp = ros_io.stamp_to_ns(msg.header.stamp)
         due = self._pop_near(self._overlays_due, stamp)
         if due is not None:
-            targets, camera, rectifier = due
-            self._publish_overlay(targets, camera, rectifier, msg)
+            self._publish_overlay(*due, msg)
             return
         _put_bounded(self._colors, stamp, msg)
 
@@ -260,25 +259,22 @@ class MatcherNode(Node):
             return
         self._pending = None
         try:
-            camera = image_io.camera_model_from_msgs(view["info"], view["pose"].pose, self.p["images_rectified"])
-            rectifier = image_io.camera_rectifier(view["info"], self.p["images_rectified"])
-            if rectifier is not None:
-                self.get_logger().info(image_io.rectification_note(view["info"]), once=True)
-            depth = image_io.depth_to_metres(view["depth"], rectifier)
-            if depth.shape != (camera.height, camera.width):
-                raise ros_io.MessageError(f"depth {depth.shape[1]}x{depth.shape[0]} does not match camera_info "
-                                          f"{camera.width}x{camera.height} (is depth registered to colour?)")
+            decoded = image_io.decode_depth_view(view["info"], view["pose"].pose, view["depth"],
+                                                 self.p["images_rectified"], image_io.view_topics(self))
         except (ros_io.MessageError, ValueError) as exc:
             self.get_logger().error(f"unusable view: {exc}", throttle_duration_sec=5.0)
             self.diag.set(self.diag.ERROR, f"unusable view: {exc}")
             return
+        if decoded.rectifier is not None:
+            self.get_logger().info(image_io.rectification_note(view["info"]), once=True)
+        camera, depth = decoded.camera, decoded.depth_m
         layout = self._layout_view
         assert layout is not None and self.registration is not None  # views wait for both
         now = time.monotonic()
         reused = self._noise.recall(camera, now)
         targets = plan_view(layout.ids, layout.xy_m, registration_from_msg(self.registration), depth, camera,
-                            self.planner_config(), noise=reused)
-        self._publish(targets, camera, rectifier, stamp,
+                            self.planner_config(), noise=reused, view_index=self.view_index)
+        self._publish(targets, decoded, stamp,
                       noise_age_s=None if reused is None else now - self._noise.measured_at_s)
         self.view_index += 1
         # After the targets are out: this frame's noise, for the frames after it.
@@ -287,7 +283,7 @@ class MatcherNode(Node):
         elif self._noise.refresh_due(time.monotonic()):
             self._noise.remember(camera, view_noise_correlation(targets, depth, camera), time.monotonic())
 
-    def _publish(self, targets, camera, rectifier, stamp, noise_age_s: float | None = None) -> None:
+    def _publish(self, targets, decoded: image_io.DepthView, stamp, noise_age_s: float | None = None) -> None:
         # First: it is what the cell waits for. Written as CDR bytes straight from the arrays (a
         # tenth of the cost of 100 WeldTarget objects through rclpy's conversion).
         self.pub_targets.publish(weld_target_array_cdr(targets, self.view_index, stamp.sec, stamp.nanosec, "world"))
@@ -302,9 +298,9 @@ class MatcherNode(Node):
             stamp_ns = ros_io.stamp_to_ns(stamp)
             color = self._pop_near(self._colors, stamp_ns)
             if color is not None:
-                self._publish_overlay(targets, camera, rectifier, color)
+                self._publish_overlay(targets, decoded, color)
             else:
-                _put_bounded(self._overlays_due, stamp_ns, (targets, camera, rectifier))
+                _put_bounded(self._overlays_due, stamp_ns, (targets, decoded))
         counts = targets.counts()
         widened = targets.sigma_inflation()
         summary = (f"view {self.view_index}: {counts.get('ok', 0)}/{len(targets.ids)} ok "
@@ -318,13 +314,13 @@ class MatcherNode(Node):
                       noise_correlation_from=("this frame" if noise_age_s is None
                                               else f"a frame {noise_age_s:.2f} s before"), **{f"count_{k}": v for k, v in counts.items()})
 
-    def _publish_overlay(self, targets, camera, rectifier, color_msg: Image) -> None:
+    def _publish_overlay(self, targets, decoded: image_io.DepthView, color_msg: Image) -> None:
         try:
-            color = image_io.color_to_bgr(color_msg, rectifier)
+            color = decoded.color(color_msg)
         except (ros_io.MessageError, ValueError) as exc:
             self.get_logger().warn(f"no overlay: unusable colour image: {exc}", throttle_duration_sec=10.0)
             return
-        overlay = draw_targets_overlay(color, targets, camera)
+        overlay = draw_targets_overlay(color, targets, decoded.camera)
         stamp, frame = color_msg.header.stamp, color_msg.header.frame_id
         if self.pub_overlay.get_subscription_count():
             self.pub_overlay.publish(image_io.numpy_to_image(overlay, "bgr8", stamp, frame))
