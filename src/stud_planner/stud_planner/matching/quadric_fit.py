@@ -147,7 +147,7 @@ class _Windows:
 def _window_blocks(camera: CameraModel, depth: np.ndarray, uv: np.ndarray, z_cam: np.ndarray, window_m: float,
                    max_per_side: int, min_step: int = 1) -> _Windows:
     H, W = depth.shape
-    half_px = 0.5 * window_m * camera.fx / np.maximum(z_cam, 1e-6)
+    half_px = camera.pixels_across(0.5 * window_m, z_cam)
     step = np.maximum(max(int(min_step), 1), np.ceil(2 * half_px / max(max_per_side - 1, 1))).astype(np.int64)
     reach = half_px + 0.5 * step
     half_k = int(np.max(np.floor(reach / step)))
@@ -321,7 +321,7 @@ def _fast_fits(moments: BlockMoments, camera: CameraModel, uv: np.ndarray, z_cam
     path takes it).
     """
     b = BLOCK_PX
-    half = 0.5 * window_m * camera.fx / np.maximum(z_cam, 1e-6)
+    half = camera.pixels_across(0.5 * window_m, z_cam)
     c0, c1 = np.rint((uv[:, 0] - half) / b), np.rint((uv[:, 0] + half + 1.0) / b)
     r0, r1 = np.rint((uv[:, 1] - half) / b), np.rint((uv[:, 1] + half + 1.0) / b)
     eligible = (c1 - c0 >= 2) & (r1 - r0 >= 2)

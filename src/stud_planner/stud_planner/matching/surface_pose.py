@@ -264,7 +264,7 @@ def _noise_beside(points_w: np.ndarray, uv: np.ndarray, depth: np.ndarray, camer
     """The noise's correlation along the windows' edges of studs at ``points_w`` / ``uv`` (all
     usable): the stud's own place may be a painted mark without depth."""
     z_cam = camera.world_to_camera(points_w)[:, 2] if points_w.shape[0] else np.ones(1)
-    edge_px = float(np.median(0.5 * window_m * camera.fx / np.maximum(z_cam, 1e-6)))
+    edge_px = float(np.median(camera.pixels_across(0.5 * window_m, z_cam)))
     return measure_noise_correlation(depth, uv, max_lag_px=max_lag_px, beside_px=edge_px)
 
 
