@@ -1,9 +1,9 @@
 """The edge between camera messages and our numpy core: sensor_msgs/Image <-> numpy (no cv_bridge
 here), CameraInfo -> intrinsics and the pinhole CameraModel of Eq. 1, rectification of raw images,
 and :func:`decode_view`: one RGB-D view (camera info, pose, depth, colour) decoded and checked once,
-for every node and ``plan`` (:func:`decode_depth_view` without the colour). Units are converted here: depth 16UC1 millimetres become float metres
-with NaN for "no depth" (REP 118) before the core sees them. (QoS, parameters, poses and stamps:
-stud_common.ros_io.)
+for every node and ``plan`` (:func:`decode_depth_view` without the colour). Units are converted
+here: depth 16UC1 millimetres become float metres with NaN for "no depth" (REP 118) before the core
+sees them. (QoS, parameters, poses and stamps: stud_common.ros_io.)
 """
 from __future__ import annotations
 

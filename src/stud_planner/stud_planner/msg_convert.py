@@ -75,6 +75,10 @@ def weld_target_table(msg: WeldTargetArray, image: tuple[float, float, int, int]
     :func:`choose_best`'s ties (None: unknown, NaN)."""
     targets = msg.targets
     n = len(targets)
+    widths: dict[str, int] = {}
+    for _field, _type, column, k in WELD_TARGET_BLOCK:
+        if k is not None:
+            widths[column] = max(widths.get(column, 0), k + 1)
     columns: dict[str, np.ndarray] = {}
     for field, _type, column, k in WELD_TARGET_BLOCK:
         path = field.split(".")
@@ -86,8 +90,7 @@ def weld_target_table(msg: WeldTargetArray, image: tuple[float, float, int, int]
         if k is None:
             columns[column] = np.array(values, dtype=np.int64 if _type == "uint32" else np.float64).reshape(n)
         else:
-            width = max(kk for _f, _t, c, kk in WELD_TARGET_BLOCK if c == column) + 1
-            columns.setdefault(column, np.full((n, width), np.nan))[:, k] = values
+            columns.setdefault(column, np.full((n, widths[column]), np.nan))[:, k] = values
     pixel_uv = columns["pixel_uv"]
     offset = np.full(n, np.nan) if image is None else centre_offset(pixel_uv, *image)
     return TargetTable(ids=[t.stud_id for t in targets], **columns,

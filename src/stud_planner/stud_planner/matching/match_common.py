@@ -22,7 +22,7 @@ from stud_common.vocabulary import TargetStatus
 Z_RANGE_MARGIN_M = 0.05
 
 
-def _depth_samples(depth_m: np.ndarray, stride: int = 16) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def depth_samples(depth_m: np.ndarray, stride: int = 16) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every ``stride``-th pixel of a depth image: u (1, w), v (h, 1) and depth (h, w), NaN where invalid."""
     sub = depth_m[::stride, ::stride]
     sub = np.where(sub > 0, sub, np.nan)  # NaN stays NaN
@@ -47,7 +47,7 @@ def observed_z_range(depth_m: np.ndarray, camera: CameraModel, stride: int = 16,
 
 def observed_heights(depth_m: np.ndarray, camera: CameraModel, stride: int = 16) -> tuple[float, float, float] | None:
     """(lowest, highest, median) world z of Eq. 1 on every ``stride``-th pixel with depth; None if none."""
-    u, v, sub = _depth_samples(depth_m, stride)
+    u, v, sub = depth_samples(depth_m, stride)
     zw = camera.pixel_to_world(u, v, sub)[..., 2]
     zw = zw[np.isfinite(zw)]
     if zw.size == 0:
@@ -148,7 +148,8 @@ class MatchResults:
 # ---------------------------------------------------------------------------------------------
 # Input checks and small geometry helpers (no Eq. 1 here: that is CameraModel's)
 # ---------------------------------------------------------------------------------------------
-def _check_inputs(targets_xy_w, depth_m, camera: CameraModel) -> tuple[np.ndarray, np.ndarray]:
+def check_inputs(targets_xy_w, depth_m, camera: CameraModel) -> tuple[np.ndarray, np.ndarray]:
+    """A matcher's inputs as (targets (N, 2) float64, depth (H, W) float); MatchingError naming what does not fit."""
     xy = np.asarray(targets_xy_w, dtype=np.float64)
     if xy.ndim == 1 and xy.shape == (2,):
         xy = xy[None, :]
@@ -164,7 +165,8 @@ def _check_inputs(targets_xy_w, depth_m, camera: CameraModel) -> tuple[np.ndarra
     return xy, depth
 
 
-def _empty_results(algorithm: str, n: int) -> dict:
+def empty_results(algorithm: str, n: int) -> dict:
+    """The arrays of :class:`MatchResults` for ``n`` studs before a matcher fills them: nothing found yet."""
     return dict(
         algorithm=algorithm,
         pixel_uv=np.full((n, 2), np.nan),

@@ -32,9 +32,9 @@ import numpy as np
 
 from stud_perception.camera_model import CameraModel, VerticalLines
 from stud_perception.depth_image import FillRule
-from stud_planner.matching.depth_lookup import _depth_at_subpixel, _PixelFills
+from stud_planner.matching.depth_lookup import PixelFills, depth_at_subpixel
 from stud_planner.matching.match_common import (Z_RANGE_MARGIN_M, MatchingError, MatchResult, MatchResults,
-                                                MatchStatus, _check_inputs, _empty_results, line_in_view_z_interval,
+                                                MatchStatus, check_inputs, empty_results, line_in_view_z_interval,
                                                 observed_z_range)
 from stud_planner.matching.paper_baselines import match_bfs, match_fpm, xy_jacobian_at_height
 
@@ -81,9 +81,9 @@ def match_batch(
     - NOT_CONVERGED: none of the above, ``max_lookups`` reached outside ``tol_m``.
     Vectorised over studs; the loop is over look-ups (<= max_lookups), on the still-active studs.
     """
-    xy, depth = _check_inputs(targets_xy_w, depth_m, camera)
+    xy, depth = check_inputs(targets_xy_w, depth_m, camera)
     n = xy.shape[0]
-    out = _empty_results("batch", n)
+    out = empty_results("batch", n)
     if z_range_m is None or z_init_m is None:
         z_min, z_max, z_mid = observed_z_range(depth, camera)
         z_range_m = z_range_m or (z_min, z_max)
@@ -118,7 +118,7 @@ class _SecantSearch:
         self.tol_m, self.converge_xy_m, self.z_bracket_tol_m = tol_m, converge_xy_m, z_bracket_tol_m
         self.hole_window_px, self.hole_max_window_px, self.discontinuity_m = (hole_window_px, hole_max_window_px,
                                                                               discontinuity_m)
-        self.fills = _PixelFills(depth, hole_window_px, hole_max_window_px)
+        self.fills = PixelFills(depth, hole_window_px, hole_max_window_px)
         self.lookup = 0  # look-ups so far; a stud takes part in every one from the first until it settles
         self.lo_b = np.full(n, -np.inf)  # highest z seen with g > 0 (the surface is above it)
         self.hi_b = np.full(n, np.inf)  # lowest z seen with g < 0
@@ -191,8 +191,8 @@ class _SecantSearch:
         d = self._easy_sample(u, v)
         rule, step = FillRule.DIRECT, False
         if d is None:  # a hole or a step: the vectorised rule, for this one sample
-            dd, rr, ss = _depth_at_subpixel(self.depth, np.array([u]), np.array([v]), self.hole_window_px,
-                                            self.hole_max_window_px, self.discontinuity_m, self.fills)
+            dd, rr, ss = depth_at_subpixel(self.depth, np.array([u]), np.array([v]), self.hole_window_px,
+                                           self.hole_max_window_px, self.discontinuity_m, self.fills)
             d, rule, step = float(dd[0]), FillRule(int(rr[0])), bool(ss[0])
         self.on_step[i] = step
         out["iterations"][i] = lookup
@@ -247,8 +247,8 @@ class _SecantSearch:
         camera, xy, out = self.camera, self.xy, self.out
         u, v = self.lines.pixels_at(idx, z)  # z is inside the in-view interval: in the image up to rounding
         u, v = np.clip(u, 0.0, camera.width - 1.0), np.clip(v, 0.0, camera.height - 1.0)
-        d, rule, step = _depth_at_subpixel(self.depth, u, v, self.hole_window_px, self.hole_max_window_px,
-                                           self.discontinuity_m, self.fills)
+        d, rule, step = depth_at_subpixel(self.depth, u, v, self.hole_window_px, self.hole_max_window_px,
+                                          self.discontinuity_m, self.fills)
         Q = camera.pixel_to_world(u, v, d)  # Eq. 1 at the sub-pixel
         g = Q[:, 2] - z
         res = np.hypot(Q[:, 0] - xy[idx, 0], Q[:, 1] - xy[idx, 1])

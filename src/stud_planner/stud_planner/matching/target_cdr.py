@@ -29,7 +29,8 @@ WELD_TARGET_BLOCK = (
     ("pose.position.z", "float64", "position_w", 2),
     ("pose.orientation.x", "float64", "quat_xyzw", 0), ("pose.orientation.y", "float64", "quat_xyzw", 1),
     ("pose.orientation.z", "float64", "quat_xyzw", 2), ("pose.orientation.w", "float64", "quat_xyzw", 3),
-    ("normal.x", "float64", "normal_w", 0), ("normal.y", "float64", "normal_w", 1), ("normal.z", "float64", "normal_w", 2),
+    ("normal.x", "float64", "normal_w", 0), ("normal.y", "float64", "normal_w", 1),
+    ("normal.z", "float64", "normal_w", 2),
     ("pixel_u", "float64", "pixel_uv", 0), ("pixel_v", "float64", "pixel_uv", 1),
     ("view_index", "uint32", "view_index", None), ("iterations", "uint32", "iterations", None),
     ("xy_error", "float64", "xy_error_m", None), ("inclination", "float64", "inclination_deg", None),
@@ -47,7 +48,9 @@ WELD_TARGET_ARRAY_FIELDS = (("header.stamp.sec", "int32"), ("header.stamp.nanose
 
 _NUMPY_TYPE = {"float64": "<f8", "uint32": "<u4"}
 _BLOCK = np.dtype([(f, _NUMPY_TYPE[t]) for f, t, _c, _k in WELD_TARGET_BLOCK])
-assert all(_BLOCK.fields[f][1] % _BLOCK.fields[f][0].itemsize == 0 for f in _BLOCK.names), "the block needs padding"
+_OFFSETS = np.cumsum([0] + [np.dtype(_NUMPY_TYPE[t]).itemsize for _f, t, _c, _k in WELD_TARGET_BLOCK])
+assert all(offset % np.dtype(_NUMPY_TYPE[t]).itemsize == 0
+           for offset, (_f, t, _c, _k) in zip(_OFFSETS, WELD_TARGET_BLOCK)), "the block would need padding"
 
 
 def _align(buf: bytearray, size: int) -> None:

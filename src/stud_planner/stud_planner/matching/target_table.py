@@ -16,6 +16,7 @@ from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from stud_common.vocabulary import TargetStatus
 
@@ -47,7 +48,8 @@ class TargetTable:
     status: np.ndarray            # (N,) uint8 TargetStatus: status (and status_text)
     reasons: np.ndarray           # (N,) str (object array), why a target is not usable, "" if it is: reason
     centre_offset: np.ndarray     # (N,) the match's distance from the principal point over the image's half
-    #                               diagonal (0 centre, 1 corner; NaN: unknown). Not on the wire: choose_best's tie-break
+    #                               diagonal (0 centre, 1 corner; NaN: unknown). Not on the wire: the
+    #                               tie-break of choose_best
 
     @classmethod
     def unseen(cls, ids: list[str], drawing_xy_m: np.ndarray) -> "TargetTable":
@@ -149,10 +151,10 @@ def centre_offset(pixel_uv: np.ndarray, cx: float, cy: float, width: int, height
 class BestViewKey(NamedTuple):
     """What decides between two views' targets of a stud (arrays over studs, or one stud's values)."""
 
-    status: np.ndarray          # TargetStatus values
-    lean_bound_deg: np.ndarray  # NaN: unknown (worst)
-    centre_offset: np.ndarray   # NaN: unknown (worst)
-    view_index: np.ndarray
+    status: ArrayLike          # TargetStatus values
+    lean_bound_deg: ArrayLike  # NaN: unknown (worst)
+    centre_offset: ArrayLike   # NaN: unknown (worst)
+    view_index: ArrayLike
 
 
 def choose_best(held: BestViewKey, offered: BestViewKey) -> np.ndarray:

@@ -32,8 +32,9 @@ from stud_planner.matching.match_common import observed_heights, z_range_of
 from stud_planner.matching.matchers import MatchResults, MatchStatus, match_batch, match_bfs, match_fpm
 from stud_planner.matching.noise_correlation import NoiseCorrelation
 from stud_planner.matching.target_table import STATUS_TEXTS, TargetTable, centre_offset
-from stud_planner.matching.surface_pose import (SurfacePoses, SurfaceStatus, estimate_surface_poses_for_matches,
-                                                frame_noise_correlation, offset_along_normal)
+from stud_planner.matching.surface_pose import (SurfaceFitConfig, SurfacePoses, SurfaceStatus,
+                                                estimate_surface_poses_for_matches, frame_noise_correlation,
+                                                offset_along_normal)
 
 # The target statuses are stud_common.vocabulary.TargetStatus (the WeldTarget.STATUS_* values); the
 # names below are the arrays' spelling of them.
@@ -42,6 +43,7 @@ from stud_planner.matching.surface_pose import (SurfacePoses, SurfaceStatus, est
 STATUS_TEXT = {int(s): s.text for s in TargetStatus}
 VIEW_DEPENDENT_STATUSES = frozenset(int(s) for s in VIEW_DEPENDENT)
 ALGORITHMS = ("batch", "fpm", "bfs")
+_FIT = SurfaceFitConfig()  # the surface fit's defaults are its own; the planner's fields take them
 
 
 @dataclass(frozen=True)
@@ -68,15 +70,15 @@ class PlannerConfig:
     tol_m: float = 0.001
     fpm_window_px: int = 25
     hole_window_px: int = 7
-    normal_window_m: float = 0.02
-    normal_samples_per_side: int = 81
-    max_normal_rms_m: float = 0.0015
+    normal_window_m: float = _FIT.window_m
+    normal_samples_per_side: int = _FIT.max_samples_per_side
+    max_normal_rms_m: float = _FIT.max_rms_m
     lean_budget_deg: float = 5.0
     arm_orientation_error_deg: float = 0.5
     normal_sigma_k: float = 3.0
     normal_sigma_floor_deg: float = 0.1
-    noise_correlation_max_lag_px: int = 16
-    sample_step_max_loss: float = 0.05
+    noise_correlation_max_lag_px: int = _FIT.noise_correlation_max_lag_px
+    sample_step_max_loss: float = _FIT.sample_step_max_loss
     check_gun_clearance: bool = True
     gun: GunModel = GunModel()
     tool_offset_m: float = 0.0
@@ -90,11 +92,16 @@ class PlannerConfig:
                              f"arm_orientation_error_deg={self.arm_orientation_error_deg} >= 0")
         if not self.normal_sigma_k > 0:
             raise ValueError(f"normal_sigma_k={self.normal_sigma_k} must be positive")
-        if not 0 <= self.noise_correlation_max_lag_px <= 64:
-            raise ValueError(f"noise_correlation_max_lag_px={self.noise_correlation_max_lag_px} must be in [0, 64] px")
-        if not 0 <= self.sample_step_max_loss <= 1:
-            raise ValueError(f"sample_step_max_loss={self.sample_step_max_loss} must be in [0, 1] (a fraction of "
-                             "the normal's 1-sigma)")
+        _ = self.surface_fit  # the surface fit checks its own settings (ValueError)
+
+    @property
+    def surface_fit(self) -> SurfaceFitConfig:
+        """The surface fit's settings (:func:`estimate_surface_poses`): these ``normal_*`` and noise
+        fields, the fit's own defaults for the rest."""
+        return SurfaceFitConfig(window_m=self.normal_window_m, max_samples_per_side=self.normal_samples_per_side,
+                                max_rms_m=self.max_normal_rms_m,
+                                noise_correlation_max_lag_px=self.noise_correlation_max_lag_px,
+                                sample_step_max_loss=self.sample_step_max_loss)
 
 
 @dataclass(frozen=True, eq=False)
@@ -139,7 +146,8 @@ def _reasons(status: np.ndarray, poses: SurfacePoses, clearance: Clearance, lean
                           "up the stud's axis")
         elif poses.status[i] == SurfaceStatus.BAD_FIT:
             reasons[i] = (f"no trustworthy normal: the window is not one smooth surface (fit RMS "
-                          f"{poses.fit_rms_m[i] * 1e3:.2f} mm, {poses.outlier_ratio[i]:.0%} outliers: an edge or a step)")
+                          f"{poses.fit_rms_m[i] * 1e3:.2f} mm, {poses.outlier_ratio[i]:.0%} outliers: an edge or "
+                          "a step)")
         else:
             reasons[i] = f"no trustworthy normal: too few depth points (fill {poses.fill_ratio[i]:.0%} of the window)"
     return reasons
@@ -174,11 +182,8 @@ def plan_view(ids: list[str], drawing_xy_m: np.ndarray, M_local2world: np.ndarra
     heights = observed_heights(depth_m, camera)  # once: the matcher's heights and the gun's top
     matches = match(config.algorithm, target_xy_w, depth_m, camera, config, heights)
     match_time = time.perf_counter() - t0
-    poses = estimate_surface_poses_for_matches(matches, depth_m, camera, window_m=config.normal_window_m,
-                                               max_samples_per_side=config.normal_samples_per_side,
-                                               max_rms_m=config.max_normal_rms_m, target_xy_w=target_xy_w,
-                                               noise_correlation_max_lag_px=config.noise_correlation_max_lag_px,
-                                               sample_step_max_loss=config.sample_step_max_loss, noise=noise)
+    poses = estimate_surface_poses_for_matches(matches, depth_m, camera, config.surface_fit, target_xy_w=target_xy_w,
+                                               noise=noise)
     status = matches.status.astype(np.uint8).copy()
     matched = status == MatchStatus.OK
     status[matched & ~poses.ok] = STATUS_NO_NORMAL
@@ -214,8 +219,7 @@ def view_noise_correlation(targets: ViewTargets, depth_m: np.ndarray, camera: Ca
     """The depth noise's correlation of the frame ``targets`` were planned on, measured as
     :func:`plan_view` measures it, for a later frame of the same camera (``plan_view(noise=...)``)."""
     return frame_noise_correlation(targets.matches.point_w, targets.matches.pixel_uv, depth_m, camera,
-                                   window_m=targets.config.normal_window_m,
-                                   max_lag_px=targets.config.noise_correlation_max_lag_px, valid=targets.matches.ok)
+                                   targets.config.surface_fit, valid=targets.matches.ok)
 
 
 class NoiseMemory:
