@@ -77,7 +77,7 @@ class Target:
 def table_targets(table: TargetTable, payloads=None) -> tuple[Target, ...]:
     """The job's targets of one view's :class:`TargetTable`; ``payloads`` (one per target): what the
     arm driver welds of each (None: nothing)."""
-    entries = table.report_entries(drawing=False)
+    entries = table.report_entries(with_stud=False)
     payloads = [None] * len(table.ids) if payloads is None else payloads
     return tuple(Target(stud_id=sid, ok=ok, status_text=entry["status"], lean_bound_deg=lean, entry=entry,
                         payload=payload, centre_offset=offset)

@@ -76,19 +76,20 @@ def weld_target_table(msg: WeldTargetArray, image: tuple[float, float, int, int]
     targets = msg.targets
     n = len(targets)
     widths: dict[str, int] = {}
-    for _field, _type, column, k in WELD_TARGET_BLOCK:
+    for _field, _kind, column, k in WELD_TARGET_BLOCK:
         if k is not None:
             widths[column] = max(widths.get(column, 0), k + 1)
     columns: dict[str, np.ndarray] = {}
-    for field, _type, column, k in WELD_TARGET_BLOCK:
-        path = field.split(".")
+    for field, kind, column, k in WELD_TARGET_BLOCK:
+        path = field.split(".")  # "pose.position.x": nested messages
         values = []
         for t in targets:
+            value = t
             for name in path:
-                t = getattr(t, name)
-            values.append(t)
+                value = getattr(value, name)
+            values.append(value)
         if k is None:
-            columns[column] = np.array(values, dtype=np.int64 if _type == "uint32" else np.float64).reshape(n)
+            columns[column] = np.array(values, dtype=np.int64 if kind == "uint32" else np.float64).reshape(n)
         else:
             columns.setdefault(column, np.full((n, widths[column]), np.nan))[:, k] = values
     pixel_uv = columns["pixel_uv"]

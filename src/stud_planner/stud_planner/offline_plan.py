@@ -239,7 +239,7 @@ def _decode(view: View, bag: Path, images_rectified: bool, topics: dict[str, str
     checked by :func:`image_io.decode_view`."""
     try:
         decoded = image_io.decode_view(view.info, view.pose.pose, view.depth, view.color, images_rectified, topics)
-    except ros_io.MessageError as exc:
+    except (ros_io.MessageError, ValueError) as exc:
         raise PlanError(f"{bag}: view {view.index} (depth stamp {view.stamp_ns} ns): {exc}") from None
     return decoded.camera, decoded.color_bgr, decoded.depth_m
 

@@ -111,15 +111,15 @@ class TargetTable:
             columns[name] = column
         return TargetTable(ids=self.ids, **columns)
 
-    def report_entries(self, drawing: bool = True) -> list[dict]:
+    def report_entries(self, with_stud: bool = True) -> list[dict]:
         """The weld report's ``targets``: one entry per stud, in table order, with the offline report's
         keys (docs/INTERFACES.md), then the normal's 1-sigma, the lean bound, the window's fill, the gun's
         clearance and, for a stud that is not usable, ``reason``. Values that are not finite are None
         (JSON null). A stud on no view (``view_index`` -1) has its id, drawing position and status only.
-        ``drawing`` False: without ``stud_id`` and ``drawing_xy_mm`` (the cell has them from the layout)."""
+        ``with_stud`` False: without ``stud_id`` and ``drawing_xy_mm`` (the cell has them from the layout)."""
         texts = self.status_text
         xy_mm = (np.asarray(self.drawing_xy_m, dtype=np.float64).reshape(-1, 2) * 1e3).tolist()
-        out = [({"stud_id": sid, "drawing_xy_mm": xy} if drawing else {}) | {"status": texts[i]}
+        out = [({"stud_id": sid, "drawing_xy_mm": xy} if with_stud else {}) | {"status": texts[i]}
                for i, (sid, xy) in enumerate(zip(self.ids, xy_mm))]
         seen = np.flatnonzero(self.view_index >= 0)
         pos, nrm, pix = (_nullable(a[seen]) for a in (self.position_w, self.normal_w, self.pixel_uv))
