@@ -23,9 +23,12 @@ digital-output change with the tool pose at that instant (``do_events``,
 :meth:`drop_after_commands`, :meth:`drop_mid_motion`, :meth:`refuse_connections`,
 :meth:`fail_next`, :meth:`stall_next_motion`, :meth:`set_error`).
 
+A rail under the arm (``rail_axis``): the controller's expansion joint, device 4 (:mod:`.sim_rail`),
+with its sim-only true deviation (``rail_deviation``); none by default.
+
 Parts, by concern: the motion model (:mod:`.sim_motion`), the controller's state and its
-non-motion commands (:mod:`.sim_controller`), the TCP server (:mod:`.sim_server`) and the fault
-injection (:mod:`.sim_faults`); this module holds the state, dispatches the commands, runs the
+non-motion commands (:mod:`.sim_controller`), the rail (:mod:`.sim_rail`), the TCP server
+(:mod:`.sim_server`) and the fault injection (:mod:`.sim_faults`); this module holds the state, dispatches the commands, runs the
 motion thread and the command line.
 
 Run stand-alone: ``python -m rm65_driver.simulator --port 8080`` (binds 127.0.0.1 unless told
@@ -48,10 +51,14 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from stud_common.frames import RailDeviation
+
 from . import protocol as P
 from .kinematics import DHModel, RM65Kinematics, matrix_to_pose6
 from .sim_controller import N_IO, N_TOOL_IO, ControllerCommands, DOEvent
 from .sim_faults import Fault, FaultInjection
+from .rail import EXPAND_SET_POS, RailAxis
+from .sim_rail import SimRail
 from .sim_motion import Motion, MotionLimits, SegmentProfile, junction_speed, line_segment, plan_motion, trajectory_msg
 from .sim_server import Connection, TcpServer
 from stud_common.stacks import dump_stacks_on_signal
@@ -59,6 +66,8 @@ from stud_common.stacks import dump_stacks_on_signal
 _log = logging.getLogger(__name__)
 
 MAX_QUEUED_MOTIONS = 10  # Gen-2 buffers 10 points (DOCS-FAQ); plenty for the driver
+#: Commands whose handler is told the commanding connection (its arrival message goes there).
+_CONN_COMMANDS = P.MOTION_COMMANDS | {EXPAND_SET_POS}
 
 
 @dataclass(frozen=True)
@@ -86,6 +95,8 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
     ``min_motion_real_s``: floor on a motion's wall-clock duration, whatever ``time_scale``.
     ``report_connected``: a motion sent with ``trajectory_connect`` 1 reports its end with 1 (False: with
     0, as if every queued motion were done).
+    ``rail_axis``: the expansion joint carrying the arm (None: no rail), its base ``rail_mount_xyz_m``
+    (m) above the carriage, the rail's true ``rail_deviation`` (sim-only, :mod:`.sim_rail`).
     """
 
     def __init__(
@@ -105,6 +116,9 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
         product_version: str = "RM65-BI",
         min_motion_real_s: float = 0.01,
         report_connected: bool = True,
+        rail_axis: RailAxis | None = None,
+        rail_mount_xyz_m: Sequence[float] = (0.0, 0.0, 0.0),
+        rail_deviation: RailDeviation = RailDeviation(),
     ):
         if err_format not in ("list", "scalar", "arm_sys"):
             raise ValueError(f"err_format {err_format!r}: expected list, scalar or arm_sys")
@@ -158,6 +172,8 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
         self._threads: list[threading.Thread] = []
         self._running = threading.Event()
         self._changed = threading.Condition(self._lock)
+        self.rail = SimRail(rail_axis, self._lock, self._changed, tuple(rail_mount_xyz_m), rail_deviation,
+                            min_motion_real_s)
 
     # ------------------------------------------------------------------------------------
     # inspection (tests)
@@ -242,7 +258,7 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
                 _log.warning("simulator: unknown command %r ignored", name)
             else:
                 try:
-                    reply = handler(conn, msg, fault) if name in P.MOTION_COMMANDS else handler(msg)
+                    reply = handler(conn, msg, fault) if name in _CONN_COMMANDS else handler(msg)
                 except (KeyError, TypeError, ValueError, IndexError, ArithmeticError) as exc:
                     _log.warning("simulator: bad %s request %r: %s", name, msg, exc)
                     reply = {"command": name, P.RESULT_KEY.get(name, "set_state"): False}
@@ -330,6 +346,8 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
             now = time.monotonic()
             dt = (now - last) / max(self.time_scale, 1e-9)
             last = now
+            for conn_id, msg in self.rail.advance(dt, now):
+                self._send_to(conn_id, msg)
             outbox: list[tuple[int, dict[str, Any]]] = []
             drops: list[int] = []
             with self._lock:
@@ -377,6 +395,7 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
                 out = [(self._queue[0].conn_id, trajectory_msg(False))]
             self._queue.clear()
             self._paused = False
+            out += self.rail.stop()  # the arm's stop stops the rail too (sim_rail's choice)
             self._changed.notify_all()
         return out
 
@@ -430,6 +449,16 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
                 kind, data = "none", P.joints_to_wire(self._joints)
         return {"state": "arm_current_trajectory", "type": kind, "data": data}
 
+    # -- the rail (expansion joint, device 4): sim_rail -------------------------------------
+    def _cmd_expand_set_pos(self, conn: Connection, msg: dict[str, Any], fault: Fault | None) -> list[Any]:
+        return self.rail.cmd_set_pos(conn.id, msg)
+
+    def _cmd_expand_set_speed(self, msg: dict[str, Any]) -> list[Any]:
+        return self.rail.cmd_set_speed(msg)
+
+    def _cmd_expand_get_state(self, msg: dict[str, Any]) -> dict[str, Any]:
+        return self.rail.cmd_get_state(msg)
+
 
 
 # --------------------------------------------------------------------------------------------
@@ -446,6 +475,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--err-format", choices=("list", "scalar", "arm_sys"), default="list",
                         help="arm state error format: list (current firmware), scalar, arm_sys (older docs)")
     parser.add_argument("--pretty", action="store_true", help="send pretty-printed replies")
+    rail = parser.add_argument_group("rail", "a linear axis under the arm: the expansion joint (device 4)")
+    rail.add_argument("--rail-length-m", type=float, default=0.0, help="travel [m]; 0 (default): no rail")
+    rail.add_argument("--rail-pos-unit-m", type=float, default=1e-6, help="metres per wire count (default 1e-6)")
+    rail.add_argument("--rail-max-speed-m-s", type=float, default=0.5, help="speed at 100 %% [m/s]")
+    rail.add_argument("--rail-accel-m-s2", type=float, default=0.5, help="acceleration at 100 %% [m/s^2]")
+    rail.add_argument("--rail-mount-xyz-m", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
+                      help="the arm's base on the carriage [m]")
+    rail.add_argument("--true-rail-scale-ppm", type=float, default=0.0, help="sim-only truth: scale error [ppm]")
+    rail.add_argument("--true-rail-offset-m", type=float, default=0.0, help="sim-only truth: zero offset [m]")
+    rail.add_argument("--true-rail-yaw-urad-per-m", type=float, default=0.0,
+                      help="sim-only truth: the carriage's heading change per metre [urad/m]")
     parser.add_argument("-v", "--verbose", action="store_true")
     args = parser.parse_args(argv)
     dump_stacks_on_signal()
@@ -454,8 +494,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         _log.warning("binding the simulator to a non-loopback address %s", args.host)
     try:
+        rail_axis = (RailAxis(args.rail_length_m, args.rail_pos_unit_m, args.rail_max_speed_m_s, args.rail_accel_m_s2)
+                     if args.rail_length_m != 0 else None)
+        deviation = RailDeviation(args.true_rail_scale_ppm, args.true_rail_offset_m, args.true_rail_yaw_urad_per_m)
         sim = ArmSimulator(host=args.host, port=args.port, time_scale=args.time_scale,
-                           err_format=args.err_format, pretty_replies=args.pretty)
+                           err_format=args.err_format, pretty_replies=args.pretty, rail_axis=rail_axis,
+                           rail_mount_xyz_m=args.rail_mount_xyz_m, rail_deviation=deviation)
         sim.start()
     except (OSError, ValueError) as exc:
         print(f"simulator: cannot start on {args.host}:{args.port}: {exc}", file=sys.stderr)
@@ -463,7 +507,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     done = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: done.set())
     signal.signal(signal.SIGTERM, lambda *_: done.set())
-    print(f"RM65 simulator on {args.host}:{sim.port} (Ctrl-C to stop)", flush=True)
+    print(f"RM65 simulator on {args.host}:{sim.port}"
+          + (f", rail of {args.rail_length_m:g} m" if rail_axis is not None else "") + " (Ctrl-C to stop)", flush=True)
     while not done.wait(0.5):  # wake up now and then: a signal's handler runs in this (main) thread
         pass
     sim.stop()
