@@ -14,6 +14,7 @@ from .arm_client import ArmClient
 from .journal import Journal
 from .journal_records import JournalError
 from .kinematics import RM65Kinematics
+from .rail_control import RailControl
 from .weld_sequence import WeldSequence
 
 
@@ -23,6 +24,7 @@ class DriverBase(Node):
     p: dict[str, Any]                 # the validated parameters (driver_params.PARAMS)
     client: ArmClient
     kin: RM65Kinematics
+    rail: RailControl                 # the carriage (a RailControl without an axis when there is no rail)
     journal: Journal | None           # None while the journal is in FAULT
     journal_path: Path
     sequence: WeldSequence | None     # the running or last weld job

@@ -15,6 +15,8 @@ Interfaces
   action     /arm/weld_job (stud_welding_msgs/action/WeldJob); a cancel is graceful (see
              weld_sequence: motions before the trigger stop at once, a started weld completes).
   services   /arm/stop, /arm/pause, /arm/resume, /arm/estop (std_srvs/Trigger);
+             /arm/move_to (stud_welding_msgs/srv/MoveTo; with a rail, optionally the carriage first);
+             /arm/rail_move (stud_welding_msgs/srv/RailMove: the carriage, with a rail);
              /arm/resolve_stud (stud_welding_msgs/srv/ResolveStud);
              /arm/resolve_journal (stud_welding_msgs/srv/ResolveJournal).
   subscribes /arm/estop (std_msgs/Bool): true engages the e-stop latch, false releases it.
@@ -32,6 +34,13 @@ together against what the weld job accepts (:class:`~.weld_job.WeldParams`,
 The e-stop here is a *software* stop (``set_arm_stop`` + trigger output low + a latch that refuses
 new jobs until released). It is not a safety-rated emergency stop: the cell's hardware e-stop
 chain must stay wired to the controller.
+
+The rail (``rail_length_m`` > 0; :mod:`.rail_control`): the arm rides a linear axis, the controller's
+expansion joint. ``world`` is then the rail's frame; the weld targets and /arm/move_to poses arrive in
+it and are converted to the arm's base with the carriage's position (:func:`stud_common.frames.world_T_base`);
+/arm/state, /joint_states (``rail_joint``, m) and /arm/welds carry the carriage. The carriage moves
+only while the arm is still and never during a weld job; stop and e-stop stop it too. With
+``rail_length_m`` 0 nothing of this exists and the driver is what it was.
 
 Addresses: ``arm_ip`` defaults to 127.0.0.1 (the simulator, ``ros2 run rm65_driver simulator``)
 so nothing in this repository reaches for real hardware by default; the factory address of a
@@ -53,18 +62,19 @@ from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
 from stud_welding_msgs.msg import ArmState, WeldRecord, WeldTarget
-from stud_welding_msgs.srv import MoveTo, ResolveJournal, ResolveStud
+from stud_welding_msgs.srv import MoveTo, RailMove, ResolveJournal, ResolveStud
 
 from stud_common import hand_eye_ros, ros_io
 
-from .arm_client import ArmClient
-from .driver_params import PARAMS, default_journal, job_config, job_config_problem
+from .arm_client import ArmClient, ArmError
+from .driver_params import PARAMS, default_journal, job_config, job_config_problem, rail_axis
 from .driver_services import DriverServices
 from .driver_status import DriverStatus
 from .journal import Journal
 from .journal_records import JournalError
 from .journal_scan import JournalCorrupt
 from .kinematics import D6_BY_VARIANT, DHModel, RM65Kinematics
+from .rail_control import RailControl, target_in_base
 from .safety import SafetyChecker
 from .weld_job import JobResult, StudTarget
 from .weld_sequence import WeldSequence
@@ -118,6 +128,11 @@ class DriverNode(DriverStatus, DriverServices, Node):
         self.calibration_topic = hand_eye_ros.CalibrationTopic(self, self.hand_eye)
         self.kin = RM65Kinematics(dh=DHModel.rm65(D6_BY_VARIANT[p["arm_variant"]]))
         self.client = ArmClient(p["arm_ip"], p["tcp_port"], p["connect_timeout_s"], p["reply_timeout_s"])
+        self.rail = RailControl(self.client, rail_axis(p), p["rail_mount_xyz_m"])
+        if self.rail.present and p["workspace_max_m"][0] < p["rail_length_m"]:
+            self.get_logger().warn(f"the workspace box is in world, the rail's frame: it ends at x = "
+                                   f"{p['workspace_max_m'][0]:g} m, the rail runs to {p['rail_length_m']:g} m; every "
+                                   "pose beyond the box is refused (widen workspace_max_m)")
         self.journal_path = Path(p["journal_file"] or default_journal()).expanduser()
         self.journal: Journal | None = None
         self._journal_fault: JournalError | None = None  # damage found when opening (the FAULT)
@@ -150,6 +165,8 @@ class DriverNode(DriverStatus, DriverServices, Node):
         self.create_service(ResolveStud, names.ARM_RESOLVE_STUD, self._on_resolve, callback_group=group)
         self.create_service(ResolveJournal, names.ARM_RESOLVE_JOURNAL, self._on_resolve_journal, callback_group=group)
         self.create_service(MoveTo, names.ARM_MOVE_TO, self._on_move_to, callback_group=group)
+        if self.rail.present:
+            self.create_service(RailMove, names.ARM_RAIL_MOVE, self._on_rail_move, callback_group=group)
         self.create_subscription(Bool, names.ARM_ESTOP, self._on_estop_topic, 10, callback_group=group)
         self.action = ActionServer(self, WeldJob, names.ARM_WELD_JOB, execute_callback=self._execute,
                                    goal_callback=self._on_goal, cancel_callback=self._on_cancel,
@@ -160,7 +177,8 @@ class DriverNode(DriverStatus, DriverServices, Node):
         self._poller.start()
         self.get_logger().info(f"RM65 driver for {p['arm_ip']}:{p['tcp_port']} ({p['arm_variant']}), "
                                f"state at {p['state_rate_hz']:.1f} Hz, trigger DO{p['trigger_io']}"
-                               f"{' (tool)' if p['trigger_on_tool'] else ''}")
+                               f"{' (tool)' if p['trigger_on_tool'] else ''}"
+                               + (f", on a rail of {p['rail_length_m']:g} m" if self.rail.present else ""))
 
     # -- the weld journal ------------------------------------------------------------------------
     def _open_journal(self) -> None:
@@ -189,10 +207,23 @@ class DriverNode(DriverStatus, DriverServices, Node):
         return f"weld journal FAULT: {fault} (weld jobs refused until /arm/resolve_journal)"
 
     # -- configuration per job ------------------------------------------------------------------
-    def _make_sequence(self) -> WeldSequence:
+    def _make_sequence(self, world_T_base: np.ndarray | None = None) -> WeldSequence:
         params, limits = job_config(self.p)
         assert self.journal is not None
-        return WeldSequence(self.client, self.journal, SafetyChecker(self.kin, limits, params.tool_T), params)
+        W = np.eye(4) if world_T_base is None else world_T_base
+        return WeldSequence(self.client, self.journal, SafetyChecker(self.kin, limits, params.tool_T, W), params)
+
+    def _job_base_in_world(self) -> tuple[np.ndarray | None, float, str]:
+        """The arm's base in world for a job (the carriage read now), the carriage (m), or (None, 0, why not)."""
+        if not self.rail.present:
+            return np.eye(4), 0.0, ""
+        try:
+            reading = self.rail.read()
+        except ArmError as exc:
+            return None, 0.0, f"the carriage's position is unknown: {exc}"
+        if reading is not None and reading.moving:
+            return None, 0.0, "the carriage is moving: a weld job starts only with it still"
+        return self.rail.world_T_base(), self.rail.position_m, ""
 
     @property
     def tool_T(self) -> np.ndarray:
@@ -235,7 +266,14 @@ class DriverNode(DriverStatus, DriverServices, Node):
             else:
                 targets.append(st)
         with self._job_lock:
-            seq = self._make_sequence()
+            W, carriage_m, why = self._job_base_in_world()
+            if W is None:
+                self.get_logger().warn(f"weld job refused: {why}")
+                goal_handle.abort()
+                return WeldJob.Result(success=False, message=f"refused: {why}")
+            if self.rail.present:
+                targets = [target_in_base(t, W) for t in targets]
+            seq = self._make_sequence(W)
             total = len(goal.targets)
 
             def feedback(stud_id: str, phase: str, done: int, _total: int) -> None:
@@ -243,7 +281,8 @@ class DriverNode(DriverStatus, DriverServices, Node):
                 goal_handle.publish_feedback(fb)
 
             seq.on_phase = feedback
-            seq.on_welded = lambda stud_id, q, job=seq: self._publish_weld(stud_id, q, job.job_id)
+            seq.on_welded = lambda stud_id, q, job=seq, W=W, c=carriage_m: self._publish_weld(stud_id, q, job.job_id,
+                                                                                          W, c)
             self.sequence = seq
             self.get_logger().info(f"weld job: {len(targets)} target(s), {len(pre_skipped)} not usable, "
                                    f"resume={goal.resume}")

@@ -18,6 +18,7 @@ from stud_common.ros_io import Param, three_numbers
 
 from . import protocol as P
 from .kinematics import D6_BY_VARIANT
+from .rail import RailAxis, RailRequestError
 from .safety import SafetyLimits
 from .weld_job import WeldParams
 
@@ -97,7 +98,28 @@ PARAMS = [
           read_only=True),
     Param("publish_camera_pose", False, "publish /camera/pose = weld-tool pose x hand-eye (an eye-in-hand camera)"),
     *hand_eye_ros.PARAMS,  # hand_eye_xyz_m / hand_eye_rpy_deg, or hand_eye_file (/arm/move_to FRAME_CAMERA)
+    # The rail: a linear axis under the arm, the controller's expansion joint (device 4; rail.py). 0 m: none,
+    # and the driver is what it is without one (world = the arm's base).
+    Param("rail_length_m", 0.0, "the rail's travel [m]: world is then the rail's frame (x along it, origin at its "
+          "zero) and the carriage moves 0..rail_length_m; 0: no rail, world = the arm's base", min=0.0, max=100.0,
+          read_only=True),
+    Param("rail_mount_xyz_m", [0.0, 0.0, 0.0], "the arm's base on the carriage (carriage -> base_link) [m]",
+          validate=three_numbers("rail_mount_xyz_m"), read_only=True),
+    Param("rail_speed_pct", 30, "rail moves: speed [% of the axis maximum]", min=1, max=100),
+    Param("rail_max_speed_m_s", 0.5, "the axis's speed at 100 % (the drive's setting; for move-time estimates "
+          "and timeouts) [m/s]", min=0.001, max=10.0),
+    Param("rail_accel_m_s2", 0.5, "the axis's acceleration at 100 % (the drive's setting) [m/s^2]",
+          min=0.001, max=50.0),
+    Param("rail_pos_unit_m", 1e-6, "metres per count of the expansion joint's wire pos (RealMan's documents "
+          "say 0.001 of the drive's unit: 1e-6 for a drive in mm)", min=1e-9, max=0.01, read_only=True),
 ]
+
+
+def rail_axis(p: dict) -> RailAxis | None:
+    """The rail the parameters describe (None: rail_length_m 0, no rail). Raises RailRequestError."""
+    if not p["rail_length_m"] > 0:
+        return None
+    return RailAxis(p["rail_length_m"], p["rail_pos_unit_m"], p["rail_max_speed_m_s"], p["rail_accel_m_s2"])
 
 
 def job_config(p: dict) -> tuple[WeldParams, SafetyLimits]:
@@ -128,4 +150,8 @@ def job_config_problem(p: dict) -> str | None:
         job_config(p)
     except ValueError as exc:
         return f"combination refused by the weld job: {exc}"
+    try:
+        rail_axis(p)
+    except RailRequestError as exc:
+        return str(exc)
     return None

@@ -5,7 +5,8 @@
 client and journal are made there): a thread polls the arm state at ``state_rate_hz`` (Hz), with
 a back-off of 0.2 s doubling to 5 s while the controller is not connected, and publishes each
 reading -- joints in rad, the ``weld_tool`` pose in ``world`` (m) from the driver's own forward
-kinematics, whatever the controller's tool frame.
+kinematics, whatever the controller's tool frame; with a rail also the carriage (``expand_get_state``),
+which places the base in ``world`` and is ``rail_joint`` (m) in ``/joint_states``.
 """
 from __future__ import annotations
 
@@ -23,11 +24,14 @@ from stud_welding_msgs.msg import ArmState, WeldRecord
 from stud_common import ros_io
 from stud_common.hand_eye_in_use import camera_in_world
 
+from stud_common import frames
+
 from .arm_client import ArmError
 from .driver_base import DriverBase
 from .journal_scan import JournalCorrupt
 
 JOINT_NAMES = [f"joint{i}" for i in range(1, 7)]
+RAIL_JOINT = frames.RAIL_JOINT  # prismatic world -> carriage, m (with a rail)
 
 
 class DriverStatus(DriverBase):
@@ -67,6 +71,11 @@ class DriverStatus(DriverBase):
                     reading = self.client.get_state()
                 except ArmError as exc:
                     self.get_logger().warn(f"arm state not read: {exc}", throttle_duration_sec=5.0)
+                if self.rail.present and self.client.connected:
+                    try:
+                        self.rail.read()
+                    except ArmError as exc:
+                        self.get_logger().warn(f"rail state not read: {exc}", throttle_duration_sec=5.0)
             self._log_connection(self.client.connected, self.client.last_error)
             self._publish(reading)
             self._sleep(period - (time.monotonic() - t0))
@@ -96,6 +105,8 @@ class DriverStatus(DriverBase):
             return ArmState.MODE_PAUSED
         if seq is not None and seq.running:
             return ArmState.MODE_WELDING if seq.phase in ("weld", "dwell") else ArmState.MODE_MOVING
+        if self.rail.moving:
+            return ArmState.MODE_MOVING
         return ArmState.MODE_IDLE
 
     def _publish(self, reading) -> None:
@@ -111,17 +122,21 @@ class DriverStatus(DriverBase):
         fault = self.journal_fault
         msg.message = self._fault_text(fault) if fault is not None else self._message
         msg.uncertain_studs = self.uncertain_studs()
+        if self.rail.present:
+            msg.rail_position_m, msg.rail_moving = self.rail.position_m, self.rail.moving
         if reading is not None:
             self._last_state = reading
-            T_tool = self.kin.fk(reading.joints_rad) @ self.tool_T  # weld_tool in world, whatever the controller's tool frame
+            T_tool = self.kin.fk(reading.joints_rad) @ self.tool_T  # weld_tool in base, whatever the controller's tool frame
+            if self.rail.present:
+                T_tool = self.rail.world_T_base() @ T_tool  # ... in world
             msg.joints = [float(v) for v in reading.joints_rad]
             msg.tool_pose = ros_io.rt_to_pose(T_tool[:3, :3], T_tool[:3, 3])
             msg.error_codes = [int(c) & 0xFFFF for c in reading.error_codes]
             msg.errors = reading.errors_text
             js = JointState()
             js.header.stamp = stamp
-            js.name = JOINT_NAMES
-            js.position = [float(v) for v in reading.joints_rad]
+            js.name = JOINT_NAMES + ([RAIL_JOINT] if self.rail.present else [])
+            js.position = [float(v) for v in reading.joints_rad] + ([self.rail.position_m] if self.rail.present else [])
             self.pub_joints.publish(js)
             if self.pub_camera is not None:
                 T_cam = camera_in_world(T_tool, self._hand_eye())
@@ -133,10 +148,14 @@ class DriverStatus(DriverBase):
         self.pub_state.publish(msg)
         self._update_diagnostics(msg)
 
-    def _publish_weld(self, stud_id: str, joints_rad: np.ndarray, job_id: str) -> None:
+    def _publish_weld(self, stud_id: str, joints_rad: np.ndarray, job_id: str, world_T_base: np.ndarray | None = None,
+                      rail_m: float = 0.0) -> None:
+        """A confirmed weld on /arm/welds: the tool pose in world, the base there where the job had it."""
         T_tool = self.kin.fk(joints_rad) @ self.tool_T
+        if self.rail.present and world_T_base is not None:
+            T_tool = world_T_base @ T_tool
         msg = WeldRecord(stud_id=stud_id, job_id=job_id, joints=[float(v) for v in joints_rad],
-                         tool_pose=ros_io.rt_to_pose(T_tool[:3, :3], T_tool[:3, 3]))
+                         tool_pose=ros_io.rt_to_pose(T_tool[:3, :3], T_tool[:3, 3]), rail_position_m=float(rail_m))
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.header.frame_id = "world"
         self.pub_welds.publish(msg)

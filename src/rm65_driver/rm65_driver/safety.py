@@ -9,9 +9,12 @@ reachable solution nearest the current joints.
 Every check returns a reason string a person can act on (``None``/``ok`` when it passes), and
 nothing here talks to the controller: a rejected target is never sent.
 
-Frames: ``world`` is the arm base frame (the controller's work frame must be the base, which
-:class:`~rm65_driver.weld_sequence.WeldSequence` verifies); the tool is ``weld_tool``, given as
-the flange -> tool transform ``tool_T`` (4x4, m).
+Frames: poses and targets here are in the arm's base frame, where the kinematics and the controller
+work (the controller's work frame must be the base, which :class:`~rm65_driver.weld_sequence.WeldSequence`
+verifies); the tool is ``weld_tool``, given as the flange -> tool transform ``tool_T`` (4x4, m).
+The cell's limits are in ``world``: ``world_T_base`` (4x4) places the base there -- the identity
+without a rail, :func:`stud_common.frames.world_T_base` on one -- and the workspace box and the gun's
+tilt from vertical are checked in ``world``.
 """
 from __future__ import annotations
 
@@ -79,6 +82,7 @@ class SafetyChecker:
     kin: RM65Kinematics
     limits: SafetyLimits = field(default_factory=SafetyLimits)
     tool_T: np.ndarray = field(default_factory=lambda: np.eye(4))
+    world_T_base: np.ndarray = field(default_factory=lambda: np.eye(4))  # the arm's base in world (the rail)
 
     @property
     def yaw_candidates_deg(self) -> np.ndarray:
@@ -97,8 +101,8 @@ class SafetyChecker:
         return None
 
     def check_tool_tilt(self, normal: ArrayLike) -> str | None:
-        """The gun, along -normal, leans from vertical by the normal's angle to world +z."""
-        n = np.asarray(normal, dtype=np.float64)
+        """The gun, along -normal (base frame), leans from vertical by the normal's angle to world +z."""
+        n = self.world_T_base[:3, :3] @ np.asarray(normal, dtype=np.float64)
         norm = np.linalg.norm(n)
         if not np.isfinite(norm) or norm < 1e-9:
             return f"surface normal {n.tolist()} is not a usable direction"
@@ -109,8 +113,8 @@ class SafetyChecker:
         return None
 
     def check_points(self, points_m: np.ndarray, what: str) -> str | None:
-        """All points (N, 3) inside the workspace box?"""
-        pts = np.atleast_2d(np.asarray(points_m, dtype=np.float64))
+        """All points (N, 3, base frame) inside the workspace box (world)?"""
+        pts = np.atleast_2d(np.asarray(points_m, dtype=np.float64)) @ self.world_T_base[:3, :3].T + self.world_T_base[:3, 3]
         lo, hi = np.asarray(self.limits.workspace_min_m), np.asarray(self.limits.workspace_max_m)
         bad = np.any((pts < lo - 1e-9) | (pts > hi + 1e-9), axis=1)
         if bad.any():

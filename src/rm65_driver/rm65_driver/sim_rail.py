@@ -128,12 +128,12 @@ class SimRail:
     def cmd_set_pos(self, conn_id: int, msg: dict[str, Any]) -> list[Any]:
         """``expand_set_pos``: the acknowledgement, and the callable that starts the move once it is sent."""
         refused = [{"command": EXPAND_SET_POS, "set_pos_state": False}]
-        pos, speed = msg.get("pos"), msg.get("speed")
+        pos, speed = _wire_int(msg.get("pos")), _wire_int(msg.get("speed"))
         if self.axis is None:
             _log.info("simulator: expand_set_pos refused: this controller has no expansion joint")
             return refused
-        if not _is_int(pos) or not _is_int(speed) or not 1 <= speed <= 100:
-            _log.info("simulator: expand_set_pos refused: pos %r / speed %r", pos, speed)
+        if pos is None or speed is None or not 1 <= speed <= 100:
+            _log.info("simulator: expand_set_pos refused: pos %r / speed %r", msg.get("pos"), msg.get("speed"))
             return refused
         if not 0 <= pos <= self.axis.max_counts:
             _log.info("simulator: expand_set_pos refused: pos %d outside 0..%d", pos, self.axis.max_counts)
@@ -153,8 +153,8 @@ class SimRail:
 
     def cmd_set_speed(self, msg: dict[str, Any]) -> list[Any]:
         """``expand_set_speed``: jog, or stop with 0 (a stopped position move reports its failed arrival)."""
-        speed = msg.get("speed")
-        if self.axis is None or not _is_int(speed) or not -100 <= speed <= 100:
+        speed = _wire_int(msg.get("speed"))
+        if self.axis is None or speed is None or not -100 <= speed <= 100:
             return [{"command": EXPAND_SET_SPEED, "set_speed_state": False}]
         with self.lock:
             out: list[Any] = [{"command": EXPAND_SET_SPEED, "set_speed_state": True}]
@@ -225,8 +225,10 @@ class SimRail:
         self.position_m, self.velocity_m_s, self.jog_speed_m_s = x, v, target
 
 
-def _is_int(v: Any) -> bool:
-    """A JSON integer (not a bool, not 1.5; 2.0 accepted as a client might send it)."""
+def _wire_int(v: Any) -> int | None:
+    """A JSON integer of the wire's int32 (2.0 accepted as a client might send it), else None (a bool, 1.5, "7")."""
     if isinstance(v, bool) or not isinstance(v, (int, float)):
-        return False
-    return bool(math.isfinite(v) and float(v).is_integer() and abs(v) < 2**31)
+        return None
+    if not (math.isfinite(v) and float(v).is_integer() and abs(v) < 2**31):
+        return None
+    return int(v)

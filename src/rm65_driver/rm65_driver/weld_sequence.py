@@ -102,6 +102,8 @@ class WeldSequence:
 
     def __init__(self, client: ArmClient, journal: Journal, safety: SafetyChecker, params: WeldParams,
                  on_phase: PhaseCallback | None = None, on_welded: WeldedCallback | None = None):
+        """Targets are in the arm's base frame; the journal's weld points are in ``world``, where
+        ``safety.world_T_base`` puts the base (the identity without a rail)."""
         self.client = client
         self.journal = journal
         self.safety = safety
@@ -587,7 +589,8 @@ class WeldSequence:
         p = self.params
         if not p.min_stud_spacing_m > 0:
             return ""
-        standing = {sid: (np.asarray(pos), np.asarray(n)) for sid, pos, n in self.journal.standing_studs()}
+        B = np.linalg.inv(self.safety.world_T_base)  # the journal's world -> this job's base frame
+        standing = {sid: (B[:3, :3] @ pos + B[:3, 3], B[:3, :3] @ n) for sid, pos, n in self.journal.standing_studs()}
         for o in self._job_targets:
             if o.stud_id not in standing and self.journal.status(o.stud_id) in ("welded", "uncertain"):
                 standing[o.stud_id] = (o.position, o.normal)
@@ -619,7 +622,9 @@ class WeldSequence:
         # (forward kinematics), for the QA record and the demo's check against the true normal.
         q_at_weld = self.client.get_state().joints_rad
         # Durable *before* the trigger: after a crash this stud reads "uncertain", never "not welded".
-        self.journal.started(t.stud_id, job=self.job_id, position=t.position, normal=t.normal, joints=plan.q_contact,
+        W = self.safety.world_T_base
+        self.journal.started(t.stud_id, job=self.job_id, position=W[:3, :3] @ t.position + W[:3, 3],
+                             normal=W[:3, :3] @ t.normal, joints=plan.q_contact,
                              joints_at_weld=q_at_weld, **({"motion_s": motion_s} if motion_s else {}))
         try:
             self.client.set_do(p.trigger_io, True, tool=p.trigger_on_tool)

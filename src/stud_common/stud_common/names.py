@@ -32,6 +32,7 @@ ARM_STATE = "/arm/state"
 ARM_WELDS = "/arm/welds"
 ARM_WELD_JOB = "/arm/weld_job"                     # action stud_welding_msgs/action/WeldJob
 ARM_MOVE_TO = "/arm/move_to"
+ARM_RAIL_MOVE = "/arm/rail_move"                   # stud_welding_msgs/srv/RailMove: the carriage along the rail
 ARM_STOP = "/arm/stop"
 ARM_PAUSE = "/arm/pause"
 ARM_RESUME = "/arm/resume"
