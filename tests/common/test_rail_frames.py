@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stud_common.frames import RailDeviation, carriage_in_world, world_T_base
+from stud_common.frames import RailDeviation, carriage_in_world, true_world_correction, world_T_base
 
 
 def test_without_a_rail_the_base_is_the_world():
@@ -53,3 +53,14 @@ def test_a_non_finite_deviation_is_refused(bad):
         RailDeviation(**bad)
     with pytest.raises(ValueError, match="not 3 finite numbers"):
         world_T_base(1.0, (0.0, math.nan, 0.0))
+
+
+def test_the_true_world_correction_moves_a_believed_pose_onto_the_deviated_rail():
+    dev = RailDeviation(scale_ppm=500.0, offset_m=-0.003, yaw_urad_per_m=80.0)
+    mount, c = (0.1, 0.05, 0.3), 4.2
+    pose_in_base = np.eye(4)
+    pose_in_base[:3, 3] = [0.3, -0.1, 0.05]
+    believed = world_T_base(c, mount) @ pose_in_base
+    np.testing.assert_allclose(true_world_correction(c, dev) @ believed, world_T_base(c, mount, dev) @ pose_in_base,
+                               atol=1e-12)
+    np.testing.assert_array_equal(true_world_correction(c, RailDeviation()), np.eye(4))

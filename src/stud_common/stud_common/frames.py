@@ -113,3 +113,13 @@ def world_T_base(carriage_m: float, mount_xyz_m: ArrayLike = (0.0, 0.0, 0.0),
     M = np.eye(4)
     M[:3, 3] = mount
     return carriage_in_world(carriage_m, deviation) @ M
+
+
+def true_world_correction(carriage_m: float, deviation: RailDeviation) -> np.ndarray:
+    """What the rail's ``deviation`` does to every pose the cell computes in ``world`` (4, 4), sim-only.
+
+    A pose the driver reports in ``world`` (its forward kinematics on the believed, straight rail)
+    is truly at ``true_world_correction(c, deviation) @ pose``: ``carriage_in_world(c, deviation) @
+    carriage_in_world(c)^-1`` -- the mount cancels. The identity for a zero deviation.
+    """
+    return carriage_in_world(carriage_m, deviation) @ np.linalg.inv(carriage_in_world(carriage_m))
