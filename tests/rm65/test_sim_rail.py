@@ -265,7 +265,40 @@ def test_the_true_base_carries_the_rail_deviation_the_reported_pos_does_not():
         sim.stop()
 
 
-def test_simulator_command_line_takes_the_rail(capsys):
+def test_simulator_command_line_refuses_a_bad_rail(capsys):
     from rm65_driver.simulator import main
     assert main(["--port", "-1", "--rail-length-m", "-2"]) == 2
     assert "rail length_m=-2.0" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["--rail-length-m", "2", "--rail-mount-xyz-m=[0.1, 0.2]"])
+    assert "is not three numbers x,y,z" in capsys.readouterr().err
+
+
+def test_simulator_command_line_runs_a_rail(tmp_path):
+    """`ros2 run rm65_driver simulator` with a rail, its mount written as a cell var renders a list."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    src = Path(__file__).resolve().parents[2] / "src"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(src / "rm65_driver"), str(src / "stud_common"),
+                                                       os.environ.get("PYTHONPATH", "")]))
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen([sys.executable, "-m", "rm65_driver.simulator", "--port", str(port), "--time-scale", "0.02",
+                             "--rail-length-m", "3", "--rail-mount-xyz-m=[0.0, 0.0, 0.1]", "--true-rail-offset-m",
+                             "0.002"], stdout=subprocess.PIPE, text=True, env=env)
+    try:
+        assert "rail of 3 m" in proc.stdout.readline()
+        peer = Peer(port)
+        assert peer.ask({"command": "expand_set_pos", "pos": 3_000_000, "speed": 100}, "expand_set_pos")["set_pos_state"]
+        assert peer.wait(is_arrival(4), timeout=10)["trajectory_state"] is True
+        assert peer.ask({"command": "expand_set_pos", "pos": 3_000_001, "speed": 100},
+                        "expand_set_pos")["set_pos_state"] is False
+        peer.close()
+    finally:
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(10) == 0

@@ -73,7 +73,10 @@ class DriverStatus(DriverBase):
                     self.get_logger().warn(f"arm state not read: {exc}", throttle_duration_sec=5.0)
                 if self.rail.present and self.client.connected:
                     try:
-                        self.rail.read()
+                        rail = self.rail.read()
+                        if rail is not None and not rail.enabled:
+                            self.get_logger().warn("rail_length_m is set but the controller's expansion joint is not "
+                                                   "enabled (expand_get_state en_flag 0)", throttle_duration_sec=30.0)
                     except ArmError as exc:
                         self.get_logger().warn(f"rail state not read: {exc}", throttle_duration_sec=5.0)
             self._log_connection(self.client.connected, self.client.last_error)

@@ -466,6 +466,16 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
 # --------------------------------------------------------------------------------------------
 
 
+def _three_floats(text: str) -> tuple[float, float, float]:
+    """``"x,y,z"``, ``"[x, y, z]"`` or ``"x y z"`` (one command-line word, as a cell var renders a list)."""
+    parts = text.strip().strip("[]").replace(",", " ").split()
+    try:
+        x, y, z = (float(v) for v in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not three numbers x,y,z") from None
+    return x, y, z
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Console entry point ``simulator``: serve until Ctrl-C."""
     parser = argparse.ArgumentParser(prog="simulator", description="RM-65 controller simulator (loopback)")
@@ -480,8 +490,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     rail.add_argument("--rail-pos-unit-m", type=float, default=1e-6, help="metres per wire count (default 1e-6)")
     rail.add_argument("--rail-max-speed-m-s", type=float, default=0.5, help="speed at 100 %% [m/s]")
     rail.add_argument("--rail-accel-m-s2", type=float, default=0.5, help="acceleration at 100 %% [m/s^2]")
-    rail.add_argument("--rail-mount-xyz-m", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
-                      help="the arm's base on the carriage [m]")
+    rail.add_argument("--rail-mount-xyz-m", type=_three_floats, default=(0.0, 0.0, 0.0), metavar="X,Y,Z",
+                      help="the arm's base on the carriage [m]: '0,0,0.1' or '[0.0, 0.0, 0.1]'")
     rail.add_argument("--true-rail-scale-ppm", type=float, default=0.0, help="sim-only truth: scale error [ppm]")
     rail.add_argument("--true-rail-offset-m", type=float, default=0.0, help="sim-only truth: zero offset [m]")
     rail.add_argument("--true-rail-yaw-urad-per-m", type=float, default=0.0,
