@@ -179,3 +179,26 @@ def test_move_to_with_the_carriage_and_a_stop_that_stops_the_rail(rail_sim, prob
     finally:
         code = proc.stop()
     assert code == 0, proc.log_path.read_text()[-3000:]
+
+
+@pytest.mark.parametrize("params, expected", [
+    (["rail_length_m:=100.0", "rail_pos_unit_m:=1e-08"], "bad parameter rail of 100.0 m at 1e-08 m per count needs "
+                                                         "10000000000 counts: beyond the wire's int32 pos"),
+    (["rail_length_m:=-1.0"], "bad parameter rail_length_m=-1.0: expected a number in [0.0, 100.0]"),
+    (["rail_length_m:=3.0", "rail_mount_xyz_m:=[0.0,0.1]"], "rail_mount_xyz_m needs 3 numbers, got [0.0, 0.1]"),
+])
+def test_a_bad_rail_ends_the_driver_with_one_line_and_exit_code_2(tmp_path, params, expected):
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    src = Path(__file__).resolve().parents[2] / "src"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(src / "rm65_driver"), str(src / "stud_perception"),
+                                                       os.environ.get("PYTHONPATH", "")]))
+    args = [a for p in [f"journal_file:={tmp_path / 'j.jsonl'}", *params] for a in ("-p", p)]
+    done = subprocess.run([sys.executable, "-m", "rm65_driver.driver_node", "--ros-args", *args], env=env,
+                          capture_output=True, text=True, timeout=60)
+    lines = [x for x in (done.stdout + done.stderr).splitlines() if x.strip()]
+    assert done.returncode == 2 and len(lines) == 1 and "[FATAL]" in lines[0], lines
+    assert expected in lines[0], lines[0]
