@@ -22,15 +22,15 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-for _pkg in ("stud_common", "rm65_driver"):  # run from a checkout, no build needed
+for _pkg in ("stud_common", "rm65_driver", "rm65_sim"):  # run from a checkout, no build needed
     _path = str(REPO / "src" / _pkg)
     if _path not in sys.path:
         sys.path.insert(0, _path)
 
 import numpy as np  # noqa: E402
 
-from rm65_driver.arm_client import ArmClient, ArmStopped  # noqa: E402
-from rm65_driver.simulator import ArmSimulator  # noqa: E402
+from rm65_driver.protocol.arm_client import ArmClient, ArmStopped  # noqa: E402
+from rm65_sim.simulator import ArmSimulator  # noqa: E402
 
 HOME_DEG = (0.0, -30.0, -100.0, 0.0, -50.0, 0.0)
 TARGET_S = 0.100

@@ -10,7 +10,7 @@ registration, station moves, shots, moves between studs, approach, descent, weld
 weld-job overhead, post-weld inspection. Target: <= 2 s per stud, everything included.
 
 Beside each measured figure, the floor at the run's own driver settings (its ``params/arm_driver.yaml``
-over the driver's defaults; :mod:`rm65_driver.cycle_floor`, the simulator's time law): the least a stud
+over the driver's defaults; :mod:`rm65_sim.cycle_floor`, the simulator's time law): the least a stud
 can take as the driver sequences it (its stops, with no move between studs and no per-job work) and
 with every corner blended (one stop a stud). A figure above the floor is what the moves between studs,
 the per-job work and the software cost; a target below the floor is out of reach at those settings.
@@ -41,9 +41,9 @@ from stud_welding_msgs.msg import CellStatus
 
 import yaml
 
-from rm65_driver import driver_params
-from rm65_driver.cycle_floor import StudTimeFloor, stud_time_floor
-from rm65_driver.journal_scan import read_records
+from rm65_driver.driver import params as driver_params
+from rm65_driver.journal.scan import read_records
+from rm65_sim.cycle_floor import StudTimeFloor, stud_time_floor
 from stud_planner.cell.cycle_time import CycleEvent, format_split, motion_from_journal, split_cycle
 
 TARGET_S_PER_STUD = 2.0

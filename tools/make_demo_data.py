@@ -31,8 +31,8 @@ for pkg in ("stud_common", "stud_perception", "stud_planner", "rm65_driver"):
 
 import numpy as np  # noqa: E402
 
-from rm65_driver.kinematics import RM65Kinematics  # noqa: E402
-from rm65_driver.safety import SafetyChecker, SafetyLimits  # noqa: E402
+from rm65_driver.kinematics.rm65 import RM65Kinematics  # noqa: E402
+from rm65_driver.weld.safety import SafetyChecker, SafetyLimits  # noqa: E402
 from stud_perception.camera_model import nadir_rotation  # noqa: E402
 from stud_common.rotations import rpy_to_matrix  # noqa: E402
 from stud_perception.scene import MarkingBoard, SceneSpec, surface_height, surface_normal  # noqa: E402

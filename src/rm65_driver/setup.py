@@ -24,8 +24,10 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "driver = rm65_driver.driver_node:main",
-            "simulator = rm65_driver.simulator:main",
+            "driver = rm65_driver.driver.driver_node:main",
+            # the simulator lives in rm65_sim: this keeps `ros2 run rm65_driver simulator` working (resolved
+            # when it runs, so rm65_driver does not depend on rm65_sim)
+            "simulator = rm65_sim.simulator:main",
             "state_publisher = rm65_driver.state_publisher_node:main",
         ],
     },

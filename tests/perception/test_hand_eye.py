@@ -18,7 +18,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rm65_driver.kinematics import RM65Kinematics
+from rm65_driver.kinematics.rm65 import RM65Kinematics
 from stud_perception.depth_image import depth_mm_to_m
 from stud_common.hand_eye_in_use import HandEyeLimits
 from stud_common.rotations import transform, transform_xyz_rpy

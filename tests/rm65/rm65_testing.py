@@ -1,4 +1,5 @@
-"""Helpers shared by the rm65_driver tests (imported as a plain module; tests/ is not a package)."""
+"""Helpers shared by the rm65_driver and rm65_sim tests (imported as a plain module; tests/ is not a package):
+the loopback simulator and client fixtures (each folder's conftest.py imports them), targets, journals."""
 from __future__ import annotations
 
 import random
@@ -6,15 +7,33 @@ import time
 from typing import Callable
 
 import numpy as np
+import pytest
 
-from rm65_driver.journal import Journal
-from rm65_driver.simulator import ArmSimulator
-from rm65_driver.weld_job import StudTarget
+from rm65_driver.journal.writer import Journal
+from rm65_driver.protocol.arm_client import ArmClient
+from rm65_driver.weld.weld_job import StudTarget
+from rm65_sim.simulator import ArmSimulator
 
 #: A "ready" pose in front of the arm, tool pointing down (0.289, 0, 0.183 m flange).
 HOME_DEG = (0.0, -30.0, -100.0, 0.0, -50.0, 0.0)
 #: Motions run 50x faster than real time in the tests.
 FAST = 0.02
+
+
+@pytest.fixture
+def sim():
+    s = ArmSimulator(host="127.0.0.1", port=0, time_scale=FAST, initial_joints_deg=HOME_DEG)
+    s.start()
+    yield s
+    s.stop()
+
+
+@pytest.fixture
+def client(sim):
+    c = ArmClient("127.0.0.1", sim.port, connect_timeout_s=1.0, reply_timeout_s=1.0, backoff_s=(0.02, 0.2))
+    c.connect()
+    yield c
+    c.close()
 
 
 def dome_targets(center=(0.30, 0.0), radius_m: float = 2.0, z0: float = 0.03, rings=((0.0, 1), (0.05, 7), (0.10, 12))):

@@ -8,9 +8,9 @@ import time
 import numpy as np
 import pytest
 
-from rm65_driver import protocol as P
-from rm65_driver.arm_client import ArmClient, ArmCommandError, ArmConnectionError, ArmStopped, ArmTimeout
-from rm65_driver.simulator import ArmSimulator
+from rm65_driver.protocol import messages as P
+from rm65_driver.protocol.arm_client import ArmClient, ArmCommandError, ArmConnectionError, ArmStopped, ArmTimeout
+from rm65_sim.simulator import ArmSimulator
 from rm65_testing import HOME_DEG, wait_for
 
 HOME = np.radians(HOME_DEG)

@@ -29,7 +29,8 @@ from stud_welding_msgs.action import WeldJob  # noqa: E402
 from stud_welding_msgs.msg import ArmState, WeldTarget  # noqa: E402
 from stud_welding_msgs.srv import ResolveStud  # noqa: E402
 
-from rm65_driver.kinematics import RM65Kinematics, matrix_to_quat_xyzw, quat_xyzw_to_matrix, tool_pose_facing  # noqa: E402
+from rm65_driver.kinematics.rm65 import (RM65Kinematics, matrix_to_quat_xyzw, quat_xyzw_to_matrix,  # noqa: E402
+                                         tool_pose_facing)
 from rm65_testing import dome_targets, welds_per_stud  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
@@ -45,7 +46,7 @@ class NodeProc:
         for k, v in params.items():
             args += ["-p", f"{k}:={json.dumps(v) if not isinstance(v, bool) else str(v).lower()}"]
         self.log = open(tmp_path / "driver.log", "w")
-        self.popen = subprocess.Popen([sys.executable, "-u", "-m", "rm65_driver.driver_node", *args], env=env,
+        self.popen = subprocess.Popen([sys.executable, "-u", "-m", "rm65_driver.driver.driver_node", *args], env=env,
                                       stdout=self.log, stderr=subprocess.STDOUT, start_new_session=True)
         self.log_path = tmp_path / "driver.log"
 
@@ -263,7 +264,7 @@ def test_bad_parameters_end_the_driver_with_one_line_naming_them_and_exit_code_2
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO / "src" / "rm65_driver"),
                                                        str(REPO / "src" / "stud_perception"),
                                                        os.environ.get("PYTHONPATH", "")]))
-    procs = [subprocess.Popen([sys.executable, "-m", "rm65_driver.driver_node", "--ros-args",
+    procs = [subprocess.Popen([sys.executable, "-m", "rm65_driver.driver.driver_node", "--ros-args",
                                "-p", f"journal_file:={tmp_path / f'j{i}.jsonl'}", "-p", f"{name}:={value}"],
                               env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
              for i, (name, value, _) in enumerate(BAD_PARAMS)]
@@ -280,11 +281,11 @@ def test_bad_parameters_end_the_driver_with_one_line_naming_them_and_exit_code_2
 
 def _weld_in_process(sim, journal_path, targets):
     """The first job, as a driver that crashed afterwards left it: every target welded once."""
-    from rm65_driver.arm_client import ArmClient
-    from rm65_driver.journal import Journal
-    from rm65_driver.safety import SafetyChecker, SafetyLimits
-    from rm65_driver.weld_job import WeldParams
-    from rm65_driver.weld_sequence import WeldSequence
+    from rm65_driver.journal.writer import Journal
+    from rm65_driver.protocol.arm_client import ArmClient
+    from rm65_driver.weld.safety import SafetyChecker, SafetyLimits
+    from rm65_driver.weld.weld_job import WeldParams
+    from rm65_driver.weld.weld_sequence import WeldSequence
 
     params = WeldParams(standoff_m=0.04, pulse_s=0.01, dwell_s=0.01, joint_speed_pct=50, linear_speed_pct=20)
     with ArmClient("127.0.0.1", sim.port) as client, Journal(journal_path) as journal:

@@ -22,10 +22,10 @@ from stud_welding_msgs.action import WeldJob  # noqa: E402
 from stud_welding_msgs.msg import ArmState, WeldRecord  # noqa: E402
 from stud_welding_msgs.srv import MoveTo, RailMove  # noqa: E402
 
-from rm65_driver.kinematics import RM65Kinematics, matrix_to_quat_xyzw  # noqa: E402
-from rm65_driver.rail import RailAxis  # noqa: E402
-from rm65_driver.simulator import ArmSimulator  # noqa: E402
-from rm65_driver.weld_job import StudTarget  # noqa: E402
+from rm65_driver.kinematics.rm65 import RM65Kinematics, matrix_to_quat_xyzw  # noqa: E402
+from rm65_driver.rail.axis import RailAxis  # noqa: E402
+from rm65_sim.simulator import ArmSimulator  # noqa: E402
+from rm65_driver.weld.weld_job import StudTarget  # noqa: E402
 from rm65_testing import FAST, HOME_DEG, dome_targets, welds_per_stud  # noqa: E402
 from stud_common.frames import world_T_base  # noqa: E402
 from test_driver_node import RELIABLE_10, NodeProc, call, spin_until, weld_target_msg  # noqa: E402
@@ -197,7 +197,7 @@ def test_a_bad_rail_ends_the_driver_with_one_line_and_exit_code_2(tmp_path, para
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(src / "rm65_driver"), str(src / "stud_perception"),
                                                        os.environ.get("PYTHONPATH", "")]))
     args = [a for p in [f"journal_file:={tmp_path / 'j.jsonl'}", *params] for a in ("-p", p)]
-    done = subprocess.run([sys.executable, "-m", "rm65_driver.driver_node", "--ros-args", *args], env=env,
+    done = subprocess.run([sys.executable, "-m", "rm65_driver.driver.driver_node", "--ros-args", *args], env=env,
                           capture_output=True, text=True, timeout=60)
     lines = [x for x in (done.stdout + done.stderr).splitlines() if x.strip()]
     assert done.returncode == 2 and len(lines) == 1 and "[FATAL]" in lines[0], lines

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rm65_driver.journal import Journal
-from rm65_driver.journal_records import JournalError, encode_record, mirror_path
-from rm65_driver.journal_scan import JournalCorrupt
+from rm65_driver.journal.records import JournalError, encode_record, mirror_path
+from rm65_driver.journal.scan import JournalCorrupt
+from rm65_driver.journal.writer import Journal
 from rm65_testing import nul_block_over_one_stud, random_bytes, write_job
 
 

@@ -6,10 +6,10 @@ import json
 
 import pytest
 
-from rm65_driver.journal import Journal
-from rm65_driver.journal_records import JournalError, mirror_path
-from rm65_driver.journal_repair import ACTION_ACCEPT_INTACT, ACTION_LOAD_BACKUP, repair_journal
-from rm65_driver.journal_scan import JournalCorrupt
+from rm65_driver.journal.records import JournalError, mirror_path
+from rm65_driver.journal.repair import ACTION_ACCEPT_INTACT, ACTION_LOAD_BACKUP, repair_journal
+from rm65_driver.journal.scan import JournalCorrupt
+from rm65_driver.journal.writer import Journal
 from rm65_testing import nul_block_over_one_stud, random_bytes, write_job
 
 

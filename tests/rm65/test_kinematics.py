@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rm65_driver.kinematics import (
+from rm65_driver.kinematics.rm65 import (
     JOINT_LIMITS_DEG,
     RM65Kinematics,
     euler_zyx_to_matrix,

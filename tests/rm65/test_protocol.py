@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rm65_driver import protocol as P
+from rm65_driver.protocol import messages as P
 
 PRETTY_ROS1 = (  # what cJSON_Print + "\r\n" produces in the official ROS1 driver
     b'{\n\t"command":\t"movej",\n\t"joint":\t[10100, 200, 20300, 30400, 500, 20600],\n'

@@ -8,9 +8,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rm65_driver.kinematics import D6_BY_VARIANT, JOINT_LIMITS_DEG, DHModel, RM65Kinematics, rotation_angle
-from rm65_driver.robot_description import JOINT_NAMES, RM65Description, rm65_urdf
-from rm65_driver.urdf_model import UrdfError, parse_urdf
+from rm65_driver.kinematics.rm65 import D6_BY_VARIANT, JOINT_LIMITS_DEG, DHModel, RM65Kinematics, rotation_angle
+from rm65_driver.kinematics.robot_description import JOINT_NAMES, RM65Description, rm65_urdf
+from rm65_driver.kinematics.urdf_model import UrdfError, parse_urdf
 from stud_common import frames
 
 URDF_FILE = Path(__file__).resolve().parents[2] / "src" / "rm65_driver" / "urdf" / "rm65.urdf"

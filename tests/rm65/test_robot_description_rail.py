@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rm65_driver.kinematics import RM65Kinematics, rotation_angle
-from rm65_driver.robot_description import JOINT_NAMES, RM65Description, rm65_urdf
-from rm65_driver.urdf_model import parse_urdf
+from rm65_driver.kinematics.rm65 import RM65Kinematics, rotation_angle
+from rm65_driver.kinematics.robot_description import JOINT_NAMES, RM65Description, rm65_urdf
+from rm65_driver.kinematics.urdf_model import parse_urdf
 from stud_common import frames
 from stud_common.frames import world_T_base
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rm65_driver.kinematics import RM65Kinematics, tool_pose_facing
-from rm65_driver.safety import SafetyChecker, SafetyLimits
+from rm65_driver.kinematics.rm65 import RM65Kinematics, tool_pose_facing
+from rm65_driver.weld.safety import SafetyChecker, SafetyLimits
 from rm65_testing import HOME_DEG
 
 KIN = RM65Kinematics()

@@ -7,8 +7,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rm65_driver.kinematics import JOINT_MAX_SPEED_DEG_S
-from rm65_driver.stud_order import joint_move_costs, order_by_path, path_cost
+from rm65_driver.kinematics.rm65 import JOINT_MAX_SPEED_DEG_S
+from rm65_driver.weld.stud_order import joint_move_costs, order_by_path, path_cost
 
 V = np.radians(JOINT_MAX_SPEED_DEG_S)
 

@@ -13,13 +13,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from rm65_driver import protocol as P
-from rm65_driver.journal import Journal
-from rm65_driver.kinematics import RM65Kinematics
-from rm65_driver.safety import SafetyChecker, SafetyLimits
-from rm65_driver.simulator import ArmSimulator
-from rm65_driver.weld_job import StudTarget, WeldParams
-from rm65_driver.weld_sequence import WeldSequence
+from rm65_driver.journal.writer import Journal
+from rm65_driver.kinematics.rm65 import RM65Kinematics
+from rm65_driver.protocol import messages as P
+from rm65_driver.weld.safety import SafetyChecker, SafetyLimits
+from rm65_driver.weld.weld_job import StudTarget, WeldParams
+from rm65_driver.weld.weld_sequence import WeldSequence
+from rm65_sim.simulator import ArmSimulator
 from rm65_testing import FAST, dome_targets, wait_for, welds_per_stud
 
 PARAMS = WeldParams(standoff_m=0.04, tool_offset_m=0.15, pulse_s=0.01, dwell_s=0.01, joint_speed_pct=50,
@@ -493,26 +493,27 @@ def test_each_next_stud_is_planned_during_the_dwell_not_between_the_studs(client
 
 
 def test_a_plan_made_ahead_is_used_only_for_its_stud_and_from_where_the_arm_is(client, sim, tmp_path):
-    from rm65_driver.weld_sequence import LOOKAHEAD_TOL_RAD
+    from rm65_driver.weld.stud_cycle import LOOKAHEAD_TOL_RAD
 
     seq, _ = make_seq(client, tmp_path)
+    lookahead = seq.cycle.lookahead
     t, other = dome_targets(rings=((0.05, 2),))
     q = np.radians([0.0, 20.0, 70.0, 0.0, 90.0, 0.0])
-    seq._plan_ahead(t, q)
-    assert seq._planned is not None
-    assert seq._planned_check(other, q) is None and seq._planned is None  # another stud came next
-    seq._plan_ahead(t, q)
-    assert seq._planned_check(t, q + 2 * LOOKAHEAD_TOL_RAD) is None  # the arm is elsewhere: planned again
-    seq._plan_ahead(t, q)
-    ahead = seq._planned_check(t, q + 0.5 * LOOKAHEAD_TOL_RAD)
+    lookahead.plan(t, q)
+    assert lookahead.planned is not None
+    assert lookahead.take(other, q) is None and lookahead.planned is None  # another stud came next
+    lookahead.plan(t, q)
+    assert lookahead.take(t, q + 2 * LOOKAHEAD_TOL_RAD) is None  # the arm is elsewhere: planned again
+    lookahead.plan(t, q)
+    ahead = lookahead.take(t, q + 0.5 * LOOKAHEAD_TOL_RAD)
     assert ahead is not None and ahead.ok
     now = seq.safety.check_target(t.position, t.normal, PARAMS.standoff_m, q, PARAMS.plunge_m).plan
     assert ahead.plan is not None and now is not None and ahead.plan.yaw_rad == now.yaw_rad
     np.testing.assert_allclose(ahead.plan.q_approach, now.q_approach)
     np.testing.assert_allclose(ahead.plan.q_contact, now.q_contact)
-    assert seq._planned_check(t, q) is None  # used once
+    assert lookahead.take(t, q) is None  # used once
     # the joint move is checked again from where the arm is: a plan whose move from there leaves the
     # workspace is not used
-    seq._plan_ahead(t, q)
+    lookahead.plan(t, q)
     seq.safety.check_joint_path = lambda *a, **k: "approach move: outside the workspace box"  # type: ignore
-    assert seq._planned_check(t, q) is None
+    assert lookahead.take(t, q) is None

@@ -6,12 +6,12 @@ import json
 
 import numpy as np
 
-from rm65_driver.journal import Journal
-from rm65_driver.kinematics import RM65Kinematics
-from rm65_driver.rail_control import target_in_base
-from rm65_driver.safety import SafetyChecker, SafetyLimits
-from rm65_driver.weld_job import StudTarget, WeldParams
-from rm65_driver.weld_sequence import WeldSequence
+from rm65_driver.journal.writer import Journal
+from rm65_driver.kinematics.rm65 import RM65Kinematics
+from rm65_driver.rail.control import target_in_base
+from rm65_driver.weld.safety import SafetyChecker, SafetyLimits
+from rm65_driver.weld.weld_job import StudTarget, WeldParams
+from rm65_driver.weld.weld_sequence import WeldSequence
 from stud_common.frames import world_T_base
 
 PARAMS = WeldParams(standoff_m=0.06, tool_offset_m=0.15, pulse_s=0.01, dwell_s=0.01, joint_speed_pct=50,

@@ -11,9 +11,9 @@ from stud_welding_msgs.msg import Registration
 from tf2_msgs.msg import TFMessage
 
 from rosproc import ros2_run, wait_for
-from rm65_driver.kinematics import RM65Kinematics, pose_to_matrix, rotation_angle
-from rm65_driver.robot_description import JOINT_NAMES
-from rm65_driver.urdf_model import parse_urdf
+from rm65_driver.kinematics.rm65 import RM65Kinematics, pose_to_matrix, rotation_angle
+from rm65_driver.kinematics.robot_description import JOINT_NAMES
+from rm65_driver.kinematics.urdf_model import parse_urdf
 from stud_common import frames, ros_io, tf_io
 
 

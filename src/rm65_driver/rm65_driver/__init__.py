@@ -1,3 +1,2 @@
-"""RealMan RM-65 driver: ROS-free core (protocol, kinematics, simulator, client, journal, safety,
-weld job and sequence) and a thin rclpy adapter (``driver_node`` with ``driver_params``,
-``driver_status``, ``driver_services``)."""
+"""RealMan RM-65 driver: ROS-free core (``protocol/``, ``kinematics/``, ``journal/``, ``weld/``) and thin
+rclpy adapters (``driver/``, ``state_publisher_node``). The controller simulator is the ``rm65_sim`` package."""

@@ -13,9 +13,9 @@ It is also the cell's one static broadcaster for ``world -> drawing``: from the 
 ``/tf_static`` means its latched message always holds every static frame of the cell, so
 ``ros2 topic echo --once /tf_static`` shows them all (``registration_topic:=''`` turns that off).
 
-The URDF is :func:`rm65_driver.robot_description.rm65_urdf` for the parameters below, or the file
+The URDF is :func:`rm65_driver.kinematics.robot_description.rm65_urdf` for the parameters below, or the file
 ``robot_description_file`` (then the parameters describing the arm are not used). The math is
-:mod:`rm65_driver.urdf_model` (pure, tested against the kinematics module).
+:mod:`rm65_driver.kinematics.urdf_model` (pure, tested against the kinematics module).
 """
 from __future__ import annotations
 
@@ -30,9 +30,9 @@ from stud_welding_msgs.msg import Registration
 from stud_common import frames, hand_eye_ros, ros_io, tf_io
 from stud_common.ros_io import Param, three_numbers
 
-from .kinematics import D6_BY_VARIANT
-from .robot_description import RM65Description, rm65_urdf
-from .urdf_model import RobotModel, UrdfError, parse_urdf
+from rm65_driver.kinematics.rm65 import D6_BY_VARIANT
+from rm65_driver.kinematics.robot_description import RM65Description, rm65_urdf
+from rm65_driver.kinematics.urdf_model import RobotModel, UrdfError, parse_urdf
 from stud_common import names
 
 

@@ -94,8 +94,8 @@ def gun_axes_at_weld(journal_file: Path) -> dict[str, np.ndarray]:
     """Per welded stud, the gun's axis at the weld (unit, world, pointing into the part): forward
     kinematics of the joints the controller reported at the contact pose (the journal's
     ``started`` record); the gun lies along the flange's z axis, whatever its length."""
-    from rm65_driver.journal_scan import read_records
-    from rm65_driver.kinematics import RM65Kinematics
+    from rm65_driver.journal.scan import read_records
+    from rm65_driver.kinematics.rm65 import RM65Kinematics
 
     if not journal_file.exists():
         return {}

@@ -46,7 +46,7 @@ VAR_OPTIONS = {"bag": "--bag DIR", "drawing": "--drawing FILE", "out": "--out DI
 DRIVER_NODE = "arm_driver"   # --respawn-driver
 HMI_NODE = "hmi"             # --no-hmi
 #: Packages whose executables arm ``stud_common.stacks`` (a stuck one is asked for its stacks).
-OUR_PACKAGES = frozenset({"stud_planner", "stud_perception", "rm65_driver"})
+OUR_PACKAGES = frozenset({"stud_planner", "stud_perception", "rm65_driver", "rm65_sim"})
 _SUBST_RE = re.compile(r"\$\{([^}]*)\}")
 _PARAM_SCALARS = (bool, int, float, str)
 

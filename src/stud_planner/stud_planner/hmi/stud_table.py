@@ -14,7 +14,7 @@ from stud_planner.cell.rework import NEEDS_DECISION
 WELD_NONE, WELD_ACTIVE, WELD_WELDED, WELD_SKIPPED, WELD_FAILED = "", "active", "welded", "skipped", "failed"
 #: A stud in one of these weld states is done with (no longer "remaining").
 FINAL_WELD_STATES = (WELD_WELDED, WELD_SKIPPED, WELD_FAILED)
-#: WeldJob feedback phases while a stud is being worked on (rm65_driver.weld_sequence).
+#: WeldJob feedback phases while a stud is being worked on (rm65_driver.weld.weld_sequence).
 _ACTIVE_PHASES = ("approach", "descend", "weld", "dwell")
 #: The driver reports "retract" only after the weld is confirmed and journalled as welded.
 _WELDED_PHASE = "retract"

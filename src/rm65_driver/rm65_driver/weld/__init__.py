@@ -1,0 +1,1 @@
+"""The weld job: what it is given and returns, the checks before any motion, the stud order, the sequence."""
