@@ -5,7 +5,7 @@ Runs the simulated cell on a bundled part (``ros2 run stud_planner demo --part P
 --no-hmi``) while a listener in this process records, as they arrive, the sequencer's
 ``/cell/status`` states and the driver's ``/arm/weld_job`` feedback phases; the weld journal's
 ``started`` records split the approach phase into the move between studs and the fast approach.
-Prints studs per hour and the seconds per stud of every category (stud_planner/cycle_time.py):
+Prints studs per hour and the seconds per stud of every category (stud_cell/cycle_time.py):
 registration, station moves, shots, moves between studs, approach, descent, weld, dwell, retract,
 weld-job overhead, post-weld inspection. Target: <= 2 s per stud, everything included.
 
@@ -44,7 +44,7 @@ import yaml
 from rm65_driver.driver import params as driver_params
 from rm65_driver.journal.scan import read_records
 from rm65_sim.cycle_floor import StudTimeFloor, stud_time_floor
-from stud_planner.cell.cycle_time import CycleEvent, format_split, motion_from_journal, split_cycle
+from stud_cell.cycle_time import CycleEvent, format_split, motion_from_journal, split_cycle
 
 TARGET_S_PER_STUD = 2.0
 

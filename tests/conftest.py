@@ -23,7 +23,8 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-for pkg in ("stud_common", "stud_bag", "stud_perception", "stud_planner", "rm65_driver", "rm65_sim"):
+for pkg in ("stud_common", "stud_bag", "stud_perception", "stud_planner", "stud_inspection", "stud_cell", "stud_hmi",
+            "stud_bringup", "rm65_driver", "rm65_sim"):
     path = str(REPO / "src" / pkg)
     if path not in sys.path:
         sys.path.insert(0, path)

@@ -106,7 +106,7 @@ def test_colcon_test_collects_each_packages_tests():
 
 
 def test_the_packages_pass_the_type_checker():
-    """mypy over the six Python packages, configured in pyproject.toml ([tool.mypy]). Run `mypy` from the
+    """mypy over the Python packages, configured in pyproject.toml ([tool.mypy]). Run `mypy` from the
     repository root (after `source ros2_ws/setup.bash`, for the message classes) to see the findings."""
     mypy = Path(sys.executable).with_name("mypy")
     done = subprocess.run([str(mypy), "--no-color-output", "--cache-dir", str(TESTS.parent / ".mypy_cache")],

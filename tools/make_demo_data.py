@@ -26,7 +26,7 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-for pkg in ("stud_common", "stud_perception", "stud_planner", "rm65_driver"):
+for pkg in ("stud_common", "stud_perception", "stud_planner", "stud_inspection", "stud_cell", "rm65_driver", "rm65_sim"):
     sys.path.insert(0, str(REPO / "src" / pkg))
 
 import numpy as np  # noqa: E402
@@ -39,10 +39,10 @@ from stud_perception.scene import MarkingBoard, SceneSpec, surface_height, surfa
 from stud_perception.scene_file import scene_from_dict, scene_to_dict  # noqa: E402
 from stud_perception.scene_solids import Cylinder, Dome, Pose2D  # noqa: E402
 from stud_common.strict_json import write_json  # noqa: E402
-from stud_planner.cell.job import JobConfig  # noqa: E402
+from stud_cell.job import JobConfig  # noqa: E402
 from stud_planner.drawing import read_layout  # noqa: E402
 from stud_planner.drawing.dxf_writer import write_layout_dxf  # noqa: E402
-from stud_planner.cell.stations import footprint_m, plan_stations  # noqa: E402
+from stud_cell.stations import footprint_m, plan_stations  # noqa: E402
 
 DATA = REPO / "src" / "stud_planner" / "data"
 CONFIG = REPO / "src" / "stud_perception" / "config"

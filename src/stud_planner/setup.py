@@ -9,11 +9,9 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test", "tests"]),
-    package_data={f"{PACKAGE}.hmi": ["static/*"]},  # the HMI page (stud_planner/hmi/static/)
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        (f"share/{PACKAGE}/config", glob("config/*")),
         (f"share/{PACKAGE}/data", glob("data/*")),
     ],
     install_requires=["setuptools"],
@@ -25,16 +23,18 @@ setup(
     entry_points={
         "console_scripts": [
             "selfcheck = stud_planner.selfcheck:main",
-            "drawing = stud_planner.drawing.node:main",
+            "drawing = stud_planner.drawing.drawing_node:main",
             "drawing_inspect = stud_planner.drawing.inspect_cli:main",
-            "matcher = stud_planner.matching.node:main",
-            "hmi = stud_planner.hmi.node:main",
-            "cell_sequencer = stud_planner.cell.sequencer_node:main",
+            "matcher = stud_planner.matching.matcher_node:main",
             "plan = stud_planner.offline_plan:main",
-            "demo = stud_planner.demo:main",
-            "cell = stud_planner.cell.launch:main",
-            "hand_eye_calibrator = stud_planner.cell.hand_eye_calibrator:main",
-            "inspector = stud_planner.cell.inspector_node:main",
+            # The used-by names of the executables that moved to their own packages (`ros2 run stud_planner
+            # cell` keeps working): resolved when run, so stud_planner imports none of these packages.
+            "hmi = stud_hmi.hmi_node:main",
+            "cell_sequencer = stud_cell.sequencer_node:main",
+            "hand_eye_calibrator = stud_cell.hand_eye_calibrator_node:main",
+            "inspector = stud_inspection.inspector_node:main",
+            "cell = stud_bringup.launch:main",
+            "demo = stud_bringup.demo:main",
         ],
     },
 )

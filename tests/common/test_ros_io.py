@@ -217,7 +217,7 @@ def test_a_teardown_that_hangs_holding_the_gil_is_ended_by_the_backstop_as_a_cle
     in time, and the launcher counts a SIGTERM as a clean stop."""
     import signal
 
-    from stud_planner.cell.launcher import _CLEAN_STOP_CODES
+    from stud_bringup.launcher import _CLEAN_STOP_CODES
 
     code = _GIL_HOLDING_TEARDOWN.format(src=str(REPO / "src" / "stud_common"))
     t0 = time.monotonic()

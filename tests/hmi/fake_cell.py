@@ -22,7 +22,7 @@ from stud_welding_msgs.srv import RecordRework, ResolveStud
 from rosproc import wait_for
 from stud_common import ros_io
 from stud_perception import image_io
-from stud_planner.hmi.model import CellState
+from stud_hmi.model import CellState
 
 NAN = math.nan
 

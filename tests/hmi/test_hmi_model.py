@@ -7,9 +7,9 @@ import math
 
 import pytest
 
-from stud_planner.hmi.model import (ALARMS, ArmInfo, ArmMode, CellInfo, CellState, CellView, Code, StudTable,
+from stud_hmi.model import (ALARMS, ArmInfo, ArmMode, CellInfo, CellState, CellView, Code, StudTable,
                                     TargetInfo, Timeouts)
-from stud_planner.hmi.server import to_json
+from stud_hmi.server import to_json
 
 NAN = math.nan
 

@@ -7,8 +7,8 @@ import json
 
 import pytest
 
-from stud_planner.hmi import server as hmi_server
-from stud_planner.hmi.server import HmiServer, json_depth
+from stud_hmi import server as hmi_server
+from stud_hmi.server import HmiServer, json_depth
 from ws_client import HandshakeRefused, WsClient
 
 

@@ -14,8 +14,8 @@ import urllib.request
 
 import pytest
 
-from stud_planner.hmi import server as hmi_server
-from stud_planner.hmi.server import HmiServer, to_json
+from stud_hmi import server as hmi_server
+from stud_hmi.server import HmiServer, to_json
 from ws_client import HandshakeRefused, WsClient
 
 
@@ -305,7 +305,7 @@ def test_a_client_flooding_messages_is_closed_for_policy_and_its_burst_never_all
 
 
 def test_the_message_rate_refills_at_its_rate_up_to_its_burst():
-    from stud_planner.hmi.guards import MessageRate
+    from stud_hmi.guards import MessageRate
 
     now = [0.0]
     rate = MessageRate(per_s=2.0, burst=3, clock=lambda: now[0])

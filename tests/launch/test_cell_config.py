@@ -9,10 +9,10 @@ import pytest
 import yaml
 
 from rosproc import REPO
-from stud_planner.cell import launch as cell_launch
-from stud_planner.cell.launch import CellConfigError, child_specs, load_config, plan_cell, write_params_file
+from stud_bringup import launch as cell_launch
+from stud_bringup.launch import CellConfigError, child_specs, load_config, plan_cell, write_params_file
 
-CELL_YAML = REPO / "src" / "stud_planner" / "config" / "cell.yaml"
+CELL_YAML = REPO / "src" / "stud_bringup" / "config" / "cell.yaml"
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ import pytest
 
 from rosproc import REPO, wait_for
 from stud_planner.drawing import read_layout
-from stud_planner.cell.launcher import group_members
+from stud_bringup.launcher import group_members
 
 N_DEMO_STUDS = len(read_layout(REPO / "src" / "stud_planner" / "data" / "dome_demo.dxf").studs)
 from launch_helpers import alive

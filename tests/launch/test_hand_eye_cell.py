@@ -20,7 +20,7 @@ import yaml
 from stud_common.rotations import transform_xyz_rpy
 from stud_perception.hand_eye_solvers import rotation_angle_deg
 from stud_common.hand_eye_in_use import load_hand_eye_file
-from stud_planner.cell.hand_eye_views import REAIM_MIN_SHOTS
+from stud_cell.hand_eye_views import REAIM_MIN_SHOTS
 from test_cell_ros import N_DEMO_STUDS, free_port
 
 BELIEVED = ([0.05, 0.0, -0.10], [0.0, 0.0, 0.0])  # cell.yaml's hand_eye_* vars
@@ -94,7 +94,7 @@ def test_verify_passes_with_the_calibration_and_fails_with_the_believed_value(ca
 
 
 def _job(out, *args: str) -> dict:
-    from stud_planner.demo import score, share_file
+    from stud_bringup.demo import score, share_file
 
     code, text = run_cell(out, "--mode", "sim", "--no-hmi", "--set", "cell_sequencer.auto_start=true",
                           "--set", "cell_sequencer.exit_when_done=true", "--set", "arm_driver.pulse_s=0.02",

@@ -1,4 +1,4 @@
-"""stud_planner.cell.launcher with small Python children (tests/launch/child.py), no ROS.
+"""stud_bringup.launcher with small Python children (tests/launch/child.py), no ROS.
 
 The launcher runs as a process of its own (run_launcher.py), so the tests send it real signals;
 every child records its pid(s) and the signals it received in a state folder.
@@ -18,7 +18,7 @@ import pytest
 
 from launch_helpers import alive
 from rosproc import wait_for
-from stud_planner.cell.launcher import ChildSpec, LaunchError, Launcher, describe_returncode, group_members
+from stud_bringup.launcher import ChildSpec, LaunchError, Launcher, describe_returncode, group_members
 
 HERE = Path(__file__).resolve().parent
 CHILD = HERE / "child.py"

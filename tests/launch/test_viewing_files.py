@@ -11,7 +11,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def _recorded_topics() -> set[str]:
-    cell = yaml.safe_load((REPO / "src" / "stud_planner" / "config" / "cell.yaml").read_text())
+    cell = yaml.safe_load((REPO / "src" / "stud_bringup" / "config" / "cell.yaml").read_text())
     return {a for a in cell["nodes"]["bag_record"]["cmd"] if a.startswith("/")}
 
 

@@ -30,7 +30,7 @@ from stud_common.rotations import rpy_to_matrix
 from stud_perception.scene_cameras import view_camera
 from stud_perception.scene_file import load_scene
 from stud_perception.scene_render import render
-from stud_planner.cell.hand_eye_views import (REAIM_MIN_SHOTS, ViewAimer, board_centre_w, plan_calibration_views,
+from stud_cell.hand_eye_views import (REAIM_MIN_SHOTS, ViewAimer, board_centre_w, plan_calibration_views,
                                               plan_check_views, station_view)
 
 CI = os.environ.get("CI") == "true"  # derandomised in CI: the same cases every run
@@ -300,7 +300,7 @@ def _calibrate(views, **limits):
 
 
 def _views(tilts_azimuths_yaws):
-    from stud_planner.cell.hand_eye_views import _view
+    from stud_cell.hand_eye_views import _view
 
     return [_view(i, TARGET_W, 0.3, t, a, y) for i, (t, a, y) in enumerate(tilts_azimuths_yaws)]
 

@@ -120,7 +120,7 @@ def test_poses_hold_only_the_usable_targets_in_target_order_and_no_nan():
     """/weld_targets/poses: the k-th pose is the k-th OK target (RViz and Foxglove cannot draw NaN)."""
     from std_msgs.msg import Header
 
-    from stud_planner.matching.node import MatcherNode
+    from stud_planner.matching.matcher_node import MatcherNode
     from stud_planner.matching.view_targets import plan_view
 
     scene = load_scene(DEMO_SCENE)

@@ -50,6 +50,18 @@ def test_pkg_list_and_executables_show_our_packages():
     assert "stud_planner selfcheck" in ros2("pkg", "executables", "stud_planner").stdout
 
 
+def test_executables_that_moved_to_their_own_packages_keep_their_stud_planner_names(tmp_path):
+    moved = {"stud_inspection": ["inspector"], "stud_cell": ["cell_sequencer", "hand_eye_calibrator"],
+             "stud_hmi": ["hmi"], "stud_bringup": ["cell", "demo"]}
+    listed = ros2("pkg", "executables").stdout.splitlines()
+    for package, executables in moved.items():
+        for name in executables:
+            assert f"{package} {name}" in listed and f"stud_planner {name}" in listed, name
+    done = ros2("run", "stud_planner", "cell", "--mode", "sim", "--dry-run", "--out", str(tmp_path / "out"))
+    assert done.returncode == 0, done.stderr
+    assert "/lib/stud_cell/cell_sequencer " in done.stdout and "/lib/stud_hmi/hmi " in done.stdout
+
+
 def test_interface_show_expands_nested_types():
     done = ros2("interface", "show", "stud_welding_msgs/msg/WeldTargetArray")
     assert done.returncode == 0, done.stderr

@@ -1,0 +1,489 @@
+"""The weld job of the cell, step by step, with no ROS in it (the sequencer node is its adapter).
+
+1. registration: the camera over the marking board, a valid registration of a shot taken there;
+2. stations planned to cover every stud (station_planning.py); studs no reachable station covers
+   are reported as unreachable;
+3. per station: move, one shot, its targets; weld the station's usable targets (``resume``: the arm
+   driver's journal is the truth of what is welded, so a resent or restarted job never welds twice);
+   then, with ``inspect``, shoot the same pose again and have every stud welded there measured and
+   judged (post-weld inspection);
+4. studs their own station gave no usable target for, but another view did, are welded from that
+   view's target (and inspected from that view's pose);
+5. studs no view could use for a reason another view may cure (normal too uncertain, a hole) are
+   shot again from other directions, ``reshoot_attempts`` times; never welded blind.
+
+At the end -- also when the job stops early -- the job writes the weld report (``report_file``) and
+the QA record (``qa_dir``: qa_report.json/.csv/.html, stud_inspection.qa_report): every drawing stud with
+its verdict. A stud that fails inspection is listed for the operator and never welded again: rework
+is a person's decision.
+
+Everything the job needs of the cell comes through a :class:`CellPorts` object: the sequencer node
+implements it over topics, services and the weld action; tests implement it in plain Python.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from stud_common.vocabulary import VIEW_DEPENDENT, CellState
+from stud_perception.registration import local_to_world
+from stud_common.strict_json import write_json
+from stud_inspection import qa_report, rework
+from stud_inspection.inspection import InspectionLimits
+from stud_cell.stations import footprint_m, plan_stations, reshoot_station
+
+#: Job states (CellStatus state_text): stud_common.vocabulary's, by name.
+IDLE, REGISTERING, MOVING, SHOOTING, MATCHING, WELDING, INSPECTING, PAUSED, DONE, FAILED = (
+    s.text for s in (CellState.IDLE, CellState.REGISTERING, CellState.MOVING, CellState.SHOOTING, CellState.MATCHING,
+                     CellState.WELDING, CellState.INSPECTING, CellState.PAUSED, CellState.DONE, CellState.FAILED))
+
+
+class JobAborted(Exception):
+    """The job cannot go on (stop requested, a step failed): the message says why."""
+
+
+class MoveRefused(JobAborted):
+    """The arm refused a camera move (unreachable, e-stop): the message says why."""
+
+
+class DriverLost(JobAborted):
+    """The arm driver lost the weld job (crash, restart) while it ran."""
+
+
+class InspectionUnavailable(Exception):
+    """No inspection of a station could be had (no inspector, the view before the welds no longer
+    kept, no shot after them): its studs are ``not_inspected`` with this message as the reason."""
+
+
+@dataclass(frozen=True)
+class Target:
+    """One stud's weld target of a view: what the job decides on, and the arm's own target (opaque)."""
+
+    stud_id: str
+    ok: bool                  # usable: weld it
+    status_text: str          # "ok", "normal_uncertain", "no_depth", ...
+    lean_bound_deg: float     # how far the welded stud could lean from the normal, from its uncertainty
+    entry: dict               # its weld-report fields (msg_convert.target_report_entry)
+    payload: object = None    # what the arm driver welds (a WeldTarget message in the node)
+
+
+@dataclass(frozen=True)
+class View:
+    """One shot's targets, and where the camera stood for it."""
+
+    index: int
+    stamp_ns: int
+    camera_xyz_w: tuple
+    yaw_rad: float
+    targets: tuple[Target, ...]
+
+
+@dataclass(frozen=True)
+class Registration:
+    valid: bool
+    message: str
+    m_local2world: np.ndarray   # (3, 3), Eq. 2
+    plane_z_m: float            # world z of the marks (the working plane)
+
+
+@dataclass(frozen=True)
+class Layout:
+    ids: list[str]
+    xy_m: np.ndarray            # (N, 2) drawing frame
+    source_file: str = ""
+
+
+@dataclass(frozen=True)
+class InspectionOutcome:
+    """One view's post-weld inspection: QA fields per target sent (qa_report rows' ``verdict``,
+    ``reasons``, ``measured``), objects standing where no stud was planned, the overlay image."""
+
+    rows: list[dict]
+    unexpected: list[dict] = field(default_factory=list)   # {"position_m": [x, y, z], "height_mm": h}
+    overlay_file: str = ""
+    limits: dict = field(default_factory=dict)             # what the studs were judged against
+
+
+@dataclass(frozen=True)
+class WeldOutcome:
+    welded: tuple[str, ...]     # studs the journal holds as welded, of those sent
+    failed: tuple[str, ...]
+    messages: tuple[str, ...]   # "<stud id>: why"
+
+
+class CellPorts(Protocol):
+    """What the job needs of the cell. Every call may raise JobAborted (stop, time-out, refusal)."""
+
+    def wait_layout(self) -> Layout: ...
+    def move_camera(self, xyz_w, yaw_rad: float) -> None: ...             # MoveRefused: unreachable
+    def register(self) -> Registration: ...                              # one registration shot
+    def shoot_view(self, what: str, camera_xyz_w, yaw_rad: float) -> View | None: ...  # None: no targets came
+    def shoot(self) -> int: ...                                          # a shot; its ROS time (ns)
+    def weld(self, targets: list[Target]) -> WeldOutcome: ...            # DriverLost: the driver lost the job
+    def inspect(self, station: int, view: View, targets: list[Target], welded_ids: list[str],
+                after_ns: int) -> InspectionOutcome: ...                # InspectionUnavailable
+    def status(self, state: str, message: str, **fields) -> None: ...
+    def checkpoint(self) -> None: ...                                    # honours pause and stop
+    def stopped(self) -> bool: ...
+    def info(self, text: str) -> None: ...
+    def warn(self, text: str) -> None: ...
+
+
+#: Status texts another view may cure: such studs are shot again before the job gives up on them.
+RESHOOT_STATUS_TEXTS = frozenset(s.text for s in VIEW_DEPENDENT)
+
+
+@dataclass
+class JobConfig:
+    """The job's settings (the sequencer's parameters of the same names)."""
+
+    registration_station_xyz_m: tuple = (0.225, -0.29, 0.285)
+    camera_height_m: float = 0.40
+    camera_yaw_deg: float = 0.0
+    part_height_m: float = 0.15
+    fov_width_m: float = 0.46
+    fov_distance_m: float = 0.5
+    image_aspect: float = 0.75
+    overlap: float = 0.15
+    fewest_stations: bool = False  # station_planning: free footprints when they need fewer stations than the grid
+    weld_resends: int = 3
+    reshoot_attempts: int = 2
+    reshoot_offset_m: float = 0.08
+    inspect: bool = True
+    report_file: str = ""
+    qa_dir: str = ""
+    rework_file: str = ""   # the operator's rework decisions (cell.rework), merged into the QA record
+    qa_limits: dict = field(default_factory=lambda: InspectionLimits().to_dict())  # the QA record's header
+                                                    # (an inspection's own limits replace these)
+    job_id: str = ""
+    part: str = ""
+
+    @classmethod
+    def from_params(cls, p: dict) -> "JobConfig":
+        names = cls.__dataclass_fields__
+        return cls(**{k: v for k, v in p.items() if k in names})
+
+
+class CellJob:
+    """One weld job over ``ports``; :meth:`run` returns the end state and the exit code."""
+
+    def __init__(self, ports: CellPorts, config: JobConfig) -> None:
+        self.ports, self.c = ports, config
+        self.stud_report: dict[str, dict] = {}     # stud id -> weld-report entry
+        self.qa: dict[str, dict] = {}              # stud id -> QA row (qa_report)
+        self.best: dict[str, tuple[float, Target, View]] = {}   # surest usable target per stud, over all views
+        self.views: dict[int, View] = {}
+        self.stations_total = 0
+        self.unreachable: list[str] = []
+        self.overlays: list[str] = []
+        self.unexpected: list[dict] = []
+        self.layout: Layout | None = None
+        self.inspection_s: list[float] = []        # time per station's inspection (shot + measurement)
+        self.state, self.message = IDLE, ""
+        self._camera_at: tuple | None = None       # (xyz, yaw) the camera was last moved to
+        self._station = 0                          # the station being worked (re-shoots count on after the plan)
+        self._view_station: dict[int, int] = {}
+
+    # -- the job ----------------------------------------------------------------------------------
+    def run(self) -> tuple[str, int]:
+        try:
+            state, message = self._job()
+        except JobAborted as exc:
+            state, message = FAILED, str(exc)
+        except Exception as exc:  # the job must always end with a state and its records, never vanish
+            state, message = FAILED, f"internal error: {exc!r}"
+        return state, self.finish(state, message)
+
+    def _job(self) -> tuple[str, str]:
+        c, ports = self.c, self.ports
+        self.layout = layout = ports.wait_layout()
+        for sid, (x, y) in zip(layout.ids, layout.xy_m):
+            self.stud_report[sid] = {"stud_id": sid, "drawing_xy_mm": [float(x * 1e3), float(y * 1e3)],
+                                     "status": "not_planned", "welded": False}
+            self.qa[sid] = qa_report.empty_row(sid, (x * 1e3, y * 1e3))
+        self._status(REGISTERING, "camera to the registration station", studs_total=len(layout.ids))
+        ports.checkpoint()
+        self._move(c.registration_station_xyz_m, 0.0)
+        registration = ports.register()
+        if not registration.valid:
+            raise JobAborted(f"no valid registration at the registration station: {registration.message}")
+        studs_w = local_to_world(registration.m_local2world, layout.xy_m).reshape(-1, 2)
+        plane_z = registration.plane_z_m if math.isfinite(registration.plane_z_m) else 0.0
+
+        fov = footprint_m(c.fov_width_m, c.fov_distance_m, c.image_aspect, c.camera_height_m, c.part_height_m)
+        plan = plan_stations(studs_w, fov, c.camera_height_m, overlap=c.overlap,
+                             yaw_rad=math.radians(c.camera_yaw_deg), plane_z_m=plane_z, fewest=c.fewest_stations)
+        for i in plan.unreachable:
+            self.stud_report[layout.ids[i]]["status"] = "unreachable"
+            self.qa[layout.ids[i]]["reasons"] = ["unreachable: no camera station the arm reaches covers it"]
+        self.unreachable = [layout.ids[i] for i in plan.unreachable]
+        self.stations_total = len(plan.stations)
+        ports.status(REGISTERING, f"registered ({registration.message})", unreachable=self.unreachable,
+                     stations_total=self.stations_total)
+        ports.info(f"registered ({registration.message}); {len(plan.stations)} station(s) cover {plan.covered} of "
+                   f"{len(layout.ids)} studs, {len(plan.unreachable)} unreachable")
+
+        for station in plan.stations:
+            self._station = station.index
+            self._run_station(station, layout.ids)
+        self._weld_leftovers()
+        self._reshoot(studs_w, layout.ids, plane_z)
+        welded = self.welded_count()
+        failed = len(layout.ids) - welded
+        return DONE, (f"job done: {welded}/{len(layout.ids)} studs welded"
+                      + (f", {failed} not welded (see report)" if failed else ""))
+
+    def _run_station(self, station, ids: list[str]) -> None:
+        n = self.stations_total
+        self._status(MOVING, f"station {station.index}/{n}: camera to {np.round(station.camera_xyz_w, 3).tolist()} m",
+                     station=station.index)
+        self.ports.checkpoint()
+        self._move(station.camera_xyz_w, station.yaw_rad)
+        wanted = {ids[i] for i in station.stud_indices}
+        view = self._shoot_view(f"station {station.index}/{n}", station.camera_xyz_w, station.yaw_rad)
+        if view is None:
+            raise JobAborted(f"station {station.index}: no weld targets for any of its shots")
+        usable = []
+        for t in view.targets:
+            if t.stud_id not in wanted:
+                continue
+            self._take_entry(t, view)
+            if t.ok:
+                usable.append(t)
+        if not usable:
+            self.ports.warn(f"station {station.index}: no usable target among {len(wanted)} assigned studs")
+            return
+        self._status(WELDING, f"station {station.index}/{n}: welding {len(usable)} stud(s)")
+        self._weld_and_inspect([(t, view) for t in usable])
+
+    def _shoot_view(self, what: str, xyz, yaw: float) -> View | None:
+        view = self.ports.shoot_view(what, xyz, yaw)
+        if view is not None:
+            self.views[view.index] = view
+            self._view_station[view.index] = self._station
+            self._remember_best(view)
+        return view
+
+    def _remember_best(self, view: View) -> None:
+        """Keep, per stud, the usable target with the surest normal (smallest lean bound) over all
+        views (targets are in `world`: one matched from any station can be welded from anywhere)."""
+        for t in view.targets:
+            if not t.ok or t.stud_id not in self.stud_report:
+                continue
+            score = t.lean_bound_deg if math.isfinite(t.lean_bound_deg) else math.inf
+            if t.stud_id not in self.best or score < self.best[t.stud_id][0]:
+                self.best[t.stud_id] = (score, t, view)
+
+    def _take_entry(self, t: Target, view: View) -> None:
+        report = self.stud_report[t.stud_id]
+        report.pop("reason", None)
+        report.update(t.entry)
+        report["view"] = int(view.index)
+
+    def _weld_leftovers(self) -> None:
+        """Studs their own station gave no usable target for, but another view did."""
+        left = [sid for sid, r in self.stud_report.items() if not r["welded"] and sid in self.best]
+        if not left:
+            return
+        self.ports.info(f"welding {len(left)} stud(s) matched on another station's view: {', '.join(left)}")
+        batch = []
+        for sid in left:
+            _score, t, view = self.best[sid]
+            self._take_entry(t, view)
+            batch.append((t, view))
+        self._status(WELDING, f"welding {len(left)} stud(s) from other views")
+        self._weld_and_inspect(batch)
+
+    def _reshoot(self, studs_w: np.ndarray, ids: list[str], plane_z: float) -> None:
+        """Studs no view gave a usable target for, for a reason another view may cure: shot again from
+        other directions, ``reshoot_attempts`` times, welded once a view makes them usable."""
+        c = self.c
+        index = {sid: i for i, sid in enumerate(ids)}
+        for attempt in range(c.reshoot_attempts):
+            pending = [sid for sid, r in self.stud_report.items()
+                       if not r["welded"] and r["status"] in RESHOOT_STATUS_TEXTS and sid not in self.best]
+            if not pending:
+                return
+            for sid in pending:
+                if self.stud_report[sid]["welded"] or sid in self.best:
+                    continue  # a re-shoot of a neighbour made it usable
+                self._station += 1
+                station = reshoot_station(studs_w[index[sid]], attempt, c.reshoot_offset_m, c.camera_height_m,
+                                          plane_z, math.radians(c.camera_yaw_deg), stud_index=index[sid])
+                self._status(MOVING, f"re-shoot {attempt + 1}/{c.reshoot_attempts} of {sid} "
+                             f"({self.stud_report[sid]['status']}): camera to "
+                             f"{np.round(station.camera_xyz_w, 3).tolist()} m")
+                self.ports.checkpoint()
+                try:
+                    self._move(station.camera_xyz_w, station.yaw_rad)
+                except MoveRefused as exc:
+                    self.ports.warn(f"re-shoot of {sid} skipped: {exc}")
+                    continue
+                view = self._shoot_view(f"re-shoot of {sid}", station.camera_xyz_w, station.yaw_rad)
+                if view is None:
+                    continue
+                for t in view.targets:
+                    r = self.stud_report.get(t.stud_id)
+                    if r is not None and not r["welded"] and t.stud_id not in self.best and t.stud_id in pending:
+                        self._take_entry(t, view)
+                batch = [self.best[s] for s in pending if s in self.best and not self.stud_report[s]["welded"]]
+                if batch:
+                    for _score, t, v in batch:
+                        self._take_entry(t, v)
+                    self._status(WELDING, f"welding {len(batch)} stud(s) usable after a re-shoot")
+                    self._weld_and_inspect([(t, v) for _score, t, v in batch])
+        for sid, r in self.stud_report.items():
+            if not r["welded"] and r["status"] in RESHOOT_STATUS_TEXTS and sid not in self.best and c.reshoot_attempts:
+                r["reason"] = (f"{r['status']} on every view, {c.reshoot_attempts} re-shoot(s) included: "
+                               "not welded blind")
+
+    # -- welding and inspection --------------------------------------------------------------------
+    def _weld_and_inspect(self, batch: list[tuple[Target, View]]) -> None:
+        welded = self._weld([t for t, _v in batch])
+        for t, view in batch:
+            if t.stud_id in welded:
+                row = self.qa[t.stud_id]
+                row["planned"] = {"position_m": t.entry.get("position_m"), "normal": t.entry.get("normal")}
+                row["station"] = self._view_station.get(view.index, self._station)
+        if self.c.inspect and welded:
+            self._inspect(batch, welded)
+
+    def _weld(self, targets: list[Target]) -> set[str]:
+        """Weld ``targets``; returns the ids welded. Should the driver lose the job, the same targets go
+        again (resume) to its restarted self, whose journal skips what is welded and refuses what is
+        uncertain."""
+        c = self.c
+        self._camera_at = None  # the arm takes the camera along to the welds
+        for attempt in range(c.weld_resends + 1):
+            self.ports.checkpoint()
+            try:
+                outcome = self.ports.weld(targets)
+                break
+            except DriverLost as exc:
+                why = f"the arm driver lost the weld job ({exc})"
+                if attempt == c.weld_resends:
+                    raise JobAborted(f"{why}; gave up after {attempt} resend(s) -- the driver's journal keeps what "
+                                     "was welded: restart it and start the job again") from None
+                self.ports.warn(f"{why}: sending the station's {len(targets)} target(s) again (resume: its journal "
+                                f"skips what is welded; resend {attempt + 1}/{c.weld_resends})")
+        sent = {t.stud_id for t in targets}
+        welded = {sid for sid in outcome.welded if sid in sent}
+        for sid in welded:
+            self.stud_report[sid]["welded"] = True
+        for line in outcome.messages:
+            sid, _, why = line.partition(": ")
+            if sid in self.stud_report and not self.stud_report[sid]["welded"]:
+                self.stud_report[sid]["weld_message"] = why
+        self.ports.status(self.state, self.message, studs_welded=self.welded_count(), studs_failed=len(outcome.failed))
+        if self.ports.stopped():
+            raise JobAborted("stopped by the operator")
+        return welded
+
+    def _inspect(self, batch: list[tuple[Target, View]], welded: set[str]) -> None:
+        """Shoot each view's pose again after its welds and have the studs welded there judged."""
+        by_view: dict[int, list[Target]] = {}
+        for t, view in batch:
+            by_view.setdefault(view.index, []).append(t)
+        for index, targets in by_view.items():
+            view = self.views[index]
+            ids = [t.stud_id for t in targets if t.stud_id in welded]
+            if not ids:
+                continue
+            t0 = time.monotonic()
+            self._status(INSPECTING, f"station {self._station}: inspecting {len(ids)} welded stud(s)")
+            try:
+                self.ports.checkpoint()
+                if self._camera_at != (tuple(view.camera_xyz_w), float(view.yaw_rad)):
+                    self._move(view.camera_xyz_w, view.yaw_rad)  # back to where the targets were seen
+                after_ns = self.ports.shoot()
+                outcome = self.ports.inspect(self._station, view, targets, ids, after_ns)
+            except (InspectionUnavailable, MoveRefused) as exc:
+                self.ports.warn(f"station {self._station}: {len(ids)} welded stud(s) not inspected: {exc}")
+                for sid in ids:
+                    self.qa[sid].update(verdict="not_inspected", reasons=[f"no inspection: {exc}"])
+                continue
+            for t, fields in zip(targets, outcome.rows):
+                if t.stud_id in welded:
+                    self.qa[t.stud_id].update(fields)
+            self.unexpected += outcome.unexpected
+            if outcome.limits:
+                self.c.qa_limits = dict(outcome.limits)
+            if outcome.overlay_file:
+                self.overlays.append(outcome.overlay_file)
+            self.inspection_s.append(time.monotonic() - t0)
+            counts = qa_report.summary_of([self.qa[sid] for sid in ids])
+            self.ports.info(f"station {self._station}: inspection of {len(ids)} stud(s) in "
+                            f"{self.inspection_s[-1]:.1f} s: " + ", ".join(f"{k} {v}" for k, v in counts.items() if v))
+
+    # -- plumbing ----------------------------------------------------------------------------------
+    def _move(self, xyz, yaw: float) -> None:
+        self._camera_at = None
+        self.ports.move_camera(xyz, yaw)
+        self._camera_at = (tuple(xyz), float(yaw))
+
+    def _status(self, state: str, message: str, **fields) -> None:
+        self.state, self.message = state, message
+        self.ports.status(state, message, **fields)
+
+    def welded_count(self) -> int:
+        return sum(r["welded"] for r in self.stud_report.values())
+
+    def qa_rows(self, done: bool = True) -> list[dict]:
+        """The QA rows in drawing order; a welded stud no inspection judged is ``not_inspected``. ``done``:
+        the job went through its stations (else a stud no station reached says so)."""
+        rows = []
+        for sid, row in self.qa.items():
+            row = dict(row)
+            if self.stud_report[sid]["welded"] and row["verdict"] == "not_welded":
+                why = ("inspection is off (inspect:=false)" if not self.c.inspect
+                       else "the job ended before its inspection")
+                row.update(verdict="not_inspected", reasons=[why])
+            elif not self.stud_report[sid]["welded"] and not row["reasons"]:
+                r = self.stud_report[sid]
+                why = r.get("reason") or r.get("weld_message") or r["status"]
+                row["reasons"] = [why if done or r["status"] != "not_planned" else "the job ended before its station"]
+            rows.append(row)
+        return rows
+
+    def _rework_decisions(self) -> dict[str, dict]:
+        """Decisions the operator took during the job (on studs already inspected), for the QA record."""
+        if not self.c.rework_file:
+            return {}
+        try:
+            return {sid: r.for_qa_record() for sid, r in rework.latest_decisions(self.c.rework_file).items()}
+        except rework.ReworkError as exc:
+            self.ports.warn(f"QA record written without the rework decisions: {exc}")
+            return {}
+
+    def finish(self, state: str, message: str) -> int:
+        """Write the weld report and the QA record (also after an early stop); the exit code: 0 only
+        when the job is done and every stud welded."""
+        welded = self.welded_count()
+        self._status(state, message, studs_welded=welded,
+                     studs_failed=max(0, len(self.stud_report) - welded) if self.stud_report else 0)
+        c = self.c
+        if c.report_file:
+            # strict JSON: an unmatched stud's NaN position is null (RFC 8259 has no NaN)
+            write_json(c.report_file, {"state": state, "message": message, "stations": int(self.stations_total),
+                                       "unreachable": list(self.unreachable),
+                                       "targets": list(self.stud_report.values())})
+        if c.qa_dir and self.qa:
+            job = {"id": c.job_id, "part": c.part, "drawing": self.layout.source_file if self.layout else "",
+                   "state": state, "message": message}
+            with qa_report.locked(Path(c.qa_dir)):
+                doc = qa_report.write_qa_report(Path(c.qa_dir), job, c.qa_limits, self.qa_rows(state == DONE),
+                                                self.unexpected, [Path(f) for f in self.overlays],
+                                                self._rework_decisions())
+            counts = ", ".join(f"{k} {v}" for k, v in doc["summary"].items() if v)
+            self.ports.info(f"QA record: {c.qa_dir}/qa_report.{{json,csv,html}} ({counts})")
+        all_welded = bool(self.stud_report) and welded == len(self.stud_report)
+        return 0 if state == DONE and all_welded else 1
+
+
+__all__ = ["CellJob", "CellPorts", "DriverLost", "InspectionOutcome", "InspectionUnavailable", "JobAborted", "JobConfig",
+           "Layout", "MoveRefused", "RESHOOT_STATUS_TEXTS", "Registration", "Target", "View", "WeldOutcome"]

@@ -1,0 +1,489 @@
+"""Cell sequencer: `ros2 run stud_planner cell_sequencer` runs a whole weld job.
+
+The job's steps are stud_cell.job's (registration, stations, welds, post-weld inspection,
+leftovers, re-shoots, the reports); this node is its adapter to the cell:
+
+- camera moves: ``/arm/move_to`` (camera frame), then two ``/arm/state`` from after the move;
+- registration: ``/registration/trigger``, one shot (``/camera/trigger``), a valid
+  ``/registration/result`` newer than the shot (``shot_retries`` tries);
+- a view: one shot and the ``/weld_targets`` of that shot;
+- welds: the ``/arm/weld_job`` action (``resume=true``: the arm driver's journal is the truth of what
+  is welded). Should the driver crash mid-job and come back (``--respawn-driver``), its
+  ``/arm/state`` pauses and returns without a job: the job sends the targets again
+  (``weld_resends``), and the journal skips what is welded and holds back what the crash left uncertain;
+- inspection: a shot of the same pose after the welds and ``/inspection/inspect``.
+
+Progress goes to ``/cell/status`` (CellStatus); ``/cell/start|pause|resume|stop`` (Trigger)
+drive it (``auto_start`` starts at once). With ``report_file`` a JSON report of every stud
+(the offline report's fields plus ``welded``) and with ``qa_dir`` the QA record are written at the
+end, also of a job stopped early; ``exit_when_done`` ends the process (exit 0 only when every stud
+was welded).
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+import numpy as np
+import rclpy
+from rclpy.action import ActionClient
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from std_srvs.srv import Trigger
+from stud_welding_msgs.action import WeldJob
+from stud_welding_msgs.msg import ArmState, CellStatus, Registration, StudLayout, WeldTargetArray
+from stud_welding_msgs.srv import Inspect, MoveTo
+
+from stud_common import ros_io
+from stud_common.stacks import dump_stacks_on_signal
+from stud_perception.camera_model import nadir_rotation
+from stud_common.ros_io import Param, three_numbers
+from stud_common.vocabulary import CellState
+from stud_cell import job as cell_job
+from stud_cell.job import DriverLost, InspectionUnavailable, JobAborted, MoveRefused
+from stud_planner.msg_convert import (inspection_extras, inspection_rows, layout_from_msg, registration_from_msg,
+                                      target_report_entry)
+from stud_common import names
+
+
+_JOB = cell_job.JobConfig()  # the job's defaults are its own; the parameters expose them
+PARAMS = [
+    Param("auto_start", False, "start the job as soon as the layout is there"),
+    Param("exit_when_done", False, "end the process when the job ends (exit 0 only if every stud was welded)"),
+    Param("report_file", "", "write a JSON report of every stud here at the end (empty: none)"),
+    Param("registration_station_xyz_m", list(_JOB.registration_station_xyz_m),
+          "camera position over the marking board [m]", validate=three_numbers("registration_station_xyz_m")),
+    Param("camera_height_m", _JOB.camera_height_m, "camera height of the stations above the working plane [m]",
+          min=0.05, max=2.0),
+    Param("camera_yaw_deg", _JOB.camera_yaw_deg, "image yaw of the stations [deg]", min=-360.0, max=360.0),
+    Param("part_height_m", _JOB.part_height_m, "top of the part above the plane, for the footprint [m]",
+          min=0.0, max=1.0),
+    Param("fov_width_m", _JOB.fov_width_m, "camera field-of-view width at fov_distance_m [m]", min=0.01, max=10.0),
+    Param("fov_distance_m", _JOB.fov_distance_m, "distance of fov_width_m [m]", min=0.05, max=10.0),
+    Param("image_aspect", _JOB.image_aspect, "image height / width", min=0.1, max=10.0),
+    Param("overlap", _JOB.overlap, "footprint fraction kept free at the image border", min=0.0, max=0.85),
+    # On in the cell (fewer stations: fewer camera moves, shots and inspections); the job's own default
+    # keeps the grid tiling.
+    Param("fewest_stations", True, "place the stations' footprints freely when that needs fewer stations than "
+          "the grid tiling"),
+    Param("step_timeout_s", 60.0, "longest wait for a move, a shot, a registration or the targets [s]",
+          min=1.0, max=3600.0),
+    Param("weld_timeout_s", 1800.0, "longest wait for one station's weld job [s]", min=1.0, max=86400.0),
+    Param("shot_retries", 3, "shots tried per station before giving up", min=1, max=20),
+    Param("driver_lost_s", 1.5, "a gap this long in /arm/state during a weld job, after which the driver "
+          "reports no job, means it was restarted and lost the job [s]", min=0.3, max=600.0),
+    Param("weld_resends", _JOB.weld_resends, "times a station's weld job is sent again to a restarted driver "
+          "(resume: its journal skips what is welded)", min=0, max=20),
+    Param("reshoot_attempts", _JOB.reshoot_attempts, "views taken again, from other directions, of a stud no view "
+          "gave a usable target for (normal uncertain, no depth, ...) before giving up on it; it is never welded "
+          "blind", min=0, max=8),
+    Param("reshoot_offset_m", _JOB.reshoot_offset_m, "the re-shoot camera stands this far beside the stud [m]",
+          min=0.0, max=0.5),
+    Param("inspect", _JOB.inspect, "after a station's welds, shoot it again and have /inspection/inspect measure "
+          "and judge every stud welded there (false: no post-weld inspection; the QA record says not_inspected)"),
+    Param("inspect_timeout_s", 60.0, "longest wait for one station's inspection [s]", min=1.0, max=3600.0),
+    Param("qa_dir", "", "write the QA record (qa_report.json, .csv, .html) into this folder at the end (empty: none)"),
+    Param("part_name", "", "the part's name, for the QA record"),
+    Param("rework_file", "", "the inspector's rework decisions file (JSON lines): decisions taken during the job "
+          "go into the QA record's rework column (empty: none)"),
+]
+
+STATE_TEXT = {int(s): s.text for s in CellState}  # CellStatus.STATE_* (tests: the same constants)
+STATE_OF_TEXT = {text: state for state, text in STATE_TEXT.items()}
+
+
+class CellSequencer(Node):
+    """The job's cell (cell_job.CellPorts) over ROS: topics, services and the weld action."""
+
+    def __init__(self) -> None:
+        super().__init__("cell_sequencer")
+        self.p = ros_io.declare_params(self, PARAMS)
+        cb = ReentrantCallbackGroup()
+        self.layout: StudLayout | None = None
+        self.registration: Registration | None = None
+        self.targets: list[WeldTargetArray] = []
+        self.arm_state: ArmState | None = None
+        self._arm_state_time: float | None = None  # monotonic arrival of the last /arm/state
+        self._state_gap = False  # /arm/state paused during the running weld job
+        self._lost_result = None  # the result future of a weld job the driver was believed to have lost
+        self._cond = threading.Condition()
+        self._stop = threading.Event()
+        self._paused = threading.Event()
+        self._worker: threading.Thread | None = None
+        self.job: cell_job.CellJob | None = None
+        self.exit_code: int | None = None
+        self.cell_status = CellStatus(state=CellStatus.STATE_IDLE, state_text="idle", message="waiting for start")
+        self.pub_status = self.create_publisher(CellStatus, names.CELL_STATUS, ros_io.LATCHED_QOS)
+        self.create_subscription(StudLayout, names.DRAWING_LAYOUT, self._on_layout, ros_io.LATCHED_QOS, callback_group=cb)
+        self.create_subscription(Registration, names.REGISTRATION_RESULT, self._on_registration, ros_io.LATCHED_QOS,
+                                 callback_group=cb)
+        self.create_subscription(WeldTargetArray, names.WELD_TARGETS, self._on_targets, ros_io.RESULT_QOS,
+                                 callback_group=cb)
+        self.create_subscription(ArmState, names.ARM_STATE, self._on_arm_state, ros_io.RESULT_QOS, callback_group=cb)
+        self.cli_move = self.create_client(MoveTo, names.ARM_MOVE_TO, callback_group=cb)
+        self.cli_shot = self.create_client(Trigger, names.CAMERA_TRIGGER, callback_group=cb)
+        self.cli_register = self.create_client(Trigger, names.REGISTRATION_TRIGGER, callback_group=cb)
+        self.cli_inspect = self.create_client(Inspect, names.INSPECTION_INSPECT, callback_group=cb)
+        self.cli_arm = {name: self.create_client(Trigger, f"/arm/{name}", callback_group=cb)
+                        for name in ("stop", "pause", "resume")}
+        self.weld_action = ActionClient(self, WeldJob, names.ARM_WELD_JOB, callback_group=cb)
+        for name, handler in (("start", self._on_start), ("pause", self._on_pause), ("resume", self._on_resume),
+                              ("stop", self._on_stop)):
+            self.create_service(Trigger, f"/cell/{name}", handler, callback_group=cb)
+        self.diag = ros_io.Diagnostics(self)
+        self.create_timer(1.0, self._tick, callback_group=cb)
+        self.get_logger().info("cell sequencer ready: /cell/start" + (" (auto_start)" if self.p["auto_start"] else ""))
+
+    # -- inputs ---------------------------------------------------------------------------------
+    def _on_layout(self, msg: StudLayout) -> None:
+        with self._cond:
+            self.layout = msg
+            self._cond.notify_all()
+        if self.p["auto_start"] and self._worker is None:
+            self.start()
+
+    def _on_registration(self, msg: Registration) -> None:
+        with self._cond:
+            self.registration = msg
+            self._cond.notify_all()
+
+    def _on_targets(self, msg: WeldTargetArray) -> None:
+        with self._cond:
+            self.targets.append(msg)
+            del self.targets[:-5]
+            self._cond.notify_all()
+
+    def _on_arm_state(self, msg: ArmState) -> None:
+        with self._cond:
+            self.arm_state = msg
+            self._arm_state_time = time.monotonic()
+            self._cond.notify_all()
+
+    def _tick(self) -> None:
+        self.publish_status()
+        self.diag.set(self.diag.ERROR if self.cell_status.state == CellStatus.STATE_FAILED else self.diag.OK,
+                      f"{self.cell_status.state_text}: {self.cell_status.message}")
+        self.diag.publish()
+
+    # -- services -------------------------------------------------------------------------------
+    def start(self) -> tuple[bool, str]:
+        if self._worker is not None and self._worker.is_alive():
+            return False, "a job is already running"
+        self._stop.clear()
+        self._paused.clear()
+        self._worker = threading.Thread(target=self._run_job, name="cell_job", daemon=True)
+        self._worker.start()
+        return True, "job started"
+
+    def _on_start(self, _req, resp):
+        resp.success, resp.message = self.start()
+        return resp
+
+    def _on_pause(self, _req, resp):
+        self._paused.set()
+        ok, msg = self._call_trigger(self.cli_arm["pause"], 5.0)
+        self.status(cell_job.PAUSED, "paused by the operator")
+        resp.success, resp.message = True, f"paused (arm: {msg})"
+        return resp
+
+    def _on_resume(self, _req, resp):
+        ok, msg = self._call_trigger(self.cli_arm["resume"], 5.0)
+        self._paused.clear()
+        resp.success, resp.message = True, f"resumed (arm: {msg})"
+        return resp
+
+    def _on_stop(self, _req, resp):
+        self._stop.set()
+        self._paused.clear()
+        ok, msg = self._call_trigger(self.cli_arm["stop"], 5.0)
+        resp.success, resp.message = True, f"job stopping (arm: {msg})"
+        return resp
+
+    # -- the job --------------------------------------------------------------------------------
+    def _run_job(self) -> None:
+        p = self.p
+        config = cell_job.JobConfig.from_params(p)
+        config.job_id = time.strftime("%Y%m%d-%H%M%S")
+        config.part = p["part_name"]
+        self.job = cell_job.CellJob(self, config)
+        _state, self.exit_code = self.job.run()
+
+    # -- cell_job.CellPorts ---------------------------------------------------------------------
+    def status(self, state: str, message: str, **fields) -> None:
+        self._set_state(STATE_OF_TEXT[state], message, **fields)
+
+    def _set_state(self, state: int, message: str, **fields) -> None:
+        changed = (state, message) != (self.cell_status.state, self.cell_status.message)
+        st = self.cell_status
+        st.state, st.state_text, st.message = state, STATE_TEXT[state], message
+        for k, v in fields.items():
+            setattr(self.cell_status, k, v)
+        self.publish_status()
+        if changed:
+            self.get_logger().info(f"[{STATE_TEXT[state]}] {message}")
+
+    def checkpoint(self) -> None:
+        """Between steps: honour stop and pause."""
+        while self._paused.is_set() and not self._stop.is_set():
+            time.sleep(0.05)
+        if self._stop.is_set():
+            raise JobAborted("stopped by the operator")
+
+    def stopped(self) -> bool:
+        return self._stop.is_set()
+
+    def info(self, text: str) -> None:
+        self.get_logger().info(text)
+
+    def warn(self, text: str) -> None:
+        self.get_logger().warn(text)
+
+    def wait_layout(self) -> cell_job.Layout:
+        msg = self._wait_for(lambda: self.layout, self.p["step_timeout_s"], names.DRAWING_LAYOUT)
+        layout = layout_from_msg(msg)
+        return cell_job.Layout(ids=layout.ids, xy_m=layout.xy_m, source_file=layout.source_file)
+
+    def move_camera(self, xyz, yaw_rad: float) -> None:
+        pose = ros_io.rt_to_pose(nadir_rotation(yaw_rad), np.asarray(xyz, dtype=float))
+        reply = self._call(self.cli_move, MoveTo.Request(pose=pose, frame=MoveTo.Request.FRAME_CAMERA),
+                           self.p["step_timeout_s"])
+        if not reply.success:
+            raise MoveRefused(f"camera move to {np.round(xyz, 3).tolist()} m refused: {reply.message}")
+        # The camera's pose comes from /arm/state: shoot only once a state from after the move
+        # is out (two, so the camera node has surely seen one), or the shot uses a stale pose.
+        arrived = self.get_clock().now().nanoseconds
+        seen: set[int] = set()
+
+        def settled():
+            st = self.arm_state
+            if st is not None and ros_io.stamp_to_ns(st.header.stamp) > arrived and st.mode != ArmState.MODE_MOVING:
+                seen.add(ros_io.stamp_to_ns(st.header.stamp))
+            return len(seen) >= 2
+
+        self._wait_for(settled, self.p["step_timeout_s"], "/arm/state after the move")
+
+    def shoot(self) -> int:
+        """One triggered shot; returns the ROS time (ns) taken just before it."""
+        deadline = time.monotonic() + self.p["step_timeout_s"]
+        while True:  # a camera that has no (fresh) pose yet says so: ask again shortly
+            t0 = self.get_clock().now().nanoseconds
+            reply = self._call(self.cli_shot, Trigger.Request(), self.p["step_timeout_s"])
+            if reply.success:
+                return t0
+            if time.monotonic() > deadline:
+                raise JobAborted(f"camera shot failed: {reply.message}")
+            self.get_logger().warn(f"camera refused the shot ({reply.message}); retrying",
+                                   throttle_duration_sec=5.0)
+            self.checkpoint()
+            time.sleep(0.2)
+
+    def register(self) -> cell_job.Registration:
+        p = self.p
+        registration = None
+        for attempt in range(1, p["shot_retries"] + 1):
+            self.checkpoint()
+            self._call(self.cli_register, Trigger.Request(), p["step_timeout_s"])
+            t0 = self.shoot()
+            try:
+                registration = self._wait_for(
+                    lambda: self.registration if (self.registration is not None
+                                                  and ros_io.stamp_to_ns(self.registration.header.stamp) >= t0)
+                    else None, p["step_timeout_s"], "registration result")
+            except JobAborted:
+                if self._stop.is_set():
+                    raise
+                continue
+            if registration.valid:
+                break
+            self.get_logger().warn(f"registration attempt {attempt}: {registration.message}")
+        if registration is None:
+            return cell_job.Registration(False, f"no registration result for {p['shot_retries']} shot(s)",
+                                         np.eye(3), math.nan)
+        return cell_job.Registration(bool(registration.valid), registration.message,
+                                     registration_from_msg(registration), float(registration.mark_o.z))
+
+    def shoot_view(self, what: str, camera_xyz_w, yaw_rad: float) -> cell_job.View | None:
+        """Shoot (up to ``shot_retries`` times) and return the targets of the shot (None: none came)."""
+        p = self.p
+        for _attempt in range(p["shot_retries"]):
+            self.checkpoint()
+            self.status(cell_job.SHOOTING, f"{what}: shot")
+            t0 = self.shoot()
+            self.status(cell_job.MATCHING, f"{what}: matching")
+            try:
+                msg = self._wait_for(lambda: next((a for a in reversed(self.targets)
+                                                   if ros_io.stamp_to_ns(a.header.stamp) >= t0), None),
+                                     p["step_timeout_s"], "/weld_targets for the shot")
+            except JobAborted:
+                if self._stop.is_set():
+                    raise
+                continue
+            targets = tuple(cell_job.Target(stud_id=t.stud_id, ok=t.status == t.STATUS_OK, status_text=t.status_text,
+                                            lean_bound_deg=float(t.lean_bound),
+                                            entry=target_report_entry(t, msg.view_index), payload=t)
+                            for t in msg.targets)
+            return cell_job.View(index=int(msg.view_index), stamp_ns=ros_io.stamp_to_ns(msg.header.stamp),
+                                 camera_xyz_w=tuple(float(v) for v in camera_xyz_w), yaw_rad=float(yaw_rad),
+                                 targets=targets)
+        return None
+
+    def weld(self, targets: list[cell_job.Target]) -> cell_job.WeldOutcome:
+        """Send ``targets`` as one weld job and wait for its result. After a DriverLost the job sends
+        them again: if the driver rejects that because a job is running, it was never lost (its state
+        stream only stalled) and is still on the first job, whose result is then waited for; a job
+        aborted here while the arm goes on welding would leave the studs it welds unrecorded."""
+        p = self.p
+        lost, self._lost_result = self._lost_result, None
+        if lost is not None and lost.done():  # the "lost" job's result came after all
+            return self._outcome(lost.result().result)
+        if not self.weld_action.wait_for_server(timeout_sec=min(p["step_timeout_s"], 10.0)):
+            raise JobAborted("the arm driver's /arm/weld_job action is not available")
+        goal = self._wait_future(self.weld_action.send_goal_async(
+            WeldJob.Goal(targets=[t.payload for t in targets], resume=True), feedback_callback=self._on_feedback),
+            p["step_timeout_s"], "/arm/weld_job goal")
+        if goal.accepted:
+            result = goal.get_result_async()
+        elif lost is not None and not lost.done():
+            self.get_logger().warn("the arm driver rejected the resent job: it is still on the job it was believed "
+                                   "to have lost (its /arm/state only paused); waiting for that job's result")
+            result = lost
+        elif lost is not None:
+            return self._outcome(lost.result().result)
+        else:
+            raise JobAborted("the arm driver rejected the weld job (e-stop or another job running?)")
+        self._state_gap = False
+        try:
+            return self._outcome(self._wait_future(result, p["weld_timeout_s"], "/arm/weld_job result",
+                                                   alive=self._driver_still_on_the_job).result)
+        except DriverLost:
+            self._lost_result = result
+            # its /arm/state is back; give discovery a moment to match its action server as well
+            # (a killed one can linger in the graph, so wait_for_server proves nothing)
+            time.sleep(1.0)
+            raise
+
+    @staticmethod
+    def _outcome(result: WeldJob.Result) -> cell_job.WeldOutcome:
+        return cell_job.WeldOutcome(welded=tuple(result.welded), failed=tuple(result.failed),
+                                    messages=tuple(result.messages))
+
+    def inspect(self, station: int, view: cell_job.View, targets: list[cell_job.Target], welded_ids: list[str],
+                after_ns: int) -> cell_job.InspectionOutcome:
+        if not self.cli_inspect.wait_for_service(timeout_sec=2.0):
+            raise InspectionUnavailable("/inspection/inspect is not available (is the inspector running?)")
+        req = Inspect.Request(before_stamp=ros_io.ns_to_stamp(view.stamp_ns),
+                              after_not_before=ros_io.ns_to_stamp(after_ns), station=int(station),
+                              targets=[t.payload for t in targets], welded_ids=list(welded_ids))
+        try:
+            reply = self._wait_future(self.cli_inspect.call_async(req), self.p["inspect_timeout_s"],
+                                      names.INSPECTION_INSPECT)
+        except JobAborted as exc:
+            if self._stop.is_set():
+                raise
+            raise InspectionUnavailable(str(exc)) from None
+        if not reply.success:
+            raise InspectionUnavailable(reply.message)
+        unexpected, limits = inspection_extras(reply.result)
+        return cell_job.InspectionOutcome(rows=inspection_rows(reply.result), unexpected=unexpected,
+                                          overlay_file=reply.result.overlay_file, limits=limits)
+
+    # -- plumbing -------------------------------------------------------------------------------
+    def publish_status(self) -> None:
+        self.cell_status.header.stamp = self.get_clock().now().to_msg()
+        self.pub_status.publish(self.cell_status)
+
+    def _wait_future(self, future, timeout_s: float, what: str, alive=None):
+        """The future's result; JobAborted on stop or time-out, DriverLost when ``alive()`` has been
+        false for ``driver_lost_s``."""
+        done = threading.Event()
+        future.add_done_callback(lambda _f: done.set())
+        deadline = time.monotonic() + timeout_s
+        gone_since = None
+        while not done.wait(0.05):
+            if self._stop.is_set():
+                raise JobAborted(f"stopped by the operator while waiting for {what}")
+            now = time.monotonic()
+            if now > deadline:
+                raise JobAborted(f"no answer from {what} within {timeout_s:.0f} s")
+            if alive is not None:
+                gone_since = None if alive() else (gone_since or now)
+                if gone_since is not None and now - gone_since >= self.p["driver_lost_s"]:
+                    raise DriverLost(f"no {what}: restarted, or silent for {self.p['driver_lost_s']:g} s")
+        return future.result()
+
+    def _call(self, client, request, timeout_s: float):
+        if not client.wait_for_service(timeout_sec=min(timeout_s, 10.0)):
+            raise JobAborted(f"service {client.srv_name} is not available")
+        return self._wait_future(client.call_async(request), timeout_s, client.srv_name)
+
+    def _call_trigger(self, client, timeout_s: float) -> tuple[bool, str]:
+        if not client.wait_for_service(timeout_sec=1.0):
+            return False, f"{client.srv_name} not available"
+        done = threading.Event()
+        future = client.call_async(Trigger.Request())
+        future.add_done_callback(lambda _f: done.set())
+        if not done.wait(timeout_s):
+            return False, f"{client.srv_name}: no reply"
+        return future.result().success, future.result().message
+
+    def _wait_for(self, predicate, timeout_s: float, what: str):
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while True:
+                value = predicate()
+                if value:
+                    return value
+                if self._stop.is_set():
+                    raise JobAborted(f"stopped by the operator while waiting for {what}")
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    raise JobAborted(f"no {what} within {timeout_s:.0f} s")
+                self._cond.wait(min(remaining, 0.1))
+
+    def _driver_still_on_the_job(self) -> bool:
+        """False once the driver looks restarted: its /arm/state stream paused for ``driver_lost_s``
+        (a crash; the graph may show a killed server for many seconds more, so its presence there
+        proves nothing) and came back with no job running, or has not come back within
+        ``step_timeout_s``. A driver that only stalled comes back still on the job: keep waiting."""
+        if self._arm_state_time is None:
+            return True
+        silent_s = time.monotonic() - self._arm_state_time
+        if silent_s >= self.p["driver_lost_s"]:
+            self._state_gap = True
+            return silent_s < self.p["step_timeout_s"]
+        if self._state_gap and self.arm_state is not None and self.arm_state.total > 0:
+            self._state_gap = False  # the same driver, still welding this job
+        return not self._state_gap
+
+    def _on_feedback(self, fb) -> None:
+        f = fb.feedback
+        st = self.cell_status
+        st.message = f"station {st.station}/{st.stations_total}: {f.stud_id} {f.phase} ({f.done}/{f.total})"
+
+
+def main(args=None) -> int:
+    dump_stacks_on_signal()
+    ros_io.init_node_process(args)
+    node = CellSequencer()
+    executor = MultiThreadedExecutor(num_threads=4)
+    executor.add_node(node)
+    try:
+        done = ros_io.spin_until_shutdown(executor, lambda: node.exit_code if node.p["exit_when_done"] else None)
+        if done is not None:
+            node.publish_status()
+            time.sleep(0.3)  # let the last status go out
+            return done
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node._stop.set()
+        ros_io.drain_executor(executor)
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0 if node.exit_code in (None, 0) else node.exit_code
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
