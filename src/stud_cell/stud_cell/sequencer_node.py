@@ -43,6 +43,7 @@ from stud_common.ros_io import Param, three_numbers
 from stud_common.vocabulary import CellState
 from stud_cell import job as cell_job
 from stud_cell.job import DriverLost, InspectionUnavailable, JobAborted, MoveRefused
+from stud_cell.stations import StationPlanningError, footprint_m
 from stud_planner.msg_convert import (inspection_extras, inspection_rows, layout_from_msg, registration_from_msg,
                                       target_report_entry)
 from stud_common import names
@@ -212,7 +213,14 @@ class CellSequencer(Node):
 
     # -- cell_job.CellPorts ---------------------------------------------------------------------
     def status(self, state: str, message: str, **fields) -> None:
+        if "unreachable" in fields and "unreachable_reasons" not in fields:
+            fields["unreachable_reasons"] = [self._unreachable_reason(sid) for sid in fields["unreachable"]]
         self._set_state(STATE_OF_TEXT[state], message, **fields)
+
+    def _unreachable_reason(self, stud_id: str) -> str:
+        """Why the job cannot weld ``stud_id``: its QA row's reason, as the QA record says it."""
+        reasons = self.job.qa.get(stud_id, {}).get("reasons") if self.job is not None else None
+        return reasons[0] if reasons else "unreachable"
 
     def _set_state(self, state: int, message: str, **fields) -> None:
         changed = (state, message) != (self.cell_status.state, self.cell_status.message)
@@ -251,6 +259,7 @@ class CellSequencer(Node):
                            self.p["step_timeout_s"])
         if not reply.success:
             raise MoveRefused(f"camera move to {np.round(xyz, 3).tolist()} m refused: {reply.message}")
+        self._camera_status(xyz, yaw_rad)
         # The camera's pose comes from /arm/state: shoot only once a state from after the move
         # is out (two, so the camera node has surely seen one), or the shot uses a stale pose.
         arrived = self.get_clock().now().nanoseconds
@@ -263,6 +272,19 @@ class CellSequencer(Node):
             return len(seen) >= 2
 
         self._wait_for(settled, self.p["step_timeout_s"], "/arm/state after the move")
+
+    def _camera_status(self, xyz, yaw_rad: float) -> None:
+        """Where the camera now looks, for /cell/status (the HMI's plan draws the footprint): the
+        footprint on the part's top seen from the camera's height above the registered plane."""
+        st, p = self.cell_status, self.p
+        reg = self.registration
+        plane_z = float(reg.mark_o.z) if reg is not None and reg.valid and math.isfinite(reg.mark_o.z) else 0.0
+        try:
+            fp = list(footprint_m(p["fov_width_m"], p["fov_distance_m"], p["image_aspect"], float(xyz[2]) - plane_z,
+                                  p["part_height_m"]))
+        except StationPlanningError:  # the camera not above the part's top: no footprint to draw
+            fp = []
+        st.camera_xyz_m, st.camera_yaw_rad, st.camera_footprint_m = [float(v) for v in xyz], float(yaw_rad), fp
 
     def shoot(self) -> int:
         """One triggered shot; returns the ROS time (ns) taken just before it."""

@@ -358,4 +358,4 @@ const HANDLERS = { hello: onHello, targets: onTargets, overlay: onOverlay, arm: 
                    inspection_overlay: onInspectionOverlay };
 
 setConnected(false, "connecting…");
-connect();
+document.addEventListener("DOMContentLoaded", connect); // once the page's other scripts (plan.js) added their handlers
