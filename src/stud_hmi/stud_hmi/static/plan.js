@@ -102,7 +102,7 @@
   svg.addEventListener("pointerdown", (ev) => {
     if (!plan.view || ev.button !== 0) return;
     drag = { x: ev.clientX, y: ev.clientY, cx: plan.view.cx, cy: plan.view.cy, moved: false, target: ev.target };
-    svg.setPointerCapture(ev.pointerId);
+    try { svg.setPointerCapture(ev.pointerId); } catch (e) { /* a synthetic pointer: no capture needed */ }
   });
   svg.addEventListener("pointermove", (ev) => {
     if (!drag) return;
