@@ -298,7 +298,7 @@ def girder_scene(
     """A long part along the rail (world x): a cambered, cross-sloped girder flange
     (:class:`~stud_perception.scene_solids.Girder`, heading +X from ``start_xy_m``) with rows of
     ``studs_per_row`` studs ``stud_spacing_m`` apart across it every ``row_pitch_m`` (as bridge decks
-    use), the marking board on the table beside its start (O 0.3 m before it, A along the rail), and
+    use), the marking board on the table beside its start (O 0.1 m before it, A along the rail), and
     reference marks ``M1``, ``M2``, ... every ``mark_pitch_m`` along it, alternately ``mark_offset_m``
     right and left of its centreline and half a row pitch from the stud rows, so a camera view of the
     demo's field (0.46 x 0.345 m, the long side along the rail) sees two or three of them anywhere
@@ -308,8 +308,8 @@ def girder_scene(
     positions are their plan positions."""
     girder = Girder(start_xy_m, 0.0, length_m, width_m, camber_m, math.radians(cross_slope_deg), height_m)
     board = MarkingBoard()
-    # O on the table beside the girder's start, clear of its near edge by the board's margin
-    pose = Pose2D(x_m=start_xy_m[0] - 0.3, y_m=start_xy_m[1] - width_m / 2 - 0.15, yaw_rad=0.0)
+    # O on the table beside the girder's start, the board 28 mm clear of its edge: one view sees O, A, B and M1
+    pose = Pose2D(x_m=start_xy_m[0] - 0.1, y_m=start_xy_m[1] - width_m / 2 - 0.15, yaw_rad=0.0)
     u_rows = np.arange(row_pitch_m / 2, length_m - row_pitch_m / 4, row_pitch_m)
     v_studs = (np.arange(studs_per_row) - (studs_per_row - 1) / 2) * stud_spacing_m
     uu, vv = np.meshgrid(u_rows, v_studs, indexing="ij")
