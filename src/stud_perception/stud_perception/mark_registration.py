@@ -135,8 +135,8 @@ def register_view_on_marks(
                                     "registration to name reference marks by)", picked, None)
         uv, world = found.corrected(picked[0], camera, config.mark_diameter_m / 2)
         try:
-            prior = registration_from_marks(*world, drawing_marks=board_xy, tol_m=config.distance_tol_m,
-                                            method=fit.method).M_local2world
+            prior = registration_from_marks(world[0], world[1], world[2], drawing_marks=board_xy,
+                                            tol_m=config.distance_tol_m, method=fit.method).M_local2world
         except RegistrationError as exc:
             return ViewRegistration(False, f"marks found but unusable: {exc}", _detection(found, None), None)
     return _fit_associated(found, camera, labels, drawing_xy, board_xy, np.asarray(prior, dtype=np.float64),
@@ -163,9 +163,10 @@ def _fit_associated(found: MarkCandidates, camera: CameraModel, labels: tuple[st
         used = tuple(labels[m] for m in marks)
         try:
             if set(used) == set(BOARD_LABELS):  # today's board-only registration, exactly
-                order = [used.index(lb) for lb in BOARD_LABELS]
-                reg = registration_from_marks(*world[order], drawing_marks=board_xy, tol_m=config.distance_tol_m,
+                o, a, b = (world[used.index(lb)] for lb in BOARD_LABELS)
+                reg = registration_from_marks(o, a, b, drawing_marks=board_xy, tol_m=config.distance_tol_m,
                                               method=fit.method)
+                order = [used.index(lb) for lb in BOARD_LABELS]
                 uv = uv[order]
                 if reg.residual_max_m > fit.max_residual_m:
                     raise RegistrationError(f"O, A, B fit with residual {reg.residual_max_m * 1000:.1f} mm (limit "

@@ -300,7 +300,7 @@ def girder_scene(
     ``studs_per_row`` studs ``stud_spacing_m`` apart across it every ``row_pitch_m`` (as bridge decks
     use), the marking board on the table beside its start (O 0.1 m before it, A along the rail), and
     reference marks ``M1``, ``M2``, ... every ``mark_pitch_m`` along it, alternately ``mark_offset_m``
-    right and left of its centreline and half a row pitch from the stud rows, so a camera view of the
+    right and left of its centreline (with the default pitches half a row pitch from the stud rows), so a camera view of the
     demo's field (0.46 x 0.345 m, the long side along the rail) sees two or three of them anywhere
     along the part.
 
@@ -314,7 +314,7 @@ def girder_scene(
     v_studs = (np.arange(studs_per_row) - (studs_per_row - 1) / 2) * stud_spacing_m
     uu, vv = np.meshgrid(u_rows, v_studs, indexing="ij")
     world = np.column_stack([start_xy_m[0] + uu.ravel(), start_xy_m[1] + vv.ravel()])
-    u_marks = np.arange(row_pitch_m, length_m - row_pitch_m / 4, mark_pitch_m)
+    u_marks = np.arange(mark_pitch_m, length_m - mark_pitch_m / 4, mark_pitch_m)
     v_marks = np.where(np.arange(len(u_marks)) % 2 == 0, -mark_offset_m, mark_offset_m)
     marks_w = np.column_stack([start_xy_m[0] + u_marks, start_xy_m[1] + v_marks])
     marks_d = pose.apply_inverse(marks_w)

@@ -451,6 +451,12 @@ class Girder:
                              f"raise height_m above {self.height_m - low:.4f} m or reduce cross_slope_deg/width_m")
 
     @property
+    def centre_xy_m(self) -> tuple[float, float]:
+        """World XY of the footprint's centre (mid-length on the centreline)."""
+        h = self.length_m / 2
+        return (self.start_xy_m[0] + h * math.cos(self.yaw_rad), self.start_xy_m[1] + h * math.sin(self.yaw_rad))
+
+    @property
     def radius_m(self) -> float:
         """R of the camber arc (inf for a flat plate)."""
         c, L = self.camber_m, self.length_m
