@@ -107,3 +107,21 @@ def test_layout_message_carries_the_reference_marks(tmp_path):
         assert view.reference_marks_m[label] == pytest.approx(REFS[label], abs=1e-9)
     plain = layout_to_msg(read_layout(write_layout_dxf(tmp_path / "p.dxf", STUDS, BOARD)))
     assert list(plain.reference_mark_labels) == [] and layout_from_msg(plain).reference_marks_m == {}
+
+
+def test_inspect_lists_and_draws_the_reference_marks(tmp_path):
+    import cv2
+
+    from stud_planner.drawing.inspect_cli import render_preview, summary
+
+    layout = read_layout(write_layout_dxf(tmp_path / "g.dxf", STUDS, {**BOARD, **REFS}, mark_diameter_m=0.02))
+    text = summary(layout)
+    assert "reference marks: 6 (M1 .. M6)" in text and "  M6  (3.4000, 0.4800) m" in text
+    d = layout.to_dict()
+    d["reference_marks"] = []
+    red = []
+    for name, lay in (("with", layout), ("without", DrawingLayout.from_dict(d))):
+        render_preview(lay, tmp_path / f"{name}.png", size_px=800)
+        img = cv2.imread(str(tmp_path / f"{name}.png"))
+        red.append(int(((img[..., 2] > 180) & (img[..., 0] < 60) & (img[..., 1] < 60)).sum()))
+    assert red[0] > 2 * red[1] > 0  # six more marks drawn (and named) in red besides O, A, B
