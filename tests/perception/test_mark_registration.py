@@ -183,3 +183,18 @@ def test_along_the_rail_every_station_cancels_the_rail_error_and_a_blind_one_say
     assert 0.5 < result.registration.extrapolated_m < 0.7
     assert f"extrapolated {result.registration.extrapolated_m:.3f} m" in result.message
     assert "marks not found" in result.message
+
+
+def test_a_mark_off_its_drawing_position_is_refused_not_papered_over_by_the_trail(middle):
+    trail = RegistrationTrail()
+    start_view, start_cam = shoot((0.37, -0.2), seed=2)
+    assert trail.register(start_view.color_bgr, start_view.depth_m, start_cam, MARKS).ok
+    view, cam = middle
+    bad = dict(MARKS)
+    bad["M15"] = (MARKS["M15"][0] + 0.010, MARKS["M15"][1])  # the drawing and the paint disagree by 10 mm
+    result = trail.register(view.color_bgr, view.depth_m, cam, bad)
+    assert not result.ok and result.refused and result.registration is None
+    assert "mark M15 is" in result.message and "refused" in result.message
+    assert len(trail.stations) == 1
+    # the same view with the drawing right registers, and joins the trail
+    assert trail.register(view.color_bgr, view.depth_m, cam, MARKS).ok and len(trail.stations) == 2

@@ -138,7 +138,8 @@ def register_view_on_marks(
             prior = registration_from_marks(world[0], world[1], world[2], drawing_marks=board_xy,
                                             tol_m=config.distance_tol_m, method=fit.method).M_local2world
         except RegistrationError as exc:
-            return ViewRegistration(False, f"marks found but unusable: {exc}", _detection(found, None), None)
+            return ViewRegistration(False, f"marks found but unusable: {exc}", _detection(found, None), None,
+                                    refused=True)
     return _fit_associated(found, camera, labels, drawing_xy, board_xy, np.asarray(prior, dtype=np.float64),
                            config, fit)
 
@@ -174,7 +175,8 @@ def _fit_associated(found: MarkCandidates, camera: CameraModel, labels: tuple[st
             else:
                 reg = fit_marks(used, drawing_xy[marks], world, board_xy, fit.max_residual_m, fit.min_marks)
         except RegistrationError as exc:
-            return ViewRegistration(False, f"marks found but unusable: {exc}", _detection(found, None), None)
+            return ViewRegistration(False, f"marks found but unusable: {exc}", _detection(found, None), None,
+                                    refused=True)
         M = reg.M_local2world
     assert reg is not None
     msg = (f"registered on {len(reg.labels_used)} marks ({', '.join(reg.labels_used)}): residual "
@@ -249,9 +251,10 @@ class RegistrationTrail:
                  drawing_marks_m: Mapping[str, object], config: MarkDetectorConfig = MarkDetectorConfig(),
                  fit: MarkFitConfig = MarkFitConfig(), position_xy_m=None) -> ViewRegistration:
         """Register the view (:func:`register_view_on_marks`) with the nearest registered station as the
-        prior; remember it when it succeeds. When it fails and a station registered before, the
-        result is that station's registration (``ok``, ``extrapolated_m`` > 0 unless at the same spot;
-        the message says why and how far). ``position_xy_m``: where this view is (default: the
+        prior; remember it when it succeeds. When the view shows too few marks and a station registered
+        before, the result is that station's registration (``ok``, ``extrapolated_m`` > 0 unless at the
+        same spot; the message says why and how far). A view whose marks disagree with the drawing
+        (``refused``) stays a failure. ``position_xy_m``: where this view is (default: the
         camera's world XY)."""
         pos = np.asarray(camera.position_w[:2] if position_xy_m is None else position_xy_m, dtype=np.float64)
         near = self.nearest(pos)
@@ -260,7 +263,7 @@ class RegistrationTrail:
         if result.ok and result.registration is not None:
             self.stations.append(RegisteredStation(pos.copy(), result.registration))
             return result
-        if near is None:
+        if near is None or result.refused:  # marks that disagree with the drawing are reported, never papered over
             return result
         station, dist = near
         reg = replace(station.registration, extrapolated_m=max(dist, 1e-9))

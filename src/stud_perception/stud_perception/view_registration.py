@@ -19,12 +19,15 @@ from stud_perception.registration import MarkRegistration, RegistrationError, re
 
 @dataclass(frozen=True, eq=False)
 class ViewRegistration:
-    """``registration`` is set when ``ok``; ``message`` says what was found or what went wrong."""
+    """``registration`` is set when ``ok``; ``message`` says what was found or what went wrong.
+    ``refused``: the marks were found and named but disagree with the drawing (a wrong association,
+    a mis-detected mark): not a view that merely saw too little."""
 
     ok: bool
     message: str
     detection: MarkDetection
     registration: MarkRegistration | None
+    refused: bool = False
 
 
 def register_view(color_bgr: np.ndarray, depth_m: np.ndarray, camera: CameraModel, drawing_marks_m: np.ndarray,
