@@ -163,7 +163,7 @@ def _fit_associated(found: MarkCandidates, camera: CameraModel, labels: tuple[st
         uv, world = found.corrected(idx, camera, r_m, _surface_normal(world))
         used = tuple(labels[m] for m in marks)
         try:
-            if set(used) == set(BOARD_LABELS):  # today's board-only registration, exactly
+            if set(used) == set(BOARD_LABELS):  # the board alone: Eq. 3 (or LSQ) as register_view does
                 o, a, b = (world[used.index(lb)] for lb in BOARD_LABELS)
                 reg = registration_from_marks(o, a, b, drawing_marks=board_xy, tol_m=config.distance_tol_m,
                                               method=fit.method)
