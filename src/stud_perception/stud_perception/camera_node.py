@@ -60,7 +60,7 @@ def _distortion_d(d) -> str | None:
 PARAMS = [
     Param("source", "sim", "where frames come from; only 'sim' here (real cameras: run the vendor driver)",
           choices=("sim",), read_only=True),
-    Param("scene_file", "", "scene description (.json/.yaml, see stud_perception/scene_file.py); "
+    Param("scene_file", "", "scene description (.json/.yaml, docs/SCENES.md); "
           "empty: the bundled dome"),
     Param("image_width", DEMO_IMAGE_SIZE[0], "image width [px]", min=16, max=8192),
     Param("image_height", DEMO_IMAGE_SIZE[1], "image height [px]", min=16, max=8192),

@@ -6,13 +6,13 @@ targets: target_cdr, the hot path).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from geometry_msgs.msg import Point, Pose, PoseArray, Quaternion
 from stud_welding_msgs.msg import Registration, Stud, StudLayout
 
-from stud_perception.registration import layout_marks_m
+from stud_perception.registration import layout_marks_m, layout_reference_marks_m
 from stud_planner import drawing
 
 
@@ -27,6 +27,8 @@ def layout_to_msg(layout: drawing.DrawingLayout, stamp=None) -> StudLayout:
     msg.mark_a = Point(x=layout.mark_a.x_m, y=layout.mark_a.y_m)
     msg.mark_b = Point(x=layout.mark_b.x_m, y=layout.mark_b.y_m)
     msg.mark_diameter = float(layout.mark_diameter_m)
+    msg.reference_mark_labels = [m.name for m in layout.reference_marks]
+    msg.reference_marks = [Point(x=m.x_m, y=m.y_m) for m in layout.reference_marks]
     msg.studs = [Stud(id=s.id, x=s.x_m, y=s.y_m, diameter=s.diameter_m, layer=s.layer) for s in layout.studs]
     msg.warnings = list(layout.warnings)
     return msg
@@ -41,6 +43,7 @@ class LayoutView:
     marks_m: np.ndarray       # (3, 2) O, A, B
     mark_diameter_m: float
     source_file: str
+    reference_marks_m: dict[str, np.ndarray] = field(default_factory=dict)  # label -> (2,), label order
 
 
 def layout_from_msg(msg: StudLayout) -> LayoutView:
@@ -50,6 +53,7 @@ def layout_from_msg(msg: StudLayout) -> LayoutView:
         marks_m=layout_marks_m(msg),
         mark_diameter_m=float(msg.mark_diameter),
         source_file=msg.source_file,
+        reference_marks_m=layout_reference_marks_m(msg),
     )
 
 

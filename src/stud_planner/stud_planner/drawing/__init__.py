@@ -63,6 +63,16 @@ Marks (``marks_rule``)
     Concentric mark circles (centres within ``duplicate_tol_m``) count as one mark (the
     largest circle), so a target symbol drawn as two rings is one mark.
 
+Reference marks (``DrawingLayout.reference_marks``)
+    A long part may carry reference marks beside O, A, B, painted along the part so that each
+    camera station registers on the marks it sees: circles on the mark layer labelled ``M1``,
+    ``M2``, ... by TEXT / MTEXT / ATTRIB as O, A, B are (``M01`` reads as ``M1``). They are read
+    in label order (M1, M2, ..., M10), in the drawing frame (metres), and are never studs. In a
+    drawing with reference marks every mark-layer circle must be labelled: an unlabelled one is
+    an error naming where it is (a reference mark without its label would silently be left
+    out), as is a label nearest to two circles; an ``M`` label next to no mark circle is warned
+    about (``M16`` may be a thread size).
+
 Drawing frame (INTERFACES.md, frame ``drawing``)
     Origin at O, x along OA, y perpendicular to x on B's side; metres. If the labels put B
     clockwise from A the frame is a reflection of the DXF's WCS (``mirrored=True``, warned:

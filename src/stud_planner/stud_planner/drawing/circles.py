@@ -28,6 +28,8 @@ from stud_planner.drawing.visibility import Visibility
 #: broken export or a corrupt file writes; such values would also overflow the frame arithmetic.
 MAX_COORDINATE_M = 1e8
 _LABEL_LETTERS = ("O", "A", "B")
+#: a reference mark's label: M1, M2, ... (``M01`` and ``M 1`` read as M1)
+_REFERENCE_LABEL = re.compile(r"M\s*0*([1-9][0-9]{0,5})")
 _TEXT_CODES = re.compile(r"%%[uUoOkK]")
 _MAX_NESTING = 32
 # A transformed circle whose axes differ in length or squareness by more than this (relative),
@@ -112,7 +114,10 @@ def _label_letter(e: Any, dxftype: str) -> str | None:
     if dxftype == "MTEXT":
         raw = e.plain_text()
     text = _TEXT_CODES.sub("", raw).strip().upper()
-    return text if text in _LABEL_LETTERS else None
+    if text in _LABEL_LETTERS:
+        return text
+    ref = _REFERENCE_LABEL.fullmatch(text)
+    return f"M{ref.group(1)}" if ref else None
 
 
 def _label_position(e: Any, dxftype: str) -> tuple[float, float, float]:
@@ -459,7 +464,7 @@ def collect_circles(
 ) -> CircleSet:
     """All circles of ``doc``'s modelspace with INSERTs expanded, in WCS (drawing units).
 
-    Also reads the units and the O/A/B labels; see the module docstring for what is skipped.
+    Also reads the units and the O/A/B (and M1, M2, ...) labels; see the module docstring for what is skipped.
     ``plain``: the modelspace CIRCLE entities read by :mod:`~stud_planner.drawing.plain_circles` and cut out of
     ``doc`` (what :func:`read_circles` does for a large file); the result is the same.
     """

@@ -112,6 +112,11 @@ def summary(layout: DrawingLayout) -> str:
     lines.append(f"frame:        origin O, x toward A (|OA| {_fmt_len(A.x_m)}, heading {heading:.2f} deg in WCS), "
                  f"y toward B (|OB| {_fmt_len(math.hypot(L.mark_b.x_m, L.mark_b.y_m))}), "
                  f"angle AOB {L.angle_aob_deg:.3f} deg, " + ("MIRRORED w.r.t. the DXF" if L.mirrored else "right-handed"))
+    if L.reference_marks:
+        lines.append(f"reference marks: {len(L.reference_marks)} ({L.reference_marks[0].name} .. "
+                     f"{L.reference_marks[-1].name}), drawing frame")
+        lines += [f"  {m.name}  ({_z(m.x_m):.4f}, {_z(m.y_m):.4f}) m, diameter {m.diameter_m * 1e3:.2f} mm"
+                  for m in L.reference_marks]
     if L.warnings:
         lines.append(f"warnings:     {len(L.warnings)}")
         lines += [f"  - {w}" for w in L.warnings]
@@ -121,13 +126,14 @@ def summary(layout: DrawingLayout) -> str:
 
 
 def render_preview(layout: DrawingLayout, path: Path, size_px: int = 1600, max_ids: int = 400) -> None:
-    """Write a PNG preview: studs (blue) with ids, marks (red) with names, frame axes from O."""
+    """Write a PNG preview: studs (blue) with ids, marks and reference marks (red) with names, frame axes from O."""
     try:
         import cv2
     except ImportError as exc:
         raise DrawingError(f"{path}: --png needs OpenCV (cv2): {exc}") from exc
     studs = layout.studs_xy_m()
-    marks = np.array([(m.x_m, m.y_m) for m in layout.marks.values()])
+    all_marks = (*layout.marks.values(), *layout.reference_marks)
+    marks = np.array([(m.x_m, m.y_m) for m in all_marks])
     pts = np.vstack([studs, marks, [[0.0, 0.0]]])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     pad = 0.08 * max(float(np.max(hi - lo)), 1e-6)
@@ -154,7 +160,7 @@ def render_preview(layout: DrawingLayout, path: Path, size_px: int = 1600, max_i
         cv2.circle(img, c, r, (200, 90, 0), 1 if r > 3 else -1, cv2.LINE_AA)
         if label_ids:
             cv2.putText(img, s.id, (c[0] + r + 2, c[1] - r - 2), font, fs, (80, 40, 0), 1, cv2.LINE_AA)
-    for m in layout.marks.values():
+    for m in all_marks:
         c = px((m.x_m, m.y_m))
         r = max(4, int(round(m.diameter_m / 2 * scale)))
         cv2.circle(img, c, r, (0, 0, 220), 2, cv2.LINE_AA)

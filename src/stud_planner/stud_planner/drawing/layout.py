@@ -180,12 +180,13 @@ def _drawing_frame(path: Path, cs: CircleSet, marks_idx: dict[str, int], rules: 
 
 
 def _marks(cs: CircleSet, marks_idx: dict[str, int], frame: _Frame) -> dict[str, Mark]:
+    """O, A, B and the reference marks (in ``marks_idx``'s order) in the drawing frame."""
     marks = {}
-    for k in _LABEL_LETTERS:
-        i = marks_idx[k]
+    for k, i in marks_idx.items():
         dx, dy = frame.to_drawing(cs.centers_wcs[i][None, :])[0]
+        diameter = frame.mark_d[k] if k in frame.mark_d else 2.0 * float(cs.radii[i]) * cs.metres_per_unit
         marks[k] = Mark(k, float(dx), float(dy), float(cs.centers_wcs[i][0]), float(cs.centers_wcs[i][1]),
-                        frame.mark_d[k], cs.layers[i])
+                        diameter, cs.layers[i])
     return marks
 
 
@@ -304,7 +305,7 @@ def _build_layout(path: Path, cs: CircleSet, rules: _Rules) -> DrawingLayout:
 
     marks_idx, rule, mark_warns, mark_members = _identify_marks(
         path, cs, rules.mark_layer, rules.duplicate_tol_m / s, rules.label_distance_factor, rules.collinear_tol_deg,
-        rules.right_angle_ambiguity_deg,
+        rules.right_angle_ambiguity_deg, stud_match,
     )
     warns += mark_warns
     frame = _drawing_frame(path, cs, marks_idx, rules, warns)
@@ -337,4 +338,5 @@ def _build_layout(path: Path, cs: CircleSet, rules: _Rules) -> DrawingLayout:
         wcs_to_drawing=tuple(float3(row) for row in frame.T), bbox_m=bbox,
         stud_layers=tuple(sorted(set(layer_arr.tolist()), key=str.casefold)), warnings=warns,
         invalid_entities=cs.invalid_entities,
+        reference_marks=tuple(m for k, m in marks.items() if k not in _LABEL_LETTERS),
     )
