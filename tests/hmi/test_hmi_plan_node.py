@@ -9,6 +9,7 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("stud_welding_msgs.msg", reason="workspace not built/sourced (source ros2_ws/setup.bash)")
 
+from geometry_msgs.msg import Point  # noqa: E402
 from stud_welding_msgs.msg import ArmState, CellStatus, Registration, Stud, StudLayout, WeldTarget  # noqa: E402
 
 from hmi_testing import ctrl_c, free_port  # noqa: E402
@@ -29,6 +30,8 @@ def layout_msg() -> StudLayout:
     msg = StudLayout(source_file="/parts/girder.dxf", mark_diameter=0.03,
                      studs=[Stud(id=sid, x=x, y=y, diameter=0.019) for sid, x, y in DRAWING])
     msg.mark_a.x, msg.mark_b.y = 0.5, 0.3
+    msg.reference_mark_labels = ["M1", "M2"]  # painted along the flange
+    msg.reference_marks = [Point(x=3.0, y=0.3), Point(x=5.9, y=0.3)]
     return msg
 
 
@@ -62,14 +65,16 @@ def test_the_page_gets_the_plan_in_world_the_carriage_on_its_rail_and_the_statio
     assert msg["frame"] == "drawing" and msg["studs"][4]["xy_m"] == pytest.approx([0.3, 0.14])
     assert msg["studs"][4]["state"] == "not_seen" and msg["studs"][0]["d_m"] == pytest.approx(0.019)
     assert msg["rail"] == {"length_m": 6.0, "extent_m": [0.0, 6.0], "mount_xyz_m": MOUNT, "reach_m": 0.61}
-    assert [m["label"] for m in msg["marks"]] == ["O", "A", "B"]
+    assert [(m["label"], m["xy_m"]) for m in msg["marks"]] == [
+        ("O", [0.0, 0.0]), ("A", [0.5, 0.0]), ("B", [0.0, 0.3]), ("M1", [3.0, 0.3]), ("M2", [5.9, 0.3])]
 
     # the registration puts the part in world (Eq. 2)
     pub_reg.publish(registration_msg())
     msg = inbox.wait(lambda m: m["type"] == "plan" and m["frame"] == "world", ros_node, "the plan in world")
     for s, (_sid, x, y) in zip(msg["studs"], DRAWING):
         assert s["xy_m"] == pytest.approx(world(x, y), abs=1e-5)
-    b = msg["bounds_m"]  # the part: the studs (0.1 .. 5.9 m along the drawing's x) and the marks O, A, B
+    assert msg["marks"][3]["xy_m"] == pytest.approx(world(3.0, 0.3), abs=1e-5)
+    b = msg["bounds_m"]  # the part: the studs (0.1 .. 5.9 m along the drawing's x) and the marks
     assert b == pytest.approx([PART_AT[0] - 0.3, PART_AT[1], PART_AT[0], PART_AT[1] + 5.9], abs=1e-5)
 
     # the carriage: /arm/state's rail position reaches the page with the arm's base and reach

@@ -262,8 +262,11 @@ class HmiNode(Node):
             self.view.set_layout((s.id for s in msg.studs), msg.source_file, self.p["part_name"], msg.warnings)
             self.plan.set_layout([s.id for s in msg.studs], [(s.x, s.y) for s in msg.studs],
                                  [s.diameter for s in msg.studs],
-                                 [(k.upper(), (m.x, m.y)) for k, m in (("o", msg.mark_o), ("a", msg.mark_a),
-                                                                       ("b", msg.mark_b))], msg.mark_diameter)
+                                 [("O", (msg.mark_o.x, msg.mark_o.y)), ("A", (msg.mark_a.x, msg.mark_a.y)),
+                                  ("B", (msg.mark_b.x, msg.mark_b.y)),
+                                  *((label, (m.x, m.y)) for label, m in zip(msg.reference_mark_labels,
+                                                                            msg.reference_marks))],
+                                 msg.mark_diameter)
             self._table_dirty = True
 
     def _on_targets(self, msg: WeldTargetArray) -> None:
