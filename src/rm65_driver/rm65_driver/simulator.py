@@ -453,6 +453,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                         format="%(asctime)s %(levelname)s %(message)s")
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         _log.warning("binding the simulator to a non-loopback address %s", args.host)
+    # SIGINT and SIGTERM are blocked in every thread (the simulator's threads, started below, inherit
+    # the mask) and taken synchronously by sigwait: no handler runs at an arbitrary point of this thread.
+    # The handler that was here set a threading.Event, whose lock this thread held for a few bytecodes
+    # of every Event.wait turn: a signal landing then blocked the handler on that lock for ever, and the
+    # simulator outlived its SIGTERM (a cell killed mid-job; its launch test waited 60 s in vain).
+    stop_signals = {signal.SIGINT, signal.SIGTERM}
+    for sig in stop_signals:  # not Python's KeyboardInterrupt either (never ignored: an ignored signal is lost)
+        signal.signal(sig, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_BLOCK, stop_signals)
     try:
         sim = ArmSimulator(host=args.host, port=args.port, time_scale=args.time_scale,
                            err_format=args.err_format, pretty_replies=args.pretty)
@@ -460,12 +469,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (OSError, ValueError) as exc:
         print(f"simulator: cannot start on {args.host}:{args.port}: {exc}", file=sys.stderr)
         return 2
-    done = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: done.set())
-    signal.signal(signal.SIGTERM, lambda *_: done.set())
     print(f"RM65 simulator on {args.host}:{sim.port} (Ctrl-C to stop)", flush=True)
-    while not done.wait(0.5):  # wake up now and then: a signal's handler runs in this (main) thread
-        pass
+    signal.sigwait(stop_signals)
     sim.stop()
     return 0
 
