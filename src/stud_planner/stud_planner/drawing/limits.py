@@ -57,7 +57,8 @@ class DrawingLimits:
     @staticmethod
     def describe() -> dict[str, tuple[int, str]]:
         """``{name: (default, description)}`` for every limit (parameters, CLI flags, docs)."""
-        return {f.name: (f.default, f.metadata["text"]) for f in fields(DrawingLimits)}
+        defaults = DrawingLimits()
+        return {f.name: (int(getattr(defaults, f.name)), str(f.metadata["text"])) for f in fields(DrawingLimits)}
 
 
 class DrawingLimitError(DrawingError):
