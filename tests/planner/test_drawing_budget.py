@@ -49,9 +49,9 @@ def _new_doc():
     return doc, msp
 
 
-def insert_bomb(path: Path, levels: int = 10, fan_out: int = 10) -> Path:
+def insert_bomb(path: Path, levels: int = 10, fan_out: int = 10, top: int = 1) -> Path:
     """Block L1 holds one stud circle; block Lk inserts L(k-1) ``fan_out`` times; modelspace inserts
-    L``levels`` once: ``fan_out ** (levels - 1)`` circles."""
+    L``levels`` ``top`` times: ``top * fan_out ** (levels - 1)`` circles."""
     doc, msp = _new_doc()
     prev = None
     for level in range(1, levels + 1):
@@ -63,7 +63,8 @@ def insert_bomb(path: Path, levels: int = 10, fan_out: int = 10) -> Path:
                 block.add_blockref(prev, (40.0 * fan_out ** (level - 2) * i, 0.0) if level % 2 else
                                    (0.0, 40.0 * fan_out ** (level - 2) * i))
         prev = f"L{level}"
-    msp.add_blockref(prev, (50.0, 50.0))
+    for i in range(top):
+        msp.add_blockref(prev, (50.0, 50.0 + 1e6 * i))
     doc.saveas(path)
     return path
 
@@ -137,8 +138,8 @@ def assert_bounded_refusal(run: Run, prog: str, *parts: str) -> str:
 # -- the bombs -------------------------------------------------------------------------------------
 @pytest.mark.parametrize("cli,prog", [(drawing_inspect, "drawing_inspect"), (plan, "plan")])
 def test_a_ten_level_insert_bomb_stops_at_the_expansion_limit_naming_block_level_and_count(tmp_path, cli, prog):
-    bomb = insert_bomb(tmp_path / "bomb.dxf")
-    assert bomb.stat().st_size < 64_000  # 10^9 circles in a small file
+    bomb = insert_bomb(tmp_path / "bomb.dxf", top=10)  # the issue's: ten levels of ten, 10^10 circles
+    assert bomb.stat().st_size < 64_000
     line = assert_bounded_refusal(run_measured(cli(bomb), tmp_path), prog)
     # L10 is level 1 in modelspace ... L7 (10^6 circles, placed 10 times in L8) is level 4
     assert ("block 'L7' (nesting level 4) placed 10 times in block 'L8' would expand 10,000,000 entities "
