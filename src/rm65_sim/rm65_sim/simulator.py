@@ -503,6 +503,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                         format="%(asctime)s %(levelname)s %(message)s")
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         _log.warning("binding the simulator to a non-loopback address %s", args.host)
+    # SIGINT and SIGTERM are blocked in every thread (the simulator's threads, started below, inherit
+    # the mask) and taken synchronously by sigwait: no handler runs at an arbitrary point of this thread.
+    # The handler that was here set a threading.Event, whose lock this thread held for a few bytecodes
+    # of every Event.wait turn: a signal landing then blocked the handler on that lock for ever, and the
+    # simulator outlived its SIGTERM (a cell killed mid-job; its launch test waited 60 s in vain).
+    stop_signals = {signal.SIGINT, signal.SIGTERM}
+    for sig in stop_signals:  # not Python's KeyboardInterrupt either (never ignored: an ignored signal is lost)
+        signal.signal(sig, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_BLOCK, stop_signals)
     try:
         rail_axis = (RailAxis(args.rail_length_m, args.rail_pos_unit_m, args.rail_max_speed_m_s, args.rail_accel_m_s2)
                      if args.rail_length_m != 0 else None)
@@ -514,13 +523,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (OSError, ValueError) as exc:
         print(f"simulator: cannot start on {args.host}:{args.port}: {exc}", file=sys.stderr)
         return 2
-    done = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: done.set())
-    signal.signal(signal.SIGTERM, lambda *_: done.set())
     print(f"RM65 simulator on {args.host}:{sim.port}"
           + (f", rail of {args.rail_length_m:g} m" if rail_axis is not None else "") + " (Ctrl-C to stop)", flush=True)
-    while not done.wait(0.5):  # wake up now and then: a signal's handler runs in this (main) thread
-        pass
+    signal.sigwait(stop_signals)
     sim.stop()
     return 0
 

@@ -45,6 +45,7 @@ from stud_perception.scene_cameras import (DEMO_FOV_DISTANCE_M, DEMO_FOV_WIDTH_M
                                            view_camera)
 from stud_perception.scene_file import load_scene
 from stud_perception.scene_render import render
+from stud_perception.scene_sensor import MAX_DEPTH_NOISE_M
 from stud_perception.scene_solids import SceneError
 from stud_perception.welded_studs import StudCylinder, welded_stud
 from stud_common import names
@@ -68,7 +69,8 @@ PARAMS = [
     Param("fov_distance_m", DEMO_FOV_DISTANCE_M, "distance at which fov_width_m is spanned [m]", min=0.05, max=10.0),
     Param("depth_encoding", "16UC1", "depth image encoding: '16UC1' (mm, 0 = none; what RGB-D drivers send) or "
           "'32FC1' (m, NaN = none; not quantised)", choices=("16UC1", "32FC1")),
-    Param("depth_noise_m", 0.0005, "std of Gaussian depth noise [m]", min=0.0, max=0.05),
+    Param("depth_noise_m", 0.0005, "std of Gaussian depth noise [m] (at most the cell's working envelope: beyond "
+          "it the hand-eye cannot be verified to 0.5 mm / 0.15 deg)", min=0.0, max=MAX_DEPTH_NOISE_M),
     Param("depth_noise_correlation_px", 1.5, "how far the depth noise is correlated across pixels, as a real "
           "structured-light camera's is (sigma of a Gaussian blur of the noise; 0: independent pixels) [px]",
           min=0.0, max=20.0),

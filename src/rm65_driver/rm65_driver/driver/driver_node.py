@@ -61,7 +61,8 @@ from stud_welding_msgs.msg import WeldTarget
 
 from stud_common import hand_eye_ros, ros_io
 
-from rm65_driver.driver.params import PARAMS, default_journal, job_config, job_config_problem, rail_axis
+from rm65_driver.driver.params import (PARAMS, default_journal, goal_tolerances, job_config, job_config_problem,
+                                       rail_axis)
 from rm65_driver.driver.services import DriverServices
 from rm65_driver.driver.shared_state import DriverState
 from rm65_driver.driver.status import DriverStatus
@@ -71,25 +72,21 @@ from rm65_driver.rail.control import RailControl, target_in_base
 from rm65_driver.weld.safety import SafetyChecker
 from rm65_driver.weld.weld_job import JobResult, StudTarget
 from rm65_driver.weld.weld_sequence import WeldSequence
+from rm65_driver.weld.goal_checks import GoalTolerances, check_target_fields
 from stud_common import names
 
 
 # -- message <-> core conversions --------------------------------------------------------------
 
 
-def target_from_msg(msg: WeldTarget) -> tuple[StudTarget | None, str]:
-    """WeldTarget -> StudTarget, or (None, reason) for a target the matcher did not mark usable.
-
-    The normal is ``msg.normal``; if that is zero, the z axis of ``msg.pose`` (outward normal).
-    """
+def target_from_msg(msg: WeldTarget, tol: GoalTolerances = GoalTolerances()) -> tuple[StudTarget | None, str]:
+    """WeldTarget -> StudTarget, or (None, reason) for a target the matcher did not mark usable or
+    whose position, normal and orientation are not consistent (:mod:`.goal_checks`: the normal is
+    the authority, the orientation must agree with it)."""
     if msg.status != WeldTarget.STATUS_OK:
         return None, f"matcher status {msg.status_text or msg.status}"
-    n = np.array([msg.normal.x, msg.normal.y, msg.normal.z])
-    if np.linalg.norm(n) < 1e-9:
-        R, _ = ros_io.pose_to_rt(msg.pose)
-        n = R[:, 2]
-    p = msg.pose.position
-    return StudTarget(msg.stud_id, np.array([p.x, p.y, p.z]), n), ""
+    p, n, q = msg.pose.position, msg.normal, msg.pose.orientation
+    return check_target_fields(msg.stud_id, (p.x, p.y, p.z), (n.x, n.y, n.z), (q.x, q.y, q.z, q.w), tol)
 
 
 def result_to_msg(res: JobResult, pre_skipped: list[tuple[str, str]]) -> WeldJob.Result:
@@ -194,8 +191,9 @@ class DriverNode(Node):
             goal_handle.abort()
             return out
         targets, pre_skipped = [], []
+        tol = goal_tolerances(self.p)
         for t in goal.targets:
-            st, why = target_from_msg(t)
+            st, why = target_from_msg(t, tol)
             if st is None:
                 pre_skipped.append((t.stud_id, why))
             else:

@@ -21,6 +21,7 @@ from rm65_driver.protocol import messages as P
 from rm65_driver.rail.axis import RailAxis, RailRequestError
 from rm65_driver.weld.safety import SafetyLimits
 from rm65_driver.weld.weld_job import WeldParams
+from rm65_driver.weld.goal_checks import GoalTolerances
 
 
 def default_journal() -> str:
@@ -90,6 +91,13 @@ PARAMS = [
           min=0.0, max=90.0),
     Param("yaw_step_deg", 15.0, "the free rotation about the stud's axis is searched in these steps for the "
           "reachable solution nearest the current joints [deg]", min=1.0, max=180.0),
+    # A weld target's normal is the authority; its orientation must agree (weld/goal_checks.py)
+    Param("target_normal_length_tol", 1e-3, "a weld target's normal must be a unit vector within this (| |n| - 1 |): "
+          "a zero or NaN normal is refused, named", min=1e-9, max=0.1),
+    Param("target_quaternion_norm_tol", 1e-2, "a weld target's orientation quaternion within this of unit length "
+          "(| |q| - 1 |) is normalised, beyond it refused", min=1e-9, max=0.5),
+    Param("target_axis_tol_deg", 1.0, "a weld target whose pose z axis is farther than this from its normal is "
+          "refused: the two disagree on the weld direction [deg]", min=0.01, max=30.0),
     Param("motion_timeout_s", 60.0, "a motion that has not arrived by then aborts the job [s]", min=1.0, max=600.0),
     Param("reconnect_timeout_s", 10.0, "reconnection attempts before a job aborts [s]", min=0.5, max=300.0),
     Param("on_disconnect", "continue", "after a connection loss mid-weld: 'continue' with the next studs or 'abort'",
@@ -139,6 +147,12 @@ def job_config(p: dict) -> tuple[WeldParams, SafetyLimits]:
         max_tool_tilt_deg=p["max_tool_tilt_deg"], yaw_step_deg=p["yaw_step_deg"],
         max_joint_speed_pct=p["max_joint_speed_pct"], max_linear_speed_pct=p["max_linear_speed_pct"])
     return params, limits
+
+
+def goal_tolerances(p: dict) -> GoalTolerances:
+    """How consistent a weld goal's targets must be (:mod:`.goal_checks`), from the parameter values."""
+    return GoalTolerances(normal_length_tol=p["target_normal_length_tol"],
+                          quaternion_norm_tol=p["target_quaternion_norm_tol"], axis_tol_deg=p["target_axis_tol_deg"])
 
 
 def job_config_problem(p: dict) -> str | None:

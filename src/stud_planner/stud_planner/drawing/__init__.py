@@ -6,7 +6,8 @@ Pure Python (ezdxf + numpy), no ROS: the drawing node converts :class:`DrawingLa
 Modules: ``dxf_file`` (file checks, ezdxf, recovery), ``plain_circles`` (the fast reader of plain
 CIRCLE entities), ``circles`` (modelspace and block expansion, labels), ``visibility`` (what CAD
 shows), ``units``, ``neighbours`` (grid-hash neighbour search), ``marks`` (O, A, B and the frame),
-``layout`` (ids, order, checks: :func:`read_layout`), ``layout_types`` (the results),
+``layout`` (ids, order, checks: :func:`read_layout`), ``layout_types`` (the results), ``limits`` (the
+work budget of block expansion: :class:`DrawingLimits`),
 ``dxf_writer`` (drawings for tests, demos and benchmarks).
 
 What is read
@@ -51,6 +52,11 @@ Decisions (each one is reported as a warning when it applies)
     * A degenerate INSERT (zero scale, a transform that raises in ezdxf) is skipped; the rest
       of the drawing is kept.
     * Unitless drawings (``$INSUNITS`` 0 or absent) use ``units_if_unitless`` (default mm).
+    * Block expansion has a work budget (:class:`DrawingLimits`: nesting depth, entities expanded,
+      MINSERT cells, text size), counted before anything is expanded: a drawing that asks for more
+      (ten nested levels of ten INSERTs each are 10^10 circles in 3 KB) is refused with
+      :class:`DrawingLimitError`, one line naming the block, its level and the count. The defaults
+      are far beyond real drawings; each can be raised.
 
 Marks (``marks_rule``)
     * ``"labels"``: each circle on the mark layer takes the letter of its nearest TEXT /
@@ -105,8 +111,9 @@ from stud_planner.drawing.circles import collect_circles, read_circles
 from stud_planner.drawing.dxf_file import load_document
 from stud_planner.drawing.layout import read_layout
 from stud_planner.drawing.layout_types import CircleSet, DrawingError, DrawingLayout, Mark, Stud
+from stud_planner.drawing.limits import DrawingLimitError, DrawingLimits
 from stud_planner.drawing.neighbours import close_pairs
 from stud_planner.drawing.units import UNITS, units_to_metres
 
-__all__ = ["DrawingError", "Stud", "Mark", "DrawingLayout", "CircleSet", "read_layout", "read_circles", "collect_circles",
+__all__ = ["DrawingError", "DrawingLimitError", "DrawingLimits", "Stud", "Mark", "DrawingLayout", "CircleSet", "read_layout", "read_circles", "collect_circles",
            "load_document", "close_pairs", "UNITS", "units_to_metres"]

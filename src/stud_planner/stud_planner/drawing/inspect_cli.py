@@ -5,8 +5,10 @@ the rule that identified the marks and every warning. ``--json`` writes the layo
 (:meth:`DrawingLayout.to_dict`), ``--png`` a preview (OpenCV): studs with ids, marks, and the
 drawing frame's x (red) and y (green) axes.
 
-Any failure -- a bad argument, a drawing the parser refuses, a file ezdxf chokes on -- is one
-line ``drawing_inspect: error: <message>`` on stderr and exit code 2; never a traceback.
+Any failure -- a bad argument, a drawing the parser refuses, a file ezdxf chokes on, a drawing
+that asks for more block expansion than its work budget allows (``--max-expanded-entities`` and
+the other limits of :class:`~stud_planner.drawing.limits.DrawingLimits`) -- is one line
+``drawing_inspect: error: <message>`` on stderr and exit code 2; never a traceback.
 """
 from __future__ import annotations
 
@@ -22,6 +24,7 @@ import numpy as np
 from stud_common.strict_json import write_json
 
 from stud_planner.drawing import DrawingError, DrawingLayout, read_layout, units_to_metres
+from stud_planner.drawing.limits import add_limit_arguments, cli_hint, limits_from_args
 
 PROG = "drawing_inspect"
 
@@ -70,6 +73,7 @@ def _build_parser() -> argparse.ArgumentParser:
                    help="warn about studs closer than this (default: 2.5 x the median stud diameter)")
     p.add_argument("--max-ids", type=int, default=400,
                    help="label stud ids in the preview only up to this many studs (default: 400)")
+    add_limit_arguments(p)
     return p
 
 
@@ -179,11 +183,16 @@ def _run(argv: Sequence[str] | None) -> int:
     def mm(v):
         return None if v is None else v * 1e-3
 
+    try:
+        limits = limits_from_args(args)
+    except ValueError as exc:
+        raise _UsageError(str(exc)) from None
+
     layout = read_layout(
         args.file, stud_layers=args.stud_layers or ["STUDS"], mark_layer=args.mark_layer or ["MARKS"],
         units_if_unitless=args.units_if_unitless, min_diameter_m=mm(args.min_diameter_mm),
         max_diameter_m=mm(args.max_diameter_mm), min_spacing_m=mm(args.min_spacing_mm),
-        include_hidden_layers=args.include_hidden_layers,
+        include_hidden_layers=args.include_hidden_layers, limits=limits,
     )
     print(summary(layout))
     if args.json:
@@ -212,7 +221,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         return 130
     except (_UsageError, DrawingError) as exc:
-        message = str(exc)
+        message = str(exc) + (cli_hint(exc) if isinstance(exc, DrawingError) else "")
     except Exception as exc:  # anything ezdxf or the file system throws at the boundary
         message = f"unexpected {type(exc).__name__}: {exc}"
     print(f"{PROG}: error: {' '.join(message.split())}", file=sys.stderr)

@@ -15,6 +15,7 @@ from stud_common.rotations import float3
 from stud_planner.drawing.circles import _LABEL_LETTERS, read_circles
 from stud_planner.drawing.dxf_file import _one_line
 from stud_planner.drawing.layout_types import CircleSet, DrawingError, DrawingLayout, Mark, Stud
+from stud_planner.drawing.limits import DrawingLimits
 from stud_planner.drawing.marks import _fmt_pats, _identify_marks, _layer_matcher
 from stud_planner.drawing.neighbours import _TooDense, close_pairs
 
@@ -38,6 +39,7 @@ def read_layout(
     right_angle_ambiguity_deg: float = 2.0,
     include_hidden_layers: bool = False,
     gun_spacing_m: float = 0.0,
+    limits: DrawingLimits | None = None,
 ) -> DrawingLayout:
     """Read the stud layout of a DXF drawing (see the module docstring for every rule).
 
@@ -61,13 +63,16 @@ def read_layout(
         gun_spacing_m: warn about stud pairs closer than the weld gun's foot needs beside a
             welded stud (the arm driver's ``min_stud_spacing_m``): of each such pair the driver
             welds one and refuses the other. 0 = off.
+        limits: the work budget of the block expansion (default: :class:`DrawingLimits`' defaults,
+            far beyond any real drawing); crossing one raises :class:`DrawingLimitError`.
 
     Raises:
         DrawingError: one line naming the file and the problem.
     """
     path = Path(path)
     with _bulk_allocation():
-        cs = read_circles(path, units_if_unitless=units_if_unitless, include_hidden_layers=include_hidden_layers)
+        cs = read_circles(path, units_if_unitless=units_if_unitless, include_hidden_layers=include_hidden_layers,
+                          limits=limits)
         try:
             return _build_layout(path, cs, _Rules(
                 stud_layers, mark_layer, min_diameter_m, max_diameter_m, min_spacing_m,
