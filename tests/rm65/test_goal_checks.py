@@ -14,8 +14,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rm65_driver.weld.goal_checks import GoalTolerances, check_target_fields
-from rm65_driver.kinematics import matrix_to_quat_xyzw, tool_pose_facing
-from rm65_driver.weld_job import StudTarget
+from rm65_driver.kinematics.rm65 import matrix_to_quat_xyzw, tool_pose_facing
+from rm65_driver.weld.weld_job import StudTarget
 from stud_planner.matching.surface_pose import quaternion_from_normal
 
 from rm65_testing import dome_targets, welds_per_stud

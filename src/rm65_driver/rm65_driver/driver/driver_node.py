@@ -191,7 +191,7 @@ class DriverNode(Node):
             goal_handle.abort()
             return out
         targets, pre_skipped = [], []
-        tol = goal_tolerances(self.p)
+        tol = goal_tolerances(s.p)
         for t in goal.targets:
             st, why = target_from_msg(t, tol)
             if st is None:

@@ -4,7 +4,7 @@ A ``stud_welding_msgs/WeldTarget`` carries the weld direction twice: ``normal`` 
 normal) and ``pose.orientation`` (whose z axis is that normal; the gun points along -z, tool z =
 -normal). **The normal is the authority**: the gun is welded along ``-normal``, as the matcher
 computes it, and the orientation only has to agree with it. The rotation about the axis is free (the
-stud is round: :class:`~rm65_driver.safety.SafetyChecker` searches it), so only the orientation's z
+stud is round: :class:`~rm65_driver.weld.safety.SafetyChecker` searches it), so only the orientation's z
 axis is compared. A target is refused, named with the reason, never welded on a guess, when:
 
 * its position is not finite;
@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .kinematics import quat_xyzw_to_matrix
-from .weld_job import StudTarget
+from rm65_driver.kinematics.rm65 import quat_xyzw_to_matrix
+from rm65_driver.weld.weld_job import StudTarget
 
 
 @dataclass(frozen=True)

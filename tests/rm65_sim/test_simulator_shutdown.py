@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rm65_driver import protocol as P
-from rm65_driver.arm_client import ArmClient
+from rm65_driver.protocol import messages as P
+from rm65_driver.protocol.arm_client import ArmClient
 
 REPO = Path(__file__).resolve().parents[2]
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -32,16 +32,17 @@ def _free_port() -> int:
 
 
 class SimulatorProcess:
-    """``python -m rm65_driver.simulator`` on a free loopback port, from the source tree."""
+    """``python -m rm65_sim.simulator`` on a free loopback port, from the source tree."""
 
     def __init__(self, tmp_path: Path):
         self.port = _free_port()
         env = dict(os.environ)
-        env["PYTHONPATH"] = os.pathsep.join([str(REPO / "src" / "rm65_driver"), str(REPO / "src" / "stud_common"),
+        env["PYTHONPATH"] = os.pathsep.join([str(REPO / "src" / "rm65_driver"), str(REPO / "src" / "rm65_sim"),
+                                             str(REPO / "src" / "stud_common"),
                                              env.get("PYTHONPATH", "")])
         self.log_path = tmp_path / f"simulator_{self.port}.log"
         self.log = open(self.log_path, "w")
-        self.popen = subprocess.Popen([sys.executable, "-u", "-m", "rm65_driver.simulator", "--port", str(self.port),
+        self.popen = subprocess.Popen([sys.executable, "-u", "-m", "rm65_sim.simulator", "--port", str(self.port),
                                        "--time-scale", "1.0"], stdout=self.log, stderr=subprocess.STDOUT, env=env,
                                       start_new_session=True)
         deadline = time.monotonic() + 30
