@@ -11,7 +11,8 @@ Interfaces
   publishes  /arm/state (stud_welding_msgs/ArmState, reliable depth 10), /joint_states
              (sensor_msgs/JointState, joint1..joint6, rad), /diagnostics, and with
              ``publish_camera_pose`` /camera/pose (geometry_msgs/PoseStamped: weld-tool pose ×
-             hand-eye, the optical frame in ``world``) — all at ``state_rate_hz``.
+             hand-eye, the optical frame in ``world``) — all at ``state_rate_hz``; /arm/reach_config
+             (std_msgs/String, latched: JSON of the reach test's configuration, :mod:`.reach`).
   action     /arm/weld_job (stud_welding_msgs/action/WeldJob); a cancel is graceful (see
              weld_sequence: motions before the trigger stop at once, a started weld completes).
   services   /arm/stop, /arm/pause, /arm/resume, /arm/estop (std_srvs/Trigger);
@@ -49,7 +50,7 @@ from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Bool
+from std_msgs.msg import Bool, String
 from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
 from stud_welding_msgs.msg import ArmState, WeldRecord, WeldTarget
@@ -58,13 +59,14 @@ from stud_welding_msgs.srv import MoveTo, ResolveJournal, ResolveStud
 from stud_common import hand_eye_ros, ros_io
 
 from .arm_client import ArmClient
-from .driver_params import PARAMS, default_journal, job_config, job_config_problem
+from .driver_params import PARAMS, default_journal, job_config, job_config_problem, safety_checker
 from .driver_services import DriverServices
 from .driver_status import DriverStatus
 from .journal import Journal
 from .journal_records import JournalError
 from .journal_scan import JournalCorrupt
 from .kinematics import D6_BY_VARIANT, DHModel, RM65Kinematics
+from .reach import Reach
 from .safety import SafetyChecker
 from .weld_job import JobResult, StudTarget
 from .weld_sequence import WeldSequence
@@ -143,6 +145,11 @@ class DriverNode(DriverStatus, DriverServices, Node):
                            if p["publish_camera_pose"] else None)
         self.diag = ros_io.Diagnostics(self, hardware_id=f"RM65 {p['arm_ip']}:{p['tcp_port']}")
         self.create_timer(1.0, self.diag.publish, callback_group=group)
+        # The reach test's configuration for the planner (rm65_driver.reach): reliable + transient local.
+        self.pub_reach_config = self.create_publisher(String, names.ARM_REACH_CONFIG, ros_io.LATCHED_QOS)
+        self._reach_config_sent = ""
+        self._publish_reach_config()
+        self.create_timer(1.0, self._publish_reach_config, callback_group=group)
         self.create_service(Trigger, names.ARM_STOP, self._on_stop, callback_group=group)
         self.create_service(Trigger, names.ARM_PAUSE, self._on_pause, callback_group=group)
         self.create_service(Trigger, names.ARM_RESUME, self._on_resume, callback_group=group)
@@ -190,9 +197,26 @@ class DriverNode(DriverStatus, DriverServices, Node):
 
     # -- configuration per job ------------------------------------------------------------------
     def _make_sequence(self) -> WeldSequence:
-        params, limits = job_config(self.p)
+        params, _limits = job_config(self.p)
         assert self.journal is not None
-        return WeldSequence(self.client, self.journal, SafetyChecker(self.kin, limits, params.tool_T), params)
+        return WeldSequence(self.client, self.journal, self.safety_checker(), params)
+
+    def safety_checker(self) -> SafetyChecker:
+        """The checks of a weld job and of /arm/move_to with the parameters as they are now."""
+        return safety_checker(self.p, self._hand_eye(), self.kin)
+
+    def reach(self) -> Reach:
+        """The reach test as the planner gets it (``/arm/reach_config``)."""
+        params, _limits = job_config(self.p)
+        return self.safety_checker().reach_for(params.standoff_m, params.plunge_m)
+
+    def _publish_reach_config(self) -> None:
+        """``/arm/reach_config`` (latched): the configuration of this driver's reach test, whenever it
+        changed (a parameter set at run time), so the planner's verdicts stay the driver's."""
+        text = self.reach().config.to_json()
+        if text != self._reach_config_sent:
+            self.pub_reach_config.publish(String(data=text))
+            self._reach_config_sent = text
 
     @property
     def tool_T(self) -> np.ndarray:

@@ -13,12 +13,14 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
+
 from stud_common import hand_eye_ros
 from stud_common.ros_io import Param, three_numbers
 
 from . import protocol as P
-from .kinematics import D6_BY_VARIANT
-from .safety import SafetyLimits
+from .kinematics import D6_BY_VARIANT, DHModel, RM65Kinematics
+from .safety import SafetyChecker, SafetyLimits
 from .weld_job import WeldParams
 
 
@@ -117,6 +119,14 @@ def job_config(p: dict) -> tuple[WeldParams, SafetyLimits]:
         max_tool_tilt_deg=p["max_tool_tilt_deg"], yaw_step_deg=p["yaw_step_deg"],
         max_joint_speed_pct=p["max_joint_speed_pct"], max_linear_speed_pct=p["max_linear_speed_pct"])
     return params, limits
+
+
+def safety_checker(p: dict, hand_eye_T: np.ndarray, kin: RM65Kinematics | None = None) -> SafetyChecker:
+    """The checks of a weld job and of /arm/move_to from the parameter values and the hand-eye in
+    use; its :meth:`~.safety.SafetyChecker.reach_for` is the reach test the driver publishes."""
+    params, limits = job_config(p)
+    kin = kin if kin is not None else RM65Kinematics(dh=DHModel.rm65(D6_BY_VARIANT[p["arm_variant"]]))
+    return SafetyChecker(kin, limits, params.tool_T, tuple(p["preferred_joint_signs"]), hand_eye_T)
 
 
 def job_config_problem(p: dict) -> str | None:

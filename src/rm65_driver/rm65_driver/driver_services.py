@@ -4,7 +4,8 @@ resolve_stud and resolve_journal.
 :class:`DriverServices` is a part of :class:`~rm65_driver.driver_node.DriverNode` (the services
 are created there). The e-stop is a *software* stop (``set_arm_stop`` + trigger output low + a
 latch that refuses new jobs until ``false`` on ``/arm/estop``), not a safety-rated one.
-``move_to`` checks the workspace box (m) and the IK within the joint limits before anything moves.
+``move_to`` checks the workspace box (m) and the reach test (:mod:`.reach`: the IK within the joint
+limits, as the planner checks the pose) before anything moves.
 """
 from __future__ import annotations
 
@@ -66,14 +67,19 @@ class DriverServices(DriverBase):
         lo, hi = np.asarray(self.p["workspace_min_m"]), np.asarray(self.p["workspace_max_m"])
         if np.any(T_goal[:3, 3] < lo) or np.any(T_goal[:3, 3] > hi):
             return False, f"tool position {np.round(T_goal[:3, 3], 3).tolist()} m is outside the workspace box"
+        # Whether: the reach test the planner applies too (rm65_driver.reach); then the solution
+        # nearest the current joints, or the verdict's own when the search from here finds none.
+        verdict = self.reach().tool_poses(T_goal[None])[0]
+        if not verdict.ok:
+            return False, f"unreachable: {verdict.reason}"
         seed = self._last_state.joints_rad if self._last_state is not None else None
         ik = self.kin.ik(T_goal, q_seed=seed, tool=self.tool_T, prefer_signs=self.p["preferred_joint_signs"])
-        if not ik.success:
-            return False, f"unreachable: {ik.message or 'no IK solution within the joint limits'}"
+        q = ik.q if ik.success else verdict.q
+        assert q is not None  # an accepted verdict carries its solution
         speed = min(self.p["joint_speed_pct"], self.p["max_joint_speed_pct"])
         try:
             with self._job_lock:
-                self.client.move_joints_and_wait(ik.q, speed, timeout_s=self.p["motion_timeout_s"])
+                self.client.move_joints_and_wait(q, speed, timeout_s=self.p["motion_timeout_s"])
         except ArmError as exc:
             return False, f"move failed: {exc}"
         what = "camera" if camera else "tool"

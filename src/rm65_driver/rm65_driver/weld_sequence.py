@@ -11,12 +11,14 @@ Per target, in order:
 1. journal says **welded** -> not touched (reported welded when ``resume``, else skipped
    "already welded"); journal says **uncertain** -> refused (failed, "needs an operator
    decision": ``/arm/resolve_stud``);
-2. safety check (gun tilt from vertical, workspace, reach/IK inside the joint limits for the
-   free rotation about the stud's axis nearest the current joints, straight descent
-   feasible; with ``min_stud_spacing_m``, room for the gun's foot beside the job's studs
+2. safety check: the reach verdict (:mod:`.reach`, the planner's own test: gun tilt from
+   vertical, workspace, reach/IK inside the joint limits for some rotation about the stud's axis,
+   straight descent feasible), then the rotation and solution nearest the current joints
+   (:mod:`.reach_move`); with ``min_stud_spacing_m``, room for the gun's foot beside the job's studs
    already welded or uncertain: :mod:`.welded_studs`): a rejection is journaled
    ``skipped(reason)`` and nothing is sent;
-3. ``approach``: ``movej`` to the checked joint solution of the approach (clearance) pose,
+3. ``approach``: ``movej`` to the checked joint solution of the approach (clearance) pose (through
+   a detour's waypoints when the straight joint move would leave the workspace box),
    ``standoff_m`` out along the surface normal, tool z pointing into the surface; then, with
    ``final_approach_m`` shorter than the standoff, a fast ``movel`` (``approach_speed_pct``)
    along the normal to the short standoff ``final_approach_m`` from the surface;
@@ -517,7 +519,7 @@ class WeldSequence:
             if self._cancel:
                 raise _JobEnded("cancelled")
             self._set_phase(t, "approach")
-            motion_s = {"move": self._timed_move("joint", plan.q_approach, p.joint_speed_pct)}
+            motion_s = {"move": sum(self._timed_move("joint", q, p.joint_speed_pct) for q in plan.waypoints)}
             if p.fast_approach:
                 self._below_clearance = True  # from here on, a recovery backs out along the normal
                 T_short = plan.T_contact.copy()
@@ -607,7 +609,7 @@ class WeldSequence:
         if not check.ok or not np.max(np.abs(planned[1] - q_now)) <= LOOKAHEAD_TOL_RAD:
             return None  # a refusal may depend on the start: planned again, as is a start elsewhere
         assert check.plan is not None
-        if self.safety.check_joint_path(q_now, check.plan.q_approach, "approach move"):
+        if self.safety.check_joint_path(q_now, check.plan.waypoints[0], "approach move"):
             return None
         self.plans_ahead_used += 1
         return check
