@@ -147,7 +147,7 @@ def sensor_qos(choice: str) -> QoSProfile:
 
 def three_numbers(name: str) -> Callable[[Any], str | None]:
     """A :class:`Param` validator: ``name`` must hold 3 numbers (an x, y, z or a roll, pitch, yaw)."""
-    return lambda v: None if len(v) == 3 else f"{name} needs 3 numbers, got {list(v)}"
+    return lambda v: None if v is not None and len(v) == 3 else f"{name} needs 3 numbers, got {list(v or [])}"
 
 
 #: The ``sensor_qos`` parameter of the nodes that take camera views (:func:`sensor_qos`).
