@@ -307,14 +307,16 @@ class HmiNode(Node):
             "uncertain_studs": list(msg.uncertain_studs)})
 
     def _on_cell(self, msg: CellStatus) -> None:
-        self.view.on_cell(CellInfo(int(msg.state), int(msg.station), int(msg.stations_total), int(msg.studs_total),
-                                   int(msg.studs_welded), int(msg.studs_failed), tuple(msg.unreachable), msg.message),
-                          time.time())
+        if self.view.on_cell(CellInfo(int(msg.state), int(msg.station), int(msg.stations_total), int(msg.studs_total),
+                                      int(msg.studs_welded), int(msg.studs_failed), tuple(msg.unreachable), msg.message,
+                                      tuple(msg.unreachable_reasons)), time.time()):
+            self._table_dirty = True
         self.server.publish({
             "type": "cell", "state": msg.state_text, "state_code": int(msg.state), "station": int(msg.station),
             "stations_total": int(msg.stations_total), "studs_total": int(msg.studs_total),
             "studs_welded": int(msg.studs_welded), "studs_failed": int(msg.studs_failed),
-            "unreachable": list(msg.unreachable), "message": msg.message})
+            "unreachable": list(msg.unreachable), "unreachable_reasons": list(msg.unreachable_reasons),
+            "message": msg.message})
 
     def _on_registration(self, msg: Registration) -> None:
         self.view.on_registration(bool(msg.valid), msg.residual * 1000.0, msg.message, time.time())
