@@ -389,7 +389,8 @@ class Reach:
             rot_deg = math.degrees(float(np.linalg.norm(rotation_vector(T_app[keep[k]][:3, :3] @ T_best[:3, :3].T))))
             return StudReach(False, f"approach pose: no IK solution inside the joint limits (best residual "
                                     f"{pos_mm:.2f} mm, {rot_deg:.2f} deg) at any of the {len(keep)} rotations about "
-                                    "the stud's axis the workspace leaves")
+                                    "the stud's axis" + (f" the workspace allows (of {len(yaws)})"
+                                                         if len(keep) < len(yaws) else ""))
         options = tuple(ApproachOption(float(yaws[keep[i]]), T_app[keep[i]], q_app[i], bool(branch[i]))
                         for i in range(len(keep)) if solved[i])
         index = {float(yaws[i]): i for i in range(len(yaws))}
