@@ -296,7 +296,10 @@ class CellSequencer(Node):
         reply = self._call(self.cli_move, MoveTo.Request(pose=pose, frame=MoveTo.Request.FRAME_CAMERA),
                            self.p["step_timeout_s"])
         if not reply.success:
-            raise MoveRefused(f"camera move to {np.round(xyz, 3).tolist()} m refused: {reply.message}")
+            text = f"camera move to {np.round(xyz, 3).tolist()} m refused: {reply.message}"
+            if reply.message.startswith(("e-stop", "a weld job is running")):
+                raise JobAborted(text)  # the arm refuses every move: not the pose (the job stops, as before)
+            raise MoveRefused(text)     # this pose: the job skips what needed it and goes on
         # The camera's pose comes from /arm/state: shoot only once a state from after the move
         # is out (two, so the camera node has surely seen one), or the shot uses a stale pose.
         arrived = self.get_clock().now().nanoseconds
