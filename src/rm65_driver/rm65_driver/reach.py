@@ -44,6 +44,14 @@ from .kinematics import (D6_BY_VARIANT, JOINT_LIMITS_DEG, SHOULDER_M, WORKING_RA
 
 _EYE16 = tuple(float(v) for v in np.eye(4).ravel())
 
+#: The IK of the verdicts: damped least squares as RM65Kinematics.ik, its tolerances and damping; a
+#: pose's seeds stop PATIENCE iterations after the first of them converged.
+MAX_ITERATIONS = 150
+PATIENCE = 10
+TOL_POSITION_M = 1e-6
+TOL_ROTATION_RAD = 1e-5
+IK_DAMPING = 0.02
+
 
 class ReachConfigError(ValueError):
     """A reach configuration that cannot be used (names the field and the value)."""
@@ -440,14 +448,6 @@ class Reach:
 
     def camera(self, T_camera_w: np.ndarray, base_T_world: np.ndarray | None = None) -> PoseReach:
         return self.cameras(np.asarray(T_camera_w)[None], base_T_world)[0]
-
-
-#: The IK of the verdicts: damped least squares as RM65Kinematics.ik, its tolerances and damping.
-MAX_ITERATIONS = 150
-PATIENCE = 10
-TOL_POSITION_M = 1e-6
-TOL_ROTATION_RAD = 1e-5
-IK_DAMPING = 0.02
 
 
 __all__ = ["ApproachOption", "PoseReach", "Reach", "ReachConfig", "ReachConfigError", "StudReach", "reach_config"]
