@@ -63,12 +63,18 @@ def test_the_verdict_depends_on_the_stud_and_the_base_pose_only():
     a, b = REACH.stud(p, n), REACH.stud(p, n)
     assert a.ok and a.yaw_rad == b.yaw_rad
     np.testing.assert_array_equal(a.q_approach, b.q_approach)
-    # the base moved 1.5 m along world x and turned 30 deg: the stud moved with it is the same stud
+    # on a rail (a box 3 m long in world): the base moved 1.5 m along world x and turned 30 deg, the
+    # stud moved with it is the same stud
+    rail = Reach(ReachConfig(standoff_m=0.06, preferred_joint_signs=(0, 0, -1, 0, -1, 0),
+                             workspace_min_m=(-0.7, -0.7, -0.02), workspace_max_m=(3.0, 0.7, 1.1)))
     B = pose6_to_matrix([1.5, 0.2, 0.0, 0.0, 0.0, np.radians(30)])
-    moved = REACH.stud(B[:3, :3] @ p + B[:3, 3], B[:3, :3] @ n, base_T_world=B)
+    moved = rail.stud(B[:3, :3] @ p + B[:3, 3], B[:3, :3] @ n, world_T_base=B)
     assert moved.ok and moved.yaw_rad == a.yaw_rad
     np.testing.assert_allclose(moved.q_approach, a.q_approach, atol=1e-6)
-    assert not REACH.stud(p, n, base_T_world=pose6_to_matrix([1.5, 0, 0, 0, 0, 0])).ok   # now 1.2 m behind the arm
+    assert not rail.stud(p, n, world_T_base=pose6_to_matrix([1.5, 0, 0, 0, 0, 0])).ok   # 1.2 m behind the arm
+    # the workspace box is the cell's, in world: the same stud beyond its end is refused, the base beside it
+    far = rail.stud([3.1, 0.0, 0.05], [0, 0, 1], world_T_base=pose6_to_matrix([2.8, 0, 0, 0, 0, 0]))
+    assert not far.ok and far.reason.startswith("approach pose leaves the workspace box at (3.100"), far.reason
 
 
 def test_camera_poses_checked_together_get_each_the_verdict_it_gets_alone():

@@ -21,11 +21,12 @@ parameters (:func:`reach_config`) and publishes it (latched, JSON: :meth:`ReachC
 sequencer builds the same :class:`Reach` from that message. Whatever set the driver's parameters
 (cell.yaml, ``--set``, ``ros2 param set``), the planner checks against what the driver checks.
 
-Frames: stud positions, normals and camera poses are in ``world``; ``base_T_world`` (4x4, the arm
-base's pose in ``world``, identity by default: the fixed arm of today) maps them into the arm's base
-frame, where the kinematics, the workspace box and the plans (``T_approach``, ``T_contact``, joint
-solutions) are. The gun's tilt is measured from world +z. Lengths m, angles rad unless named
-``_deg``. Pure numpy, no ROS.
+Frames: stud positions, normals and camera poses are in ``world``; ``world_T_base`` (4x4, the arm
+base's pose in ``world``, identity by default: the fixed arm of today; a carriage's pose on a rail)
+maps them into the arm's base frame, where the kinematics and the plans (``T_approach``,
+``T_contact``, joint solutions) are. The cell's limits are in ``world``: the workspace box (tool tip
+and flange) and the gun's tilt from world +z. Lengths m, angles rad unless named ``_deg``. Pure
+numpy, no ROS.
 """
 from __future__ import annotations
 
@@ -64,7 +65,7 @@ class ReachConfig:
     ``tool_T`` (16,): flange -> weld-gun tip (row-major 4x4, m); ``hand_eye_T`` (16,): the camera's
     optical frame in the weld-tool frame (row-major 4x4); ``d6_m``: the arm variant's flange
     distance; ``joint_limits_deg`` (6 pairs); ``workspace_min_m`` / ``workspace_max_m``: the box
-    tool tip and flange stay in, base frame; ``preferred_joint_signs``: the working branch (-1, 0,
+    tool tip and flange stay in, ``world``; ``preferred_joint_signs``: the working branch (-1, 0,
     +1 per joint; 0 either)."""
 
     standoff_m: float = 0.05
@@ -244,25 +245,30 @@ class Reach:
         return np.clip(np.radians(deg), lo, hi)
 
     # -- geometry checks ------------------------------------------------------------------------
-    def _outside_box(self, points: np.ndarray) -> np.ndarray:
+    def _outside_box(self, points_w: np.ndarray) -> np.ndarray:
         lo, hi = self._box
-        return np.any((points < lo - 1e-9) | (points > hi + 1e-9), axis=-1)
+        return np.any((points_w < lo - 1e-9) | (points_w > hi + 1e-9), axis=-1)
 
     def _box_text(self, p: np.ndarray, what: str) -> str:
         lo, hi = self._box
         return (f"{what} leaves the workspace box at ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}) m "
                 f"(box {lo.tolist()}..{hi.tolist()} m)")
 
-    def position_problems(self, T_tools: np.ndarray, what: str) -> list[str]:
-        """Per tool pose (K, 4, 4): why tip or flange is outside the box or the flange out of reach ("" if not)."""
+    def position_problems(self, T_tools: np.ndarray, what: str, world_T_base: np.ndarray | None = None) -> list[str]:
+        """Per tool pose (K, 4, 4; base frame): why tip or flange is outside the box (world) or the
+        flange out of reach ("" if not)."""
         flanges = T_tools @ self._tool_inv
         tips, fl = T_tools[:, :3, 3], flanges[:, :3, 3]
+        tips_w, fl_w = tips, fl
+        if world_T_base is not None:
+            B = np.asarray(world_T_base, dtype=np.float64)
+            tips_w, fl_w = tips @ B[:3, :3].T + B[:3, 3], fl @ B[:3, :3].T + B[:3, 3]
         out = []
-        for tip, f in zip(tips, fl):
-            if self._outside_box(tip[None])[0]:
-                out.append(self._box_text(tip, what))
-            elif self._outside_box(f[None])[0]:
-                out.append(self._box_text(f, what))
+        for tip_w, f_w, f in zip(tips_w, fl_w, fl):
+            if self._outside_box(tip_w[None])[0]:
+                out.append(self._box_text(tip_w, what))
+            elif self._outside_box(f_w[None])[0]:
+                out.append(self._box_text(f_w, what))
             elif np.linalg.norm(f - SHOULDER_M) > WORKING_RADIUS_M:
                 out.append(f"{what} out of reach (flange {np.linalg.norm(f - SHOULDER_M):.3f} m from the shoulder "
                            f"> {WORKING_RADIUS_M:.3f} m)")
@@ -355,7 +361,7 @@ class Reach:
         return q[rows, best], use[rows, best], branch[rows, best] & use[rows, best]
 
     # -- the verdicts ---------------------------------------------------------------------------
-    def stud(self, position_w: ArrayLike, normal_w: ArrayLike, base_T_world: np.ndarray | None = None) -> StudReach:
+    def stud(self, position_w: ArrayLike, normal_w: ArrayLike, world_T_base: np.ndarray | None = None) -> StudReach:
         """Can the gun weld the stud at ``position_w`` with outward ``normal_w`` (world)? See the
         module docstring for the tests, in the order they are applied."""
         c = self.config
@@ -367,21 +373,21 @@ class Reach:
             return StudReach(False, why)
         n_w = np.asarray(normal_w, dtype=np.float64).reshape(3)
         n_w = n_w / np.linalg.norm(n_w)
-        p, n = p_w, n_w
-        if base_T_world is not None:
-            B_inv = np.linalg.inv(np.asarray(base_T_world, dtype=np.float64))
-            p, n = B_inv[:3, :3] @ p_w + B_inv[:3, 3], B_inv[:3, :3] @ n_w
-        approach_tip, contact_tip = p + c.standoff_m * n, p - c.plunge_m * n
-        for point, what in ((approach_tip, "approach pose"), (contact_tip, "contact pose")):
+        for point, what in ((p_w + c.standoff_m * n_w, "approach pose"), (p_w - c.plunge_m * n_w, "contact pose")):
             if self._outside_box(point[None])[0]:
                 return StudReach(False, self._box_text(point, what))
+        p, n = p_w, n_w
+        if world_T_base is not None:
+            B_inv = np.linalg.inv(np.asarray(world_T_base, dtype=np.float64))
+            p, n = B_inv[:3, :3] @ p_w + B_inv[:3, 3], B_inv[:3, :3] @ n_w
+        approach_tip, contact_tip = p + c.standoff_m * n, p - c.plunge_m * n
         radial = np.array([p[0], p[1], 0.0])
         x_hint = radial / np.linalg.norm(radial) if np.linalg.norm(radial) > 1e-6 else np.array([1.0, 0.0, 0.0])
         yaws = np.radians(self.yaw_candidates_deg)
         T_app = np.array([tool_pose_facing(approach_tip, n, x_hint=x_hint, yaw=float(y)) for y in yaws])
         T_con = np.array([tool_pose_facing(contact_tip, n, x_hint=x_hint, yaw=float(y)) for y in yaws])
-        problems = self.position_problems(T_app, "approach pose")
-        contact_problems = self.position_problems(T_con, "contact pose")
+        problems = self.position_problems(T_app, "approach pose", world_T_base)
+        contact_problems = self.position_problems(T_con, "contact pose", world_T_base)
         keep = [i for i, why in enumerate(problems) if not why]
         if not keep:
             return StudReach(False, problems[0])
@@ -417,11 +423,11 @@ class Reach:
             first_reason = first_reason or why
         return StudReach(False, first_reason, options=options)
 
-    def tool_poses(self, T_tools_b: np.ndarray) -> list[PoseReach]:
-        """Verdicts on weld-tool poses (K, 4, 4), base frame: box, reach sphere, IK inside the limits
-        from the fixed seeds (the branch first). Batched; each the same as alone."""
+    def tool_poses(self, T_tools_b: np.ndarray, world_T_base: np.ndarray | None = None) -> list[PoseReach]:
+        """Verdicts on weld-tool poses (K, 4, 4), base frame: box (world), reach sphere, IK inside the
+        limits from the fixed seeds (the branch first). Batched; each the same as alone."""
         T_tools_b = np.asarray(T_tools_b, dtype=np.float64).reshape(-1, 4, 4)
-        problems = self.position_problems(T_tools_b, "tool pose")
+        problems = self.position_problems(T_tools_b, "tool pose", world_T_base)
         out: list[PoseReach] = [PoseReach(False, why) for why in problems]
         keep = [i for i, why in enumerate(problems) if not why]
         if keep:
@@ -436,18 +442,18 @@ class Reach:
                                               f"{1e3 * float(resid[j].min()):.2f} mm-equivalent)")
         return out
 
-    def cameras(self, T_cameras_w: np.ndarray, base_T_world: np.ndarray | None = None) -> list[PoseReach]:
+    def cameras(self, T_cameras_w: np.ndarray, world_T_base: np.ndarray | None = None) -> list[PoseReach]:
         """Verdicts on camera poses (K, 4, 4; optical frame in ``world``): the weld-tool pose that
         puts the camera there through the hand-eye, :meth:`tool_poses`."""
         T = np.asarray(T_cameras_w, dtype=np.float64).reshape(-1, 4, 4)
         T_tools = np.array([tool_in_world(Ti, self.config.hand_eye_matrix) for Ti in T])
-        if base_T_world is not None:
-            T_tools = np.linalg.inv(np.asarray(base_T_world, dtype=np.float64)) @ T_tools
+        if world_T_base is not None:
+            T_tools = np.linalg.inv(np.asarray(world_T_base, dtype=np.float64)) @ T_tools
         return [PoseReach(r.ok, r.reason.replace("tool pose", "camera pose", 1), r.q, r.T_tool)
-                for r in self.tool_poses(T_tools)]
+                for r in self.tool_poses(T_tools, world_T_base)]
 
-    def camera(self, T_camera_w: np.ndarray, base_T_world: np.ndarray | None = None) -> PoseReach:
-        return self.cameras(np.asarray(T_camera_w)[None], base_T_world)[0]
+    def camera(self, T_camera_w: np.ndarray, world_T_base: np.ndarray | None = None) -> PoseReach:
+        return self.cameras(np.asarray(T_camera_w)[None], world_T_base)[0]
 
 
 __all__ = ["ApproachOption", "PoseReach", "Reach", "ReachConfig", "ReachConfigError", "StudReach", "reach_config"]

@@ -42,12 +42,16 @@ class Move:
     via: tuple[np.ndarray, ...] = ()
 
 
-def joint_path_problem(reach: Reach, q_from: np.ndarray, q_to: np.ndarray, what: str) -> str:
-    """Why the joint-interpolated move ``q_from`` -> ``q_to`` leaves the workspace box ("" if it does not)."""
+def joint_path_problem(reach: Reach, q_from: np.ndarray, q_to: np.ndarray, what: str,
+                       world_T_base: np.ndarray | None = None) -> str:
+    """Why the joint-interpolated move ``q_from`` -> ``q_to`` leaves the workspace box (world; "" if it does not)."""
     s = np.linspace(0.0, 1.0, PATH_SAMPLES)[1:, None]
     Q = np.asarray(q_from, dtype=np.float64) + s * (np.asarray(q_to, dtype=np.float64) - np.asarray(q_from))
     flanges = reach.kin.fk(Q)
     points = np.vstack([(flanges @ reach.tool_T)[:, :3, 3], flanges[:, :3, 3]])
+    if world_T_base is not None:
+        B = np.asarray(world_T_base, dtype=np.float64)
+        points = points @ B[:3, :3].T + B[:3, 3]
     lo, hi = np.asarray(reach.config.workspace_min_m), np.asarray(reach.config.workspace_max_m)
     bad = np.any((points < lo - 1e-9) | (points > hi + 1e-9), axis=1)
     if not bad.any():
@@ -93,13 +97,14 @@ def _straightened(q: np.ndarray, joints: tuple[int, ...]) -> np.ndarray:
 _UNFOLD = ((1,), (3, 4), (2,))
 
 
-def detour(reach: Reach, q_from: np.ndarray, q_to: np.ndarray) -> tuple[tuple[np.ndarray, ...] | None, str]:
+def detour(reach: Reach, q_from: np.ndarray, q_to: np.ndarray,
+           world_T_base: np.ndarray | None = None) -> tuple[tuple[np.ndarray, ...] | None, str]:
     """Joint waypoints between ``q_from`` and ``q_to`` whose every leg stays in the workspace box:
     () when the straight joint move does; (None, why) when no detour tried does. Tried, fewest
     waypoints first: the tool lifted straight up or pulled toward the arm's axis, or the shoulder,
     wrist or elbow straightened at either end, around the arm standing upright or the reference
     posture between them."""
-    why = joint_path_problem(reach, q_from, q_to, "approach move")
+    why = joint_path_problem(reach, q_from, q_to, "approach move", world_T_base)
     if not why:
         return (), ""
     tip_from = reach.kin.fk(q_from, reach.tool_T)[2, 3]
@@ -115,14 +120,16 @@ def detour(reach: Reach, q_from: np.ndarray, q_to: np.ndarray) -> tuple[tuple[np
                    key=lambda t: len(t[0]) + len(t[1]) + len(t[2]))
     for a, m, b in tries:
         legs = [q_from, *a, *m, *b, q_to]
-        if not any(joint_path_problem(reach, u, v, "detour") for u, v in zip(legs[:-1], legs[1:])):
+        if not any(joint_path_problem(reach, u, v, "detour", world_T_base) for u, v in zip(legs[:-1], legs[1:])):
             return tuple(np.asarray(q) for q in (*a, *m, *b)), ""
     return None, f"{why}, and no detour tried stays inside it"
 
 
-def plan_move(reach: Reach, verdict: StudReach, q_current: np.ndarray) -> tuple[Move | None, str]:
-    """The plan for a stud ``verdict`` accepted, from ``q_current`` (see the module docstring);
-    (None, why) only when no detour keeps the arm inside the workspace box."""
+def plan_move(reach: Reach, verdict: StudReach, q_current: np.ndarray,
+              world_T_base: np.ndarray | None = None) -> tuple[Move | None, str]:
+    """The plan for a stud ``verdict`` accepted (with the base at ``world_T_base``), from
+    ``q_current`` (see the module docstring); (None, why) only when no detour keeps the arm inside
+    the workspace box."""
     assert verdict.ok and verdict.T_approach is not None and verdict.q_approach is not None
     q_current = np.asarray(q_current, dtype=np.float64).reshape(6)
     options = verdict.options
@@ -142,15 +149,15 @@ def plan_move(reach: Reach, verdict: StudReach, q_current: np.ndarray) -> tuple[
     candidates.sort(key=lambda c: (not in_branch(c[0]), float(np.linalg.norm(c[0] - q_current))))
     for q_app, o in candidates[:MAX_NEAR_TRIES]:
         T_con = _contact_of(reach, o.T_approach)
-        if any(reach.position_problems(T_con[None], "contact pose")):
+        if any(reach.position_problems(T_con[None], "contact pose", world_T_base)):
             continue
-        if joint_path_problem(reach, q_current, q_app, "approach move"):
+        if joint_path_problem(reach, q_current, q_app, "approach move", world_T_base):
             continue
         path, _why = reach.kin.linear_path(q_app, T_con, tool=reach.tool_T)
         if path is not None:
             return Move(o.yaw_rad, o.T_approach, T_con, q_app, path[-1]), ""
     assert verdict.T_contact is not None and verdict.q_contact is not None
-    via, why = detour(reach, q_current, verdict.q_approach)
+    via, why = detour(reach, q_current, verdict.q_approach, world_T_base)
     if via is None:
         return None, why
     return Move(verdict.yaw_rad, verdict.T_approach, verdict.T_contact, verdict.q_approach, verdict.q_contact, via), ""

@@ -14,7 +14,7 @@ drawing) and so are bounds on both (the working plane, the part's height, the ce
 limit): :meth:`CellReach.surely_unreachable` names the studs the gun cannot reach whatever the part
 turns out to be -- a bound that never names a stud the driver would weld.
 
-``base_T_world`` (4x4): the arm base's pose in ``world`` (identity: the fixed arm). Pure numpy.
+``world_T_base`` (4x4): the arm base's pose in ``world`` (identity: the fixed arm). Pure numpy.
 """
 from __future__ import annotations
 
@@ -47,11 +47,11 @@ class CellReach:
     """The planner's questions to the driver's reach test (module docstring)."""
 
     reach: Reach
-    base_T_world: np.ndarray | None = None
+    world_T_base: np.ndarray | None = None
 
     @classmethod
-    def from_config(cls, config: ReachConfig, base_T_world: np.ndarray | None = None) -> "CellReach":
-        return cls(Reach(config), base_T_world)
+    def from_config(cls, config: ReachConfig, world_T_base: np.ndarray | None = None) -> "CellReach":
+        return cls(Reach(config), world_T_base)
 
     @property
     def config(self) -> ReachConfig:
@@ -60,14 +60,14 @@ class CellReach:
     def stud(self, position_w, normal_w) -> StudReach:
         """The driver's verdict on this stud (position m, outward normal, world)."""
         t = StudTarget("", position_w, normal_w)  # the driver normalises the normal so
-        return self.reach.stud(t.position, t.normal, self.base_T_world)
+        return self.reach.stud(t.position, t.normal, self.world_T_base)
 
     def cameras(self, poses) -> list[PoseReach]:
         """The driver's verdicts on nadir camera poses ``[(xyz_w, yaw_rad), ...]`` (one IK batch)."""
         if not len(poses):
             return []
         T = np.array([camera_pose_as_sent(xyz, yaw) for xyz, yaw in poses])
-        return self.reach.cameras(T, self.base_T_world)
+        return self.reach.cameras(T, self.world_T_base)
 
     def camera_ok(self, xyz_w, yaw_rad: float = 0.0) -> bool:
         return self.cameras([(xyz_w, yaw_rad)])[0].ok
@@ -82,7 +82,7 @@ class CellReach:
         xy = np.asarray(xy_w, dtype=np.float64).reshape(-1, 2)
         z_lo, z_hi = (float(v) for v in z_range_m)
         zs = np.arange(z_lo, z_hi + _PRIOR_DZ_M, _PRIOR_DZ_M)
-        B_inv = np.eye(4) if self.base_T_world is None else np.linalg.inv(np.asarray(self.base_T_world, float))
+        B_inv = np.eye(4) if self.world_T_base is None else np.linalg.inv(np.asarray(self.world_T_base, float))
         axis = B_inv[:3, :3] @ np.array([0.0, 0.0, 1.0])  # world up, in the base frame
         tool = c.tool_matrix
         if np.allclose(tool[:3, :3], np.eye(3)):   # the flange is on the tool's axis but for t_xy
@@ -104,11 +104,10 @@ class CellReach:
                            f"{c.max_tool_tilt_deg:g} deg (flange at least {bound:.3f} m from the shoulder > "
                            f"{WORKING_RADIUS_M:.3f} m)")
                 continue
-            lo, hi = np.asarray(c.workspace_min_m), np.asarray(c.workspace_max_m)
-            outside = np.any((P[:, :2] < lo[:2] - c.plunge_m - 1e-9) | (P[:, :2] > hi[:2] + c.plunge_m + 1e-9), axis=1)
-            if outside.all():  # the contact lies within plunge_m of the surface point: out of the box at any height
-                pb = P[0, :3]
-                out.append(f"contact pose leaves the workspace box at ({pb[0]:.3f}, {pb[1]:.3f}) m "
+            lo, hi = np.asarray(c.workspace_min_m), np.asarray(c.workspace_max_m)   # world
+            if x < lo[0] - c.plunge_m or x > hi[0] + c.plunge_m or y < lo[1] - c.plunge_m or y > hi[1] + c.plunge_m:
+                # the contact lies within plunge_m of the surface point: out of the box at any height
+                out.append(f"contact pose leaves the workspace box at ({x:.3f}, {y:.3f}) m "
                            f"(box {lo.tolist()}..{hi.tolist()} m)")
                 continue
             out.append("")
