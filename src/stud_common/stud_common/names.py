@@ -39,6 +39,7 @@ ARM_RESUME = "/arm/resume"
 ARM_ESTOP = "/arm/estop"
 ARM_RESOLVE_STUD = "/arm/resolve_stud"
 ARM_RESOLVE_JOURNAL = "/arm/resolve_journal"
+ARM_REACH_CONFIG = "/arm/reach_config"             # std_msgs/String, JSON: rm65_driver.weld.reach.ReachConfig
 JOINT_STATES = "/joint_states"
 ROBOT_DESCRIPTION = "/robot_description"
 

@@ -330,9 +330,10 @@ class HmiNode(Node):
             "carriage": self.plan.carriage()})
 
     def _on_cell(self, msg: CellStatus) -> None:
-        self.view.on_cell(CellInfo(int(msg.state), int(msg.station), int(msg.stations_total), int(msg.studs_total),
-                                   int(msg.studs_welded), int(msg.studs_failed), tuple(msg.unreachable), msg.message),
-                          time.time())
+        if self.view.on_cell(CellInfo(int(msg.state), int(msg.station), int(msg.stations_total), int(msg.studs_total),
+                                      int(msg.studs_welded), int(msg.studs_failed), tuple(msg.unreachable), msg.message,
+                                      tuple(msg.unreachable_reasons)), time.time()):
+            self._table_dirty = True
         self.plan.on_cell(StationInfo(int(msg.state), int(msg.station), int(msg.stations_total),
                                       tuple(msg.unreachable), tuple(msg.unreachable_reasons),
                                       tuple(msg.camera_xyz_m), float(msg.camera_yaw_rad),
@@ -341,7 +342,8 @@ class HmiNode(Node):
             "type": "cell", "state": msg.state_text, "state_code": int(msg.state), "station": int(msg.station),
             "stations_total": int(msg.stations_total), "studs_total": int(msg.studs_total),
             "studs_welded": int(msg.studs_welded), "studs_failed": int(msg.studs_failed),
-            "unreachable": list(msg.unreachable), "message": msg.message})
+            "unreachable": list(msg.unreachable), "unreachable_reasons": list(msg.unreachable_reasons),
+            "message": msg.message})
 
     def _on_registration(self, msg: Registration) -> None:
         self.view.on_registration(bool(msg.valid), msg.residual * 1000.0, msg.message, time.time())

@@ -12,7 +12,8 @@ Interfaces
   publishes  /arm/state (stud_welding_msgs/ArmState, reliable depth 10), /joint_states
              (sensor_msgs/JointState, joint1..joint6, rad), /diagnostics, and with
              ``publish_camera_pose`` /camera/pose (geometry_msgs/PoseStamped: weld-tool pose ×
-             hand-eye, the optical frame in ``world``) — all at ``state_rate_hz``.
+             hand-eye, the optical frame in ``world``) — all at ``state_rate_hz``; /arm/reach_config
+             (std_msgs/String, latched: JSON of the reach test's configuration, :mod:`rm65_driver.weld.reach`).
   action     /arm/weld_job (stud_welding_msgs/action/WeldJob); a cancel is graceful (see
              weld_sequence: motions before the trigger stop at once, a started weld completes).
   services   /arm/stop, /arm/pause, /arm/resume, /arm/estop (std_srvs/Trigger);
@@ -57,6 +58,7 @@ from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from stud_welding_msgs.action import WeldJob
+from std_msgs.msg import String
 from stud_welding_msgs.msg import WeldTarget
 
 from stud_common import hand_eye_ros, ros_io
@@ -69,7 +71,6 @@ from rm65_driver.driver.status import DriverStatus
 from rm65_driver.kinematics.rm65 import D6_BY_VARIANT, DHModel, RM65Kinematics
 from rm65_driver.protocol.arm_client import ArmClient, ArmError
 from rm65_driver.rail.control import RailControl, target_in_base
-from rm65_driver.weld.safety import SafetyChecker
 from rm65_driver.weld.weld_job import JobResult, StudTarget
 from rm65_driver.weld.weld_sequence import WeldSequence
 from rm65_driver.weld.goal_checks import GoalTolerances, check_target_fields
@@ -135,6 +136,11 @@ class DriverNode(Node):
         self.action = ActionServer(self, WeldJob, names.ARM_WELD_JOB, execute_callback=self._execute,
                                    goal_callback=self._on_goal, cancel_callback=self._on_cancel,
                                    callback_group=group)
+        # The reach test's configuration for the planner (rm65_driver.weld.reach): reliable + transient local.
+        self.pub_reach_config = self.create_publisher(String, names.ARM_REACH_CONFIG, ros_io.LATCHED_QOS)
+        self._reach_config_sent = ""
+        self._publish_reach_config()
+        self.create_timer(1.0, self._publish_reach_config, callback_group=group)
         self.status.start()
         self.get_logger().info(f"RM65 driver for {p['arm_ip']}:{p['tcp_port']} ({p['arm_variant']}), "
                                f"state at {p['state_rate_hz']:.1f} Hz, trigger DO{p['trigger_io']}"
@@ -144,10 +150,17 @@ class DriverNode(Node):
     # -- configuration per job ------------------------------------------------------------------
     def _make_sequence(self, world_T_base: np.ndarray | None = None) -> WeldSequence:
         s = self.state
-        params, limits = job_config(s.p)
+        params, _limits = job_config(s.p)
         assert s.journal is not None
-        W = np.eye(4) if world_T_base is None else world_T_base
-        return WeldSequence(s.client, s.journal, SafetyChecker(s.kin, limits, params.tool_T, W), params)
+        return WeldSequence(s.client, s.journal, s.safety_checker(world_T_base), params)
+
+    def _publish_reach_config(self) -> None:
+        """``/arm/reach_config`` (latched): the configuration of this driver's reach test, whenever it
+        changed (a parameter set at run time), so the planner's verdicts stay the driver's."""
+        text = self.state.reach().config.to_json()
+        if text != self._reach_config_sent:
+            self.pub_reach_config.publish(String(data=text))
+            self._reach_config_sent = text
 
     def _job_base_in_world(self) -> tuple[np.ndarray | None, float, str]:
         """The arm's base in world for a job (the carriage read now), the carriage (m), or (None, 0, why not)."""

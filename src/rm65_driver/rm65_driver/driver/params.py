@@ -13,13 +13,15 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
+
 from stud_common import hand_eye_ros
 from stud_common.ros_io import Param, three_numbers
 
-from rm65_driver.kinematics.rm65 import D6_BY_VARIANT
+from rm65_driver.kinematics.rm65 import D6_BY_VARIANT, DHModel, RM65Kinematics
 from rm65_driver.protocol import messages as P
 from rm65_driver.rail.axis import RailAxis, RailRequestError
-from rm65_driver.weld.safety import SafetyLimits
+from rm65_driver.weld.safety import SafetyChecker, SafetyLimits
 from rm65_driver.weld.weld_job import WeldParams
 from rm65_driver.weld.goal_checks import GoalTolerances
 
@@ -153,6 +155,17 @@ def goal_tolerances(p: dict) -> GoalTolerances:
     """How consistent a weld goal's targets must be (:mod:`.goal_checks`), from the parameter values."""
     return GoalTolerances(normal_length_tol=p["target_normal_length_tol"],
                           quaternion_norm_tol=p["target_quaternion_norm_tol"], axis_tol_deg=p["target_axis_tol_deg"])
+
+
+def safety_checker(p: dict, hand_eye_T: np.ndarray, kin: RM65Kinematics | None = None,
+                   world_T_base: np.ndarray | None = None) -> SafetyChecker:
+    """The checks of a weld job and of /arm/move_to from the parameter values and the hand-eye in
+    use, with the arm's base at ``world_T_base`` (identity: no rail); its
+    :meth:`~rm65_driver.weld.safety.SafetyChecker.reach_for` is the reach test the driver publishes."""
+    params, limits = job_config(p)
+    kin = kin if kin is not None else RM65Kinematics(dh=DHModel.rm65(D6_BY_VARIANT[p["arm_variant"]]))
+    return SafetyChecker(kin, limits, params.tool_T, world_T_base=np.eye(4) if world_T_base is None else world_T_base,
+                         prefer_signs=tuple(p["preferred_joint_signs"]), hand_eye_T=hand_eye_T)
 
 
 def job_config_problem(p: dict) -> str | None:

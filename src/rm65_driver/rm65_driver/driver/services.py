@@ -4,7 +4,8 @@ resolve_stud and resolve_journal.
 :class:`DriverServices` is a member of :class:`~rm65_driver.driver.driver_node.DriverNode` (it creates
 the services; the state they act on is the node's :class:`~rm65_driver.driver.shared_state.DriverState`). The e-stop is a *software* stop (``set_arm_stop`` + trigger output low + a
 latch that refuses new jobs until ``false`` on ``/arm/estop``), not a safety-rated one.
-``move_to`` checks the workspace box (m) and the IK within the joint limits before anything moves.
+``move_to`` checks the workspace box (m) and the reach test (:mod:`rm65_driver.weld.reach`: the IK within the
+joint limits, as the planner checks the pose) before anything moves.
 
 With a rail: ``rail_move`` (and ``move_to`` with ``move_rail``) moves the carriage while the arm is
 still -- it takes the job lock an arm move and a weld job hold, checks that the controller runs no
@@ -112,16 +113,22 @@ class DriverServices:
         T_base = T_goal
         if s.rail.present:  # world -> the arm's base, with the carriage where it will be
             T_base = np.linalg.inv(s.rail.world_T_base(rail_position_m)) @ T_goal
-        ik = s.kin.ik(T_base, q_seed=seed, tool=s.tool_T, prefer_signs=s.p["preferred_joint_signs"])
-        if not ik.success:
+        # Whether: the reach test the planner applies too (rm65_driver.weld.reach); then the solution
+        # nearest the current joints, or the verdict's own when the search from here finds none.
+        W = s.rail.world_T_base(rail_position_m) if s.rail.present else np.eye(4)
+        verdict = s.reach().tool_poses(T_base[None], W)[0]
+        if not verdict.ok:
             where = f" with the carriage at {rail_position_m:.3f} m" if rail_position_m is not None else ""
-            return False, f"unreachable{where}: {ik.message or 'no IK solution within the joint limits'}"
+            return False, f"unreachable{where}: {verdict.reason}"
+        ik = s.kin.ik(T_base, q_seed=seed, tool=s.tool_T, prefer_signs=s.p["preferred_joint_signs"])
+        q = ik.q if ik.success else verdict.q
+        assert q is not None  # an accepted verdict carries its solution
         speed = min(s.p["joint_speed_pct"], s.p["max_joint_speed_pct"])
         try:
             with s.job_lock:
                 if rail_position_m is not None:
                     self._move_rail_locked(rail_position_m, s.p["rail_speed_pct"])
-                s.client.move_joints_and_wait(ik.q, speed, timeout_s=s.p["motion_timeout_s"])
+                s.client.move_joints_and_wait(q, speed, timeout_s=s.p["motion_timeout_s"])
         except ArmError as exc:
             return False, f"move failed: {exc}"
         what = "camera" if camera else "tool"

@@ -18,6 +18,8 @@ from rm65_driver.kinematics.rm65 import RM65Kinematics
 from rm65_driver.protocol.arm_client import ArmClient
 from rm65_driver.protocol.messages import ArmStateReading
 from rm65_driver.rail.control import RailControl
+from rm65_driver.weld.reach import Reach
+from rm65_driver.weld.safety import SafetyChecker
 from rm65_driver.weld.weld_sequence import WeldSequence
 from stud_common.hand_eye_in_use import HandEyeInUse
 
@@ -77,3 +79,18 @@ class DriverState:
 
     def hand_eye_T(self) -> np.ndarray:
         return self.hand_eye.T_tool_cam
+
+    # -- the checks -------------------------------------------------------------------------------
+    def safety_checker(self, world_T_base: np.ndarray | None = None) -> SafetyChecker:
+        """The checks of a weld job and of /arm/move_to with the parameters as they are now (the base at
+        ``world_T_base`` in world; identity: no rail)."""
+        from rm65_driver.driver.params import safety_checker  # (params imports the weld modules, not this one)
+
+        return safety_checker(self.p, self.hand_eye_T(), self.kin, world_T_base)
+
+    def reach(self) -> Reach:
+        """The reach test as the planner gets it (``/arm/reach_config``): the verdicts' configuration."""
+        from rm65_driver.driver.params import job_config
+
+        params, _limits = job_config(self.p)
+        return self.safety_checker().reach_for(params.standoff_m, params.plunge_m)

@@ -4,7 +4,8 @@ needs before it (tool frame, trigger output) and after a lost connection (set up
 Used by :class:`~rm65_driver.weld.weld_sequence.WeldSequence`, which decides which stud comes next
 and what the journal already settles. Once a stud has passed its safety check, in order:
 
-3. ``approach``: ``movej`` to the checked joint solution of the approach (clearance) pose,
+3. ``approach``: ``movej`` to the checked joint solution of the approach (clearance) pose (through
+   a detour's waypoints when the straight joint move would leave the workspace box),
    ``standoff_m`` out along the surface normal, tool z pointing into the surface; then, with
    ``final_approach_m`` shorter than the standoff, a fast ``movel`` (``approach_speed_pct``)
    along the normal to the short standoff ``final_approach_m`` from the surface;
@@ -86,7 +87,7 @@ class LookAhead:
         if not check.ok or not np.max(np.abs(planned[1] - q_now)) <= LOOKAHEAD_TOL_RAD:
             return None  # a refusal may depend on the start: planned again, as is a start elsewhere
         assert check.plan is not None
-        if self.safety.check_joint_path(q_now, check.plan.q_approach, "approach move"):
+        if self.safety.check_joint_path(q_now, check.plan.waypoints[0], "approach move"):
             return None
         self.used += 1
         return check
@@ -204,7 +205,7 @@ class StudCycle:
             if c.cancelled:
                 raise JobEnded("cancelled")
             c.set_phase(t, "approach")
-            motion_s = {"move": self._timed_move("joint", plan.q_approach, p.joint_speed_pct)}
+            motion_s = {"move": sum(self._timed_move("joint", q, p.joint_speed_pct) for q in plan.waypoints)}
             if p.fast_approach:
                 self.below_clearance = True  # from here on, a recovery backs out along the normal
                 T_short = plan.T_contact.copy()
