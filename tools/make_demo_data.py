@@ -14,9 +14,10 @@ deg slopes) and a tank-shell section (a horizontal cylinder of 150 mm radius, 16
 50 mm approach along the normal, a stud leaning away from the arm pushes the wrist out of reach
 and one leaning toward it folds the elbow past its limit, so a part with 20+ deg slopes all round
 fits only where its studs stand high enough and close enough. The layout below is checked here
-with rm65_driver's own safety checker (every stud's approach, contact and descent, the free
-rotation about the stud searched) and IK (the registration and camera stations), with the cell's
-defaults (cell_sequencer, arm_driver); a layout that fails is an error, not a file.
+with the reach test the cell plans with and the driver applies (rm65_driver.weld.reach: every stud's
+approach, contact and descent, the free rotation about the stud searched; the registration and
+camera stations through the hand-eye, as the sequencer asks it), with the cell's defaults
+(cell_sequencer, arm_driver); a layout that fails is an error, not a file.
 Run: source ros2_ws/setup.bash && python tools/make_demo_data.py
 """
 from __future__ import annotations
@@ -33,7 +34,6 @@ import numpy as np  # noqa: E402
 
 from rm65_driver.kinematics.rm65 import RM65Kinematics  # noqa: E402
 from rm65_driver.weld.safety import SafetyChecker, SafetyLimits  # noqa: E402
-from stud_perception.camera_model import nadir_rotation  # noqa: E402
 from stud_common.rotations import rpy_to_matrix  # noqa: E402
 from stud_perception.scene import MarkingBoard, SceneSpec, surface_height, surface_normal  # noqa: E402
 from stud_perception.scene_file import scene_from_dict, scene_to_dict  # noqa: E402
@@ -42,6 +42,7 @@ from stud_common.strict_json import write_json  # noqa: E402
 from stud_cell.job import JobConfig  # noqa: E402
 from stud_planner.drawing import read_layout  # noqa: E402
 from stud_planner.drawing.dxf_writer import write_layout_dxf  # noqa: E402
+from stud_cell.cell_reach import CellReach  # noqa: E402
 from stud_cell.stations import footprint_m, plan_stations  # noqa: E402
 
 DATA = REPO / "src" / "stud_planner" / "data"
@@ -53,6 +54,7 @@ BOARD_POSE = Pose2D(x_m=0.16, y_m=-0.34, yaw_rad=0.0)
 #: The cell's defaults these parts are laid out for (arm_driver and cell.yaml): tool and approach.
 TOOL_OFFSET_M, STANDOFF_M = 0.15, 0.06  # the driver's tool_offset_m, cell.yaml standoff_m
 HAND_EYE_XYZ_M, HAND_EYE_RPY_DEG = (0.05, 0.0, -0.10), (0.0, 0.0, 0.0)
+PREFERRED_JOINT_SIGNS = (0, 0, -1, 0, -1, 0)  # cell.yaml's arm_driver preferred_joint_signs
 #: M16x50 studs: the camera stations stand 0.25 m above the parts' tops (as high as the arm holds a
 #: nadir camera here), and the post-weld shot must see every stud's top inside the image.
 STUD_LENGTH_M = 0.05
@@ -94,7 +96,9 @@ def check_reach(scene: SceneSpec) -> list[str]:
     kin = RM65Kinematics()
     tool = np.eye(4)
     tool[2, 3] = TOOL_OFFSET_M
-    checker = SafetyChecker(kin, SafetyLimits(), tool)
+    he = np.eye(4)
+    he[:3, :3], he[:3, 3] = rpy_to_matrix(*np.radians(HAND_EYE_RPY_DEG)), HAND_EYE_XYZ_M
+    checker = SafetyChecker(kin, SafetyLimits(), tool, prefer_signs=PREFERRED_JOINT_SIGNS, hand_eye_T=he)
     home = np.radians([0.0, -30.0, -100.0, 0.0, -50.0, 0.0])
     problems = []
     xy = scene.studs_world_xy_m
@@ -105,18 +109,16 @@ def check_reach(scene: SceneSpec) -> list[str]:
         if not check.ok:
             problems.append(f"stud {sid} at {np.round(p, 3).tolist()}: {check.reason}")
     seq = vars(JobConfig())  # the cell job's defaults: the stations the cell will use
-    he = np.eye(4)
-    he[:3, :3], he[:3, 3] = rpy_to_matrix(*np.radians(HAND_EYE_RPY_DEG)), HAND_EYE_XYZ_M
+    cameras = CellReach(checker.reach_for(STANDOFF_M))
     plane_z = scene.board.thickness_m
     fov = footprint_m(seq["fov_width_m"], seq["fov_distance_m"], seq["image_aspect"], seq["camera_height_m"],
                       seq["part_height_m"])
     stations = plan_stations(xy, fov, seq["camera_height_m"], overlap=seq["overlap"], plane_z_m=plane_z).stations
     for what, xyz in [("registration station", seq["registration_station_xyz_m"])] + [
             (f"camera station {s.index}", s.camera_xyz_w) for s in stations]:
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = nadir_rotation(0.0), xyz
-        if not kin.ik(T @ np.linalg.inv(he), home, tool=tool).success:
-            problems.append(f"{what} at {np.round(xyz, 3).tolist()} m is out of the arm's reach")
+        verdict = cameras.cameras([(np.asarray(xyz), 0.0)])[0]
+        if not verdict.ok:
+            problems.append(f"{what} at {np.round(xyz, 3).tolist()} m is out of the arm's reach: {verdict.reason}")
     top = float(np.max(z))
     if top > seq["part_height_m"] + 1e-9:
         problems.append(f"the part's studs stand up to {top:.3f} m, above cell_sequencer part_height_m")

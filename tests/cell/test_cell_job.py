@@ -53,7 +53,7 @@ class FakeCell:
         self.camera = (tuple(float(v) for v in xyz), float(yaw))
         self.moves.append(self.camera)
 
-    def register(self):
+    def register(self, attempts=0):
         return cell_job.Registration(True, "3 marks", np.eye(3), 0.0)   # drawing frame = world
 
     def shoot(self):
@@ -252,7 +252,7 @@ def test_a_stud_no_view_can_use_is_shot_again_and_never_welded_blind(tmp_path):
 
 def test_an_invalid_registration_ends_the_job_with_the_reason_and_the_records(tmp_path):
     cell = FakeCell(grid(2, 2))
-    cell.register = lambda: cell_job.Registration(False, "mark B not found", np.eye(3), math.nan)
+    cell.register = lambda attempts=0: cell_job.Registration(False, "mark B not found", np.eye(3), math.nan)
     job, state, code, qa = run(cell, tmp_path)
     assert state == "failed" and "mark B not found" in qa["job"]["message"]
     assert qa["summary"]["not_welded"] == 4 and not cell.journal

@@ -38,11 +38,11 @@ def part_files(tmp_path, scene: SceneSpec):
     return dxf, path
 
 
-def run_job(cell_run, drawing, scene, timeout_s=240):
+def run_job(cell_run, drawing, scene, timeout_s=240, extra=()):
     cell = cell_run("--mode", "sim", "--no-hmi", "--var", f"arm_port={free_port()}", "--var", "arm_time_scale=0.1",
                     "--var", f"drawing={drawing}", "--var", f"scene={scene}",
                     "--set", "cell_sequencer.auto_start=true", "--set", "cell_sequencer.exit_when_done=true",
-                    "--set", "arm_driver.pulse_s=0.02", "--set", "arm_driver.dwell_s=0.02")
+                    "--set", "arm_driver.pulse_s=0.02", "--set", "arm_driver.dwell_s=0.02", *extra)
     cell.wait(lambda: not cell.running(), timeout_s, "the job to end the launch")
     report = json.loads((cell.out_dir / "weld_report.json").read_text())
     return cell, {t["stud_id"]: t for t in report["targets"]}, report

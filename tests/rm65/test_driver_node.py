@@ -250,6 +250,7 @@ BAD_PARAMS = [
     ("tcp_port", "0", "tcp_port=0: expected an integer in [1, 65535]"),
     ("standoff_m", "1", "standoff_m=1 (int): expected a number in [0.005, 0.3]"),
     ("hand_eye_xyz_m", "[0.0,.inf,0.0]", "hand_eye_xyz_m=[0.0, inf, 0.0]: expected a list of numbers, finite"),
+    ("hand_eye_xyz_m", "[]", "hand_eye_xyz_m needs 3 numbers, got []"),   # an empty list reaches rclpy "not set"
     ("workspace_min_m", "[0.0,0.0,2.0]",
      "workspace_min_m=[0.0, 0.0, 2.0] must be below workspace_max_m=[0.7, 0.7, 1.1] on every axis"),
     ("max_tool_tilt_deg", "95.0", "max_tool_tilt_deg=95.0: expected a number in [0.0, 90.0]"),

@@ -4,6 +4,9 @@ Publishes the arm's URDF latched on ``/robot_description`` (std_msgs/String) and
 robot_state_publisher does: the fixed joints once on ``/tf_static`` (``world -> base_link``,
 ``link6 -> rm65_flange``, ``rm65_flange -> weld_tool``, ``weld_tool -> camera_color_optical_frame``
 from the hand-eye: ``hand_eye_file`` when given, as every node that poses the camera), the moving joints on ``/tf`` for every ``/joint_states`` message, stamped with it.
+On a rail (``rail_length_m`` > 0, the driver's value) ``world -> carriage`` is the moving
+``rail_joint`` (the driver's ``/joint_states``) and ``carriage -> base_link`` a static frame
+(``rail_mount_xyz_m``), so TF carries world -> carriage -> base_link.
 
 It is also the cell's one static broadcaster for ``world -> drawing``: from the latest valid
 ``/registration/result`` (origin at mark O, on the height measured for it). One node owning
@@ -25,7 +28,7 @@ from std_msgs.msg import String
 from stud_welding_msgs.msg import Registration
 
 from stud_common import frames, hand_eye_ros, ros_io, tf_io
-from stud_common.ros_io import Param
+from stud_common.ros_io import Param, three_numbers
 
 from rm65_driver.kinematics.rm65 import D6_BY_VARIANT
 from rm65_driver.kinematics.robot_description import RM65Description, rm65_urdf
@@ -42,6 +45,12 @@ PARAMS = [
     *hand_eye_ros.PARAMS,  # weld_tool -> camera_color_optical_frame: the typed hand-eye or hand_eye_file
     Param("publish_camera_frame", True, "include weld_tool -> camera_color_optical_frame (false when the camera "
           "driver publishes its own frames: a frame has one parent)", read_only=True),
+    Param("rail_length_m", 0.0, "the rail's travel [m], as the driver's: world -> carriage is then the prismatic "
+          "rail_joint; 0: no rail, world -> base_link fixed", min=0.0, max=100.0, read_only=True),
+    Param("rail_mount_xyz_m", [0.0, 0.0, 0.0], "carriage -> base_link [m], as the driver's",
+          validate=three_numbers("rail_mount_xyz_m"), read_only=True),
+    Param("rail_max_speed_m_s", 0.5, "rail_joint's velocity limit in the model [m/s], as the driver's",
+          min=0.001, max=10.0, read_only=True),
     Param("registration_topic", names.REGISTRATION_RESULT, "publish world -> drawing from this topic's latest valid "
           "registration (empty: do not)", read_only=True),
 ]
@@ -96,7 +105,8 @@ class StatePublisherNode(Node):
         return rm65_urdf(RM65Description(
             variant=self.p["arm_variant"], tool_offset_m=self.p["tool_offset_m"],
             hand_eye_xyz_m=self.hand_eye.xyz_m, hand_eye_rpy_deg=self.hand_eye.rpy_deg,
-            include_camera=self.p["publish_camera_frame"]))
+            include_camera=self.p["publish_camera_frame"], rail_length_m=self.p["rail_length_m"],
+            rail_mount_xyz_m=tuple(self.p["rail_mount_xyz_m"]), rail_max_speed_m_s=self.p["rail_max_speed_m_s"]))
 
     def _on_joints(self, msg: JointState) -> None:
         stamp = msg.header.stamp if (msg.header.stamp.sec or msg.header.stamp.nanosec) \

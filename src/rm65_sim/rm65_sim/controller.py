@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -26,7 +26,8 @@ N_TOOL_IO = 2
 
 @dataclass(frozen=True)
 class DOEvent:
-    """A digital-output level change. ``tcp_pose`` (4x4, m) is the tool in the work frame, then."""
+    """A digital-output level change. ``tcp_pose`` (4x4, m) is the tool in the work frame, then;
+    ``base_in_world`` (4x4) where the arm's base truly was (the rail's true pose; identity without one)."""
 
     t: float
     io: int
@@ -34,10 +35,16 @@ class DOEvent:
     value: int
     joints_rad: np.ndarray
     tcp_pose: np.ndarray
+    base_in_world: np.ndarray = field(default_factory=lambda: np.eye(4))
 
     @property
     def position(self) -> np.ndarray:
         return self.tcp_pose[:3, 3]
+
+    @property
+    def true_world_position(self) -> np.ndarray:
+        """Where the tool truly was in ``world`` (m): on the rail's true pose (the work frame being the base)."""
+        return (self.base_in_world @ self.tcp_pose)[:3, 3]
 
 
 
@@ -65,6 +72,7 @@ class ControllerCommands:
     _tool_voltage: int
     _realtime_push: dict[str, Any]
     _power: int
+    rail: Any  # rm65_sim.rail.SimRail
 
     # -- state ---------------------------------------------------------------------------
     def _frames_locked(self) -> tuple[np.ndarray, np.ndarray]:
@@ -234,7 +242,8 @@ class ControllerCommands:
 
     # -- IO (§1.8) -----------------------------------------------------------------------
     def _record_do(self, io: int, tool: bool, value: int) -> None:
-        self.do_events.append(DOEvent(time.monotonic(), io, tool, value, self._joints.copy(), self._tcp_pose_locked()))
+        self.do_events.append(DOEvent(time.monotonic(), io, tool, value, self._joints.copy(), self._tcp_pose_locked(),
+                                      self.rail.true_base_in_world()))
 
     def _cmd_set_IO_mode(self, msg: dict[str, Any]) -> dict[str, Any]:
         io, mode = int(msg["IO_Num"]), int(msg["IO_mode"])

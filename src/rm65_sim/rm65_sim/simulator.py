@@ -23,9 +23,12 @@ digital-output change with the tool pose at that instant (``do_events``,
 :meth:`drop_after_commands`, :meth:`drop_mid_motion`, :meth:`refuse_connections`,
 :meth:`fail_next`, :meth:`stall_next_motion`, :meth:`set_error`).
 
+A rail under the arm (``rail_axis``): the controller's expansion joint, device 4 (:mod:`.rail`),
+with its sim-only true deviation (``rail_deviation``); none by default.
+
 Parts, by concern: the motion model (:mod:`.motion`), the controller's state and its
-non-motion commands (:mod:`.controller`), the TCP server (:mod:`.server`) and the fault
-injection (:mod:`.faults`); this module holds the state, dispatches the commands, runs the
+non-motion commands (:mod:`.controller`), the rail (:mod:`.rail`), the TCP server (:mod:`.server`)
+and the fault injection (:mod:`.faults`); this module holds the state, dispatches the commands, runs the
 motion thread and the command line.
 
 Run stand-alone: ``python -m rm65_sim.simulator --port 8080`` (binds 127.0.0.1 unless told
@@ -50,16 +53,21 @@ import numpy as np
 
 from rm65_driver.kinematics.rm65 import DHModel, RM65Kinematics, matrix_to_pose6
 from rm65_driver.protocol import messages as P
+from rm65_driver.rail.axis import EXPAND_SET_POS, RailAxis
 from rm65_sim.controller import N_IO, N_TOOL_IO, ControllerCommands, DOEvent
 from rm65_sim.faults import Fault, FaultInjection
 from rm65_sim.motion import (Motion, MotionLimits, SegmentProfile, junction_speed, line_segment, plan_motion,
                              trajectory_msg)
+from rm65_sim.rail import SimRail
 from rm65_sim.server import Connection, TcpServer
+from stud_common.frames import RailDeviation
 from stud_common.stacks import dump_stacks_on_signal
 
 _log = logging.getLogger(__name__)
 
 MAX_QUEUED_MOTIONS = 10  # Gen-2 buffers 10 points (DOCS-FAQ); plenty for the driver
+#: Commands whose handler is told the commanding connection (its arrival message goes there).
+_CONN_COMMANDS = P.MOTION_COMMANDS | {EXPAND_SET_POS}
 
 
 @dataclass(frozen=True)
@@ -87,6 +95,8 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
     ``min_motion_real_s``: floor on a motion's wall-clock duration, whatever ``time_scale``.
     ``report_connected``: a motion sent with ``trajectory_connect`` 1 reports its end with 1 (False: with
     0, as if every queued motion were done).
+    ``rail_axis``: the expansion joint carrying the arm (None: no rail), its base ``rail_mount_xyz_m``
+    (m) above the carriage, the rail's true ``rail_deviation`` (sim-only, :mod:`.rail`).
     """
 
     def __init__(
@@ -106,6 +116,9 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
         product_version: str = "RM65-BI",
         min_motion_real_s: float = 0.01,
         report_connected: bool = True,
+        rail_axis: RailAxis | None = None,
+        rail_mount_xyz_m: Sequence[float] = (0.0, 0.0, 0.0),
+        rail_deviation: RailDeviation = RailDeviation(),
     ):
         if err_format not in ("list", "scalar", "arm_sys"):
             raise ValueError(f"err_format {err_format!r}: expected list, scalar or arm_sys")
@@ -159,6 +172,8 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
         self._threads: list[threading.Thread] = []
         self._running = threading.Event()
         self._changed = threading.Condition(self._lock)
+        self.rail = SimRail(rail_axis, self._lock, self._changed, tuple(rail_mount_xyz_m), rail_deviation,
+                            min_motion_real_s)
 
     # ------------------------------------------------------------------------------------
     # inspection (tests)
@@ -243,7 +258,7 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
                 _log.warning("simulator: unknown command %r ignored", name)
             else:
                 try:
-                    reply = handler(conn, msg, fault) if name in P.MOTION_COMMANDS else handler(msg)
+                    reply = handler(conn, msg, fault) if name in _CONN_COMMANDS else handler(msg)
                 except (KeyError, TypeError, ValueError, IndexError, ArithmeticError) as exc:
                     _log.warning("simulator: bad %s request %r: %s", name, msg, exc)
                     reply = {"command": name, P.RESULT_KEY.get(name, "set_state"): False}
@@ -331,6 +346,8 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
             now = time.monotonic()
             dt = (now - last) / max(self.time_scale, 1e-9)
             last = now
+            for conn_id, msg in self.rail.advance(dt, now):
+                self._send_to(conn_id, msg)
             outbox: list[tuple[int, dict[str, Any]]] = []
             drops: list[int] = []
             with self._lock:
@@ -378,6 +395,7 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
                 out = [(self._queue[0].conn_id, trajectory_msg(False))]
             self._queue.clear()
             self._paused = False
+            out += self.rail.stop()  # the arm's stop stops the rail too (rm65_sim.rail's choice)
             self._changed.notify_all()
         return out
 
@@ -431,11 +449,31 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
                 kind, data = "none", P.joints_to_wire(self._joints)
         return {"state": "arm_current_trajectory", "type": kind, "data": data}
 
+    # -- the rail (expansion joint, device 4): rail.py --------------------------------------
+    def _cmd_expand_set_pos(self, conn: Connection, msg: dict[str, Any], fault: Fault | None) -> list[Any]:
+        return self.rail.cmd_set_pos(conn.id, msg)
+
+    def _cmd_expand_set_speed(self, msg: dict[str, Any]) -> list[Any]:
+        return self.rail.cmd_set_speed(msg)
+
+    def _cmd_expand_get_state(self, msg: dict[str, Any]) -> dict[str, Any]:
+        return self.rail.cmd_get_state(msg)
+
 
 
 # --------------------------------------------------------------------------------------------
 # CLI
 # --------------------------------------------------------------------------------------------
+
+
+def _three_floats(text: str) -> tuple[float, float, float]:
+    """``"x,y,z"``, ``"[x, y, z]"`` or ``"x y z"`` (one command-line word, as a cell var renders a list)."""
+    parts = text.strip().strip("[]").replace(",", " ").split()
+    try:
+        x, y, z = (float(v) for v in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not three numbers x,y,z") from None
+    return x, y, z
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -447,6 +485,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--err-format", choices=("list", "scalar", "arm_sys"), default="list",
                         help="arm state error format: list (current firmware), scalar, arm_sys (older docs)")
     parser.add_argument("--pretty", action="store_true", help="send pretty-printed replies")
+    rail = parser.add_argument_group("rail", "a linear axis under the arm: the expansion joint (device 4)")
+    rail.add_argument("--rail-length-m", type=float, default=0.0, help="travel [m]; 0 (default): no rail")
+    rail.add_argument("--rail-pos-unit-m", type=float, default=1e-6, help="metres per wire count (default 1e-6)")
+    rail.add_argument("--rail-max-speed-m-s", type=float, default=0.5, help="speed at 100 %% [m/s]")
+    rail.add_argument("--rail-accel-m-s2", type=float, default=0.5, help="acceleration at 100 %% [m/s^2]")
+    rail.add_argument("--rail-mount-xyz-m", type=_three_floats, default=(0.0, 0.0, 0.0), metavar="X,Y,Z",
+                      help="the arm's base on the carriage [m]: '0,0,0.1' or '[0.0, 0.0, 0.1]'")
+    rail.add_argument("--true-rail-scale-ppm", type=float, default=0.0, help="sim-only truth: scale error [ppm]")
+    rail.add_argument("--true-rail-offset-m", type=float, default=0.0, help="sim-only truth: zero offset [m]")
+    rail.add_argument("--true-rail-yaw-urad-per-m", type=float, default=0.0,
+                      help="sim-only truth: the carriage's heading change per metre [urad/m]")
     parser.add_argument("-v", "--verbose", action="store_true")
     args = parser.parse_args(argv)
     dump_stacks_on_signal()
@@ -454,19 +503,29 @@ def main(argv: Sequence[str] | None = None) -> int:
                         format="%(asctime)s %(levelname)s %(message)s")
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         _log.warning("binding the simulator to a non-loopback address %s", args.host)
+    # SIGINT and SIGTERM are blocked in every thread (the simulator's threads, started below, inherit
+    # the mask) and taken synchronously by sigwait: no handler runs at an arbitrary point of this thread.
+    # The handler that was here set a threading.Event, whose lock this thread held for a few bytecodes
+    # of every Event.wait turn: a signal landing then blocked the handler on that lock for ever, and the
+    # simulator outlived its SIGTERM (a cell killed mid-job; its launch test waited 60 s in vain).
+    stop_signals = {signal.SIGINT, signal.SIGTERM}
+    for sig in stop_signals:  # not Python's KeyboardInterrupt either (never ignored: an ignored signal is lost)
+        signal.signal(sig, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_BLOCK, stop_signals)
     try:
+        rail_axis = (RailAxis(args.rail_length_m, args.rail_pos_unit_m, args.rail_max_speed_m_s, args.rail_accel_m_s2)
+                     if args.rail_length_m != 0 else None)
+        deviation = RailDeviation(args.true_rail_scale_ppm, args.true_rail_offset_m, args.true_rail_yaw_urad_per_m)
         sim = ArmSimulator(host=args.host, port=args.port, time_scale=args.time_scale,
-                           err_format=args.err_format, pretty_replies=args.pretty)
+                           err_format=args.err_format, pretty_replies=args.pretty, rail_axis=rail_axis,
+                           rail_mount_xyz_m=args.rail_mount_xyz_m, rail_deviation=deviation)
         sim.start()
     except (OSError, ValueError) as exc:
         print(f"simulator: cannot start on {args.host}:{args.port}: {exc}", file=sys.stderr)
         return 2
-    done = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: done.set())
-    signal.signal(signal.SIGTERM, lambda *_: done.set())
-    print(f"RM65 simulator on {args.host}:{sim.port} (Ctrl-C to stop)", flush=True)
-    while not done.wait(0.5):  # wake up now and then: a signal's handler runs in this (main) thread
-        pass
+    print(f"RM65 simulator on {args.host}:{sim.port}"
+          + (f", rail of {args.rail_length_m:g} m" if rail_axis is not None else "") + " (Ctrl-C to stop)", flush=True)
+    signal.sigwait(stop_signals)
     sim.stop()
     return 0
 

@@ -223,6 +223,7 @@ def _evaluate(args: argparse.Namespace, out: Path, report: dict, code: int, elap
           and acc["max_gun_axis_error_deg"] <= args.max_gun_axis_error_deg)
     summary = {"ok": ok, "part": args.part, "cell_exit_code": code, "studs_total": total, "studs_welded": welded,
                "stations": report.get("stations"), "unreachable": report.get("unreachable", []),
+               "unreachable_reasons": report.get("unreachable_reasons", {}),
                "time_s": round(elapsed, 1), "accuracy": {k: v for k, v in acc.items() if k != "studs"},
                "overlays": overlays, "qa_summary": qa_counts}
     return {"summary": summary, "acc": acc, "qa": qa, "qa_file": qa_file, "elapsed_s": elapsed}
@@ -235,7 +236,10 @@ def _print_summary(args: argparse.Namespace, out: Path, report: dict, result: di
     print("=" * 72)
     print(f" weld-cell demo ({args.part}): {'PASSED' if summary['ok'] else 'FAILED'}")
     print(f"   studs welded        {welded}/{total} over {report.get('stations')} camera station(s)"
-          + (f", unreachable: {', '.join(report['unreachable'])}" if report.get("unreachable") else ""))
+          + (f", {len(report['unreachable'])} the arm cannot weld (named before any motion toward them):"
+             if report.get("unreachable") else ""))
+    for sid, why in (report.get("unreachable_reasons") or {sid: "" for sid in report.get("unreachable", [])}).items():
+        print(f"     {sid:>8}  {why}")
     print("   camera mount        " + (
         "{:.2f} mm / {:.3f} deg off the hand-eye the cell uses (a calibration's residual, simulated)".format(
             *calibration_residual_size()) if not sets_hand_eye(args.vars) else "as set by --var"))

@@ -298,8 +298,8 @@ def _check_param(value: Any, where: str) -> Any:
     if isinstance(value, _PARAM_SCALARS):
         return value
     if isinstance(value, list):
-        if not value:
-            raise CellConfigError(f"{where}: an empty list has no ROS parameter type; give at least one element")
+        if not value:  # no ROS type: the node reads it as [] (ros_io.declare_params), which its check accepts or not
+            return value
         kinds = {type(v) for v in value}
         if kinds <= {int, float}:
             return [float(v) for v in value] if len(kinds) == 2 else value  # [1, 0.5] -> doubles

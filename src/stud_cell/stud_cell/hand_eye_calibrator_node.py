@@ -14,7 +14,9 @@ with the reasons (:mod:`stud_perception.hand_eye_file`).
 
 ``task:=verify``: a few views (:func:`~stud_cell.hand_eye_views.plan_check_views`), the residual
 of the hand-eye in use (``hand_eye_file`` or the typed value) with
-:func:`~stud_perception.hand_eye.check_hand_eye`; prints PASS or FAIL against the limits and writes
+:func:`~stud_perception.hand_eye.check_hand_eye`, whose limits follow from the noise the shots show and
+their number: when that noise needs more views to tell a ``check_max_mm`` / ``check_max_deg`` error
+from noise, the check views are shot again (up to ``max_verify_views``); prints PASS or FAIL and writes
 ``<output_dir>/hand_eye_check.yaml``.
 
 Exit code (``exit_when_done``): 0 accepted / passed, 1 refused / failed or the procedure could not
@@ -40,7 +42,8 @@ from stud_common import hand_eye_ros, ros_io
 from stud_perception import image_io
 from stud_common.hand_eye_in_use import camera_in_world
 from stud_common.rotations import transform
-from stud_perception.hand_eye import BoardShot, board_points_m, board_pose_from_marks, calibrate_hand_eye, check_hand_eye
+from stud_perception.hand_eye import (BoardShot, board_points_m, board_pose_from_marks, calibrate_hand_eye,
+                                      check_with_enough_views)
 from stud_perception.hand_eye_solvers import HandEyeError, rotation_angle_deg
 from stud_perception.hand_eye_file import calibration_record, check_record, write_yaml
 from stud_perception.markers import MarkDetectorConfig, detect_marks
@@ -73,6 +76,9 @@ PARAMS = [
     Param("view_yaw_span_deg", 30.0, "views turn about the optical axis by up to this [deg]", min=0.0, max=90.0),
     Param("max_poses", 24, "calibrate: stop after this many usable shots", min=3, max=500),
     Param("verify_poses", 4, "verify: tilted shots besides the straight-down one", min=1, max=50),
+    Param("max_verify_views", 60, "verify: when the noise the first shots show needs more views to tell a "
+          "check_max_mm / check_max_deg error from noise, the check views are shot again up to this many shots "
+          "in all (beyond: FAIL, inconclusive)", min=2, max=1000),
     Param("verify_tilt_deg", 25.0, "verify: tilt of the check views [deg]", min=1.0, max=60.0),
     Param("step_timeout_s", 60.0, "longest wait for a move, a shot or a frame [s]", min=1.0, max=3600.0),
     Param("distance_tol_m", 0.004, "mark detection: allowed |measured - drawing| of |OA|, |OB|, |AB| [m]",
@@ -275,8 +281,21 @@ class HandEyeCalibrator(Node):
             shots, refused, failed = self._shots(aimer.views, p["max_poses"], drawing_marks, config, aimer)
             return self._calibrate(shots, refused, failed, drawing_marks, aimer.aimed_from)
         views = plan_check_views(target, p["view_distance_m"], p["verify_tilt_deg"], 8, p["view_yaw_span_deg"])
-        shots, refused, failed = self._shots(views, p["verify_poses"] + 1, drawing_marks, config)
-        return self._verify(shots, drawing_marks)
+
+        def shoot(k: int) -> list:  # the check views again, as often as needed
+            return self._shots(views * (k // max(len(views), 1) + 2), k, drawing_marks, config)[0]
+
+        def more(check, wanted: int) -> None:
+            have = len(check.shot_residual_mm)
+            needs = (f"needs {check.spread.views_needed} views to show" if check.spread.views_needed else
+                     "may not show with any number of views by this estimate")
+            self.get_logger().info(
+                f"the check's {have} shots: {check.spread.describe()}; an error of {self.limits.check_max_mm:g} mm / "
+                f"{self.limits.check_max_deg:g} deg {needs}: taking {wanted - have} more")
+
+        check = check_with_enough_views(shoot, self.hand_eye.T_tool_cam, drawing_marks, self.limits,
+                                        self.hand_eye.poses_used, p["verify_poses"] + 1, p["max_verify_views"], more)
+        return self._verify(check)
 
     def _board_centre_w(self, shot: BoardShot, drawing_marks) -> np.ndarray:
         """World point the views look at, through the hand-eye in use (off by the hand-eye's error: the
@@ -319,10 +338,8 @@ class HandEyeCalibrator(Node):
         self.diag.set(self.diag.OK, f"accepted: {path}")
         return 0
 
-    def _verify(self, shots, drawing_marks) -> int:
-        if len(shots) < 2:
-            raise Aborted(f"too few shots for a check: {len(shots)}, need 2 at least")
-        check = check_hand_eye(shots, self.hand_eye.T_tool_cam, drawing_marks, self.limits)
+    def _verify(self, check) -> int:
+        shots = check.shot_residual_mm
         path = write_yaml(Path(self.p["output_dir"]) / "hand_eye_check.yaml", check_record(check, self.hand_eye),
                           "hand-eye check (cell --mode verify), written by hand_eye_calibrator")
         what = (f"{self.hand_eye.path} ({self.hand_eye.date})" if self.hand_eye.source == "file"
@@ -330,8 +347,10 @@ class HandEyeCalibrator(Node):
         lim = self.limits
         line = (f"{check.rms_mm:.3f} mm RMS (max {check.max_mm:.3f}, limit {lim.max_rms_mm:g} / {lim.max_shot_mm:g}), "
                 f"{check.rms_deg:.4f} deg RMS (max {check.max_deg:.4f}) over {len(shots)} shots; ")
+        spread = check.spread
         line += (f"their own hand-eye is {check.difference_mm:.3f} mm / {check.difference_deg:.4f} deg from it "
-                 f"(limit {lim.check_max_mm:g} mm / {lim.check_max_deg:g} deg)" if check.T_tool_cam_shots is not None
+                 f"(limits {spread.limit_mm:.3f} mm / {spread.limit_deg:.4f} deg: {lim.check_max_mm:g} mm / "
+                 f"{lim.check_max_deg:g} deg less what noise explains; {spread.describe()})" if spread is not None
                  else "their rotations do not determine a hand-eye of their own (about one axis), "
                       "only the residuals were checked")
         if check.passed:

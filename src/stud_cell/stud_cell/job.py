@@ -1,12 +1,17 @@
 """The weld job of the cell, step by step, with no ROS in it (the sequencer node is its adapter).
 
-1. registration: the camera over the marking board, a valid registration of a shot taken there;
-2. stations planned to cover every stud (station_planning.py); studs no reachable station covers
-   are reported as unreachable;
-3. per station: move, one shot, its targets; weld the station's usable targets (``resume``: the arm
-   driver's journal is the truth of what is welded, so a resent or restarted job never welds twice);
-   then, with ``inspect``, shoot the same pose again and have every stud welded there measured and
-   judged (post-weld inspection);
+1. registration: the camera over the marking board, a valid registration of a shot taken there; the
+   registration station is where it looks first, and without one (``registration_station_xyz_m``
+   empty) or when the marks are not seen there, the board is searched for (board_search.py);
+2. stations planned to cover every stud (stations.py), each at a camera pose the driver's reach test
+   accepts (station_reach.py); studs the drawing's place already rules out, and studs no reachable
+   station sees, are named unreachable with the reason (cell_reach.py, unreachable.py);
+3. per station: move, one shot, its targets; every target is checked with the driver's reach test
+   before it is sent (a stud the arm cannot weld is named, never sent); weld the station's usable
+   targets (``resume``: the arm driver's journal is the truth of what is welded, so a resent or
+   restarted job never welds twice); then, with ``inspect``, shoot the same pose again and have every
+   stud welded there measured and judged (post-weld inspection). A station the arm refuses anyway
+   costs that station (its studs are reported), never the job;
 4. studs their own station gave no usable target for, but another view did, are welded from that
    view's target (and inspected from that view's pose);
 5. studs no view could use for a reason another view may cure (normal too uncertain, a hole) are
@@ -35,7 +40,11 @@ from stud_perception.registration import local_to_world
 from stud_common.strict_json import write_json
 from stud_inspection import qa_report, rework
 from stud_inspection.inspection import InspectionLimits
-from stud_cell.stations import footprint_m, plan_stations, reshoot_station
+from stud_cell.board_search import BoardSearchError, board_radius_m, search_plan
+from stud_cell.cell_reach import CellReach
+from stud_cell.station_reach import StationGeometry, reachable_stations
+from stud_cell.stations import Station, StationPlan, footprint_m, plan_stations, reshoot_station
+from stud_cell.unreachable import UnreachableStuds
 from stud_planner.matching.target_table import BestViewKey, TargetTable, choose_best
 
 #: Job states (CellStatus state_text): stud_common.vocabulary's, by name.
@@ -110,6 +119,8 @@ class Layout:
     ids: list[str]
     xy_m: np.ndarray            # (N, 2) drawing frame
     source_file: str = ""
+    marks_m: np.ndarray | None = None   # (3, 2) O, A, B, drawing frame (the board's size, for its search)
+    mark_diameter_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -135,7 +146,7 @@ class CellPorts(Protocol):
 
     def wait_layout(self) -> Layout: ...
     def move_camera(self, xyz_w, yaw_rad: float) -> None: ...             # MoveRefused: unreachable
-    def register(self) -> Registration: ...                              # one registration shot
+    def register(self, attempts: int = 0) -> Registration: ...           # a registration shot (0: the cell's retries)
     def shoot_view(self, what: str, camera_xyz_w, yaw_rad: float) -> View | None: ...  # None: no targets came
     def shoot(self) -> int: ...                                          # a shot; its ROS time (ns)
     def weld(self, targets: list[Target]) -> WeldOutcome: ...            # DriverLost: the driver lost the job
@@ -156,7 +167,12 @@ RESHOOT_STATUS_TEXTS = frozenset(s.text for s in VIEW_DEPENDENT)
 class JobConfig:
     """The job's settings (the sequencer's parameters of the same names)."""
 
-    registration_station_xyz_m: tuple = (0.225, -0.29, 0.285)
+    registration_station_xyz_m: tuple = (0.225, -0.29, 0.285)   # (): no station, search the board
+    board_search_area_xy_m: tuple = (0.0, -0.55, 0.65, 0.55)      # x_min, y_min, x_max, y_max (world)
+    board_search_plane_z_m: float = 0.0                           # the table the board lies on (world z)
+    board_search_heights_m: tuple = (0.45, 0.425, 0.40, 0.375, 0.35, 0.325, 0.30, 0.275)  # camera above that table
+    board_search_max_shots: int = 16
+    station_height_steps_m: tuple = (0.0, 0.05, -0.05, 0.10)      # tried when a station is out of reach
     camera_height_m: float = 0.40
     camera_yaw_deg: float = 0.0
     part_height_m: float = 0.15
@@ -186,14 +202,15 @@ class JobConfig:
 class CellJob:
     """One weld job over ``ports``; :meth:`run` returns the end state and the exit code."""
 
-    def __init__(self, ports: CellPorts, config: JobConfig) -> None:
+    def __init__(self, ports: CellPorts, config: JobConfig, reach: CellReach | None = None) -> None:
         self.ports, self.c = ports, config
+        self.reach = reach                         # the arm driver's reach test (None: not known)
+        self.named = UnreachableStuds(reach, self._publish_unreachable)
         self.stud_report: dict[str, dict] = {}     # stud id -> weld-report entry
         self.qa: dict[str, dict] = {}              # stud id -> QA row (qa_report)
         self.best: dict[str, tuple[BestViewKey, Target, View]] = {}  # best usable target per stud, over all views
         self.views: dict[int, View] = {}
         self.stations_total = 0
-        self.unreachable: list[str] = []
         self.overlays: list[str] = []
         self.unexpected: list[dict] = []
         self.layout: Layout | None = None
@@ -202,6 +219,7 @@ class CellJob:
         self._camera_at: tuple | None = None       # (xyz, yaw) the camera was last moved to
         self._station = 0                          # the station being worked (re-shoots count on after the plan)
         self._view_station: dict[int, int] = {}
+        self._seen: set[str] = set()               # studs checked for reach on a view before their station
 
     # -- the job ----------------------------------------------------------------------------------
     def run(self) -> tuple[str, int]:
@@ -214,37 +232,35 @@ class CellJob:
         return state, self.finish(state, message)
 
     def _job(self) -> tuple[str, str]:
-        c, ports = self.c, self.ports
+        ports = self.ports
         self.layout = layout = ports.wait_layout()
         for sid, (x, y) in zip(layout.ids, layout.xy_m):
             self.stud_report[sid] = {"stud_id": sid, "drawing_xy_mm": [float(x * 1e3), float(y * 1e3)],
                                      "status": "not_planned", "welded": False}
             self.qa[sid] = qa_report.empty_row(sid, (x * 1e3, y * 1e3))
         self._status(REGISTERING, "camera to the registration station", studs_total=len(layout.ids))
-        ports.checkpoint()
-        self._move(c.registration_station_xyz_m, 0.0)
-        registration = ports.register()
-        if not registration.valid:
-            raise JobAborted(f"no valid registration at the registration station: {registration.message}")
+        registration = self._register(layout)
         studs_w = local_to_world(registration.m_local2world, layout.xy_m).reshape(-1, 2)
         plane_z = registration.plane_z_m if math.isfinite(registration.plane_z_m) else 0.0
 
-        fov = footprint_m(c.fov_width_m, c.fov_distance_m, c.image_aspect, c.camera_height_m, c.part_height_m)
-        plan = plan_stations(studs_w, fov, c.camera_height_m, overlap=c.overlap,
-                             yaw_rad=math.radians(c.camera_yaw_deg), plane_z_m=plane_z, fewest=c.fewest_stations)
-        for i in plan.unreachable:
-            self.stud_report[layout.ids[i]]["status"] = "unreachable"
-            self.qa[layout.ids[i]]["reasons"] = ["unreachable: no camera station the arm reaches covers it"]
-        self.unreachable = [layout.ids[i] for i in plan.unreachable]
+        plan = self._plan(studs_w, plane_z, layout.ids)
         self.stations_total = len(plan.stations)
         ports.status(REGISTERING, f"registered ({registration.message})", unreachable=self.unreachable,
+                     unreachable_reasons=[self.named.reasons[s] for s in self.unreachable],
                      stations_total=self.stations_total)
         ports.info(f"registered ({registration.message}); {len(plan.stations)} station(s) cover {plan.covered} of "
-                   f"{len(layout.ids)} studs, {len(plan.unreachable)} unreachable")
+                   f"{len(layout.ids)} studs, {len(self.unreachable)} unreachable"
+                   + "".join(f"\n  {sid}: {why}" for sid, why in self.named.reasons.items()))
 
         for station in plan.stations:
             self._station = station.index
-            self._run_station(station, layout.ids)
+            try:
+                self._run_station(station, layout.ids)
+            except MoveRefused as exc:  # a controller that disagrees: the station is lost, not the job
+                ports.warn(f"station {station.index}: skipped, {exc}")
+                for i in station.stud_indices:
+                    if not self.stud_report[layout.ids[i]]["welded"] and layout.ids[i] not in self.named.reasons:
+                        self.named.name(layout.ids[i], f"camera station {station.index} refused by the arm: {exc}")
         self._weld_leftovers()
         self._reshoot(studs_w, layout.ids, plane_z)
         welded = self.welded_count()
@@ -252,6 +268,94 @@ class CellJob:
         return DONE, (f"job done: {welded}/{len(layout.ids)} studs welded"
                       + (f", {failed} not welded (see report)" if failed else ""))
 
+    # -- registration and the plan -----------------------------------------------------------------
+    def _register(self, layout: Layout) -> Registration:
+        """A valid registration: from the registration station when one is given, else (or when the
+        marks are not seen there) from the board search's poses, one shot each (board_search.py)."""
+        c, ports = self.c, self.ports
+        looked: list[str] = []
+        station = tuple(c.registration_station_xyz_m or ())  # a ROS parameter set to [] reads as None
+        if station:
+            ports.checkpoint()
+            try:
+                self._move(station, 0.0)
+                registration = ports.register()
+                if registration.valid:
+                    return registration
+                looked.append(f"the registration station {np.round(station, 3).tolist()} m: {registration.message}")
+            except MoveRefused as exc:
+                looked.append(f"the registration station: {exc}")
+            ports.warn(f"no valid registration at {looked[-1]}; searching for the marking board")
+        try:
+            search = search_plan(c.board_search_area_xy_m, c.board_search_plane_z_m, c.board_search_heights_m,
+                                 c.fov_width_m, c.fov_distance_m, c.image_aspect,
+                                 board_radius_m(layout.marks_m, layout.mark_diameter_m or 0.02),
+                                 None if self.reach is None else self._cameras_ok, c.board_search_max_shots)
+        except BoardSearchError as exc:
+            raise JobAborted(f"no valid registration ({'; '.join(looked) or 'no registration station'}): {exc}") from None
+        last = ""
+        for k, (xyz, yaw) in enumerate(search.poses, 1):
+            self._status(REGISTERING, f"searching for the marking board: view {k}/{len(search.poses)} from "
+                                      f"{np.round(xyz, 3).tolist()} m")
+            ports.checkpoint()
+            try:
+                self._move(xyz, yaw)
+            except MoveRefused as exc:
+                last = str(exc)
+                continue
+            registration = ports.register(attempts=1)
+            if registration.valid:
+                ports.info(f"marking board found from the camera at {np.round(xyz, 3).tolist()} m (search view {k}); "
+                           "set registration_station_xyz_m to look there first")
+                return registration
+            last = registration.message
+        looked.append(search.describe() + (f" (last: {last})" if last else ""))
+        raise JobAborted("no valid registration: the marks O, A, B were not found from " + "; nor from ".join(looked)
+                         + ". Put the camera over the board with registration_station_xyz_m: [x, y, z] (cell.yaml "
+                         "vars, world m), or set board_search_area_xy_m to where the board lies")
+
+    def _cameras_ok(self, poses) -> list[bool]:
+        assert self.reach is not None
+        return [v.ok for v in self.reach.cameras(poses)]
+
+    def _plan(self, studs_w: np.ndarray, plane_z: float, ids: list[str]) -> StationPlan:
+        """Stations for every stud not already ruled out; each at a pose the arm reaches."""
+        c = self.c
+        if self.reach is not None:  # the drawing's place and the plane rule these out, whatever the part
+            for sid, why in zip(ids, self.reach.surely_unreachable(studs_w, (plane_z, plane_z + c.part_height_m))):
+                if why:
+                    self.named.name(sid, why)
+        todo = [i for i, sid in enumerate(ids) if sid not in self.named.reasons]
+        fov = footprint_m(c.fov_width_m, c.fov_distance_m, c.image_aspect, c.camera_height_m, c.part_height_m)
+        sub = plan_stations(studs_w[todo], fov, c.camera_height_m, overlap=c.overlap,
+                            yaw_rad=math.radians(c.camera_yaw_deg), plane_z_m=plane_z, fewest=c.fewest_stations)
+        plan = StationPlan(tuple(Station(s.index, s.camera_xyz_w, s.yaw_rad, tuple(todo[i] for i in s.stud_indices))
+                                 for s in sub.stations), tuple(todo[i] for i in sub.unreachable))
+        if self.reach is not None:
+            geom = StationGeometry(c.fov_width_m, c.fov_distance_m, c.image_aspect, c.part_height_m, c.camera_height_m,
+                                   plane_z, c.overlap, tuple(c.station_height_steps_m))
+            plan, reasons = reachable_stations(plan, studs_w, geom, self._cameras_ok)
+            for i, why in reasons.items():
+                self.named.name(ids[i], why)
+        for i in plan.unreachable:
+            if ids[i] not in self.named.reasons:
+                self.named.name(ids[i], "no camera station the arm reaches covers it")
+        return plan
+
+    @property
+    def unreachable(self) -> list[str]:
+        """The studs named unreachable so far (unreachable.py), in the order named."""
+        return self.named.ids
+
+    def _publish_unreachable(self) -> None:
+        self.ports.status(self.state, self.message, unreachable=self.unreachable,
+                          unreachable_reasons=[self.named.reasons[s] for s in self.unreachable])
+
+    def _weldable(self, t: Target) -> bool:
+        """The driver's reach test accepts this target (else the stud is named, and it is not sent)."""
+        return not self.named.target_problem(t.stud_id, t.entry.get("position_m"), t.entry.get("normal"))
+
+    # -- stations -------------------------------------------------------------------------------
     def _run_station(self, station, ids: list[str]) -> None:
         n = self.stations_total
         self._status(MOVING, f"station {station.index}/{n}: camera to {np.round(station.camera_xyz_w, 3).tolist()} m",
@@ -259,7 +363,7 @@ class CellJob:
         self.ports.checkpoint()
         self._move(station.camera_xyz_w, station.yaw_rad)
         wanted = {ids[i] for i in station.stud_indices}
-        view = self._shoot_view(f"station {station.index}/{n}", station.camera_xyz_w, station.yaw_rad)
+        view = self._shoot_view(f"station {station.index}/{n}", station.camera_xyz_w, station.yaw_rad, frozenset(wanted))
         if view is None:
             raise JobAborted(f"station {station.index}: no weld targets for any of its shots")
         usable = []
@@ -267,7 +371,7 @@ class CellJob:
             if t.stud_id not in wanted:
                 continue
             self._take_entry(t, view)
-            if t.ok:
+            if t.ok and self._weldable(t):
                 usable.append(t)
         if not usable:
             self.ports.warn(f"station {station.index}: no usable target among {len(wanted)} assigned studs")
@@ -275,13 +379,23 @@ class CellJob:
         self._status(WELDING, f"station {station.index}/{n}: welding {len(usable)} stud(s)")
         self._weld_and_inspect([(t, view) for t in usable])
 
-    def _shoot_view(self, what: str, xyz, yaw: float) -> View | None:
+    def _shoot_view(self, what: str, xyz, yaw: float, own: frozenset = frozenset()) -> View | None:
         view = self.ports.shoot_view(what, xyz, yaw)
         if view is not None:
             self.views[view.index] = view
             self._view_station[view.index] = self._station
             self._remember_best(view)
+            self._name_seen(view, own)
         return view
+
+    def _name_seen(self, view: View, own: frozenset) -> None:
+        """As soon as a shot gives a stud its height and normal, a stud the arm cannot weld is named --
+        those of later stations too (``own``: this station's, checked on the target it sends)."""
+        for t in view.targets:
+            r = self.stud_report.get(t.stud_id)
+            if t.ok and r is not None and not r["welded"] and t.stud_id not in own and t.stud_id not in self._seen:
+                self._seen.add(t.stud_id)
+                self._weldable(t)
 
     def _remember_best(self, view: View) -> None:
         """Keep, per stud, its best usable target over all views by the rule ``plan`` keeps its views by
@@ -302,7 +416,8 @@ class CellJob:
 
     def _weld_leftovers(self) -> None:
         """Studs their own station gave no usable target for, but another view did."""
-        left = [sid for sid, r in self.stud_report.items() if not r["welded"] and sid in self.best]
+        left = [sid for sid, r in self.stud_report.items()
+                if not r["welded"] and sid in self.best and self._weldable(self.best[sid][1])]
         if not left:
             return
         self.ports.info(f"welding {len(left)} stud(s) matched on another station's view: {', '.join(left)}")
@@ -320,16 +435,18 @@ class CellJob:
         c = self.c
         index = {sid: i for i, sid in enumerate(ids)}
         for attempt in range(c.reshoot_attempts):
-            pending = [sid for sid, r in self.stud_report.items()
-                       if not r["welded"] and r["status"] in RESHOOT_STATUS_TEXTS and sid not in self.best]
+            pending = [sid for sid, r in self.stud_report.items() if not r["welded"] and sid not in self.named.reasons
+                       and r["status"] in RESHOOT_STATUS_TEXTS and sid not in self.best]
             if not pending:
                 return
             for sid in pending:
                 if self.stud_report[sid]["welded"] or sid in self.best:
                     continue  # a re-shoot of a neighbour made it usable
                 self._station += 1
-                station = reshoot_station(studs_w[index[sid]], attempt, c.reshoot_offset_m, c.camera_height_m,
-                                          plane_z, math.radians(c.camera_yaw_deg), stud_index=index[sid])
+                station = self._reshoot_station(studs_w[index[sid]], attempt, plane_z, index[sid])
+                if station is None:
+                    self.ports.warn(f"re-shoot {attempt + 1} of {sid} skipped: no camera pose beside it the arm reaches")
+                    continue
                 self._status(MOVING, f"re-shoot {attempt + 1}/{c.reshoot_attempts} of {sid} "
                              f"({self.stud_report[sid]['status']}): camera to "
                              f"{np.round(station.camera_xyz_w, 3).tolist()} m")
@@ -357,8 +474,22 @@ class CellJob:
                 r["reason"] = (f"{r['status']} on every view, {c.reshoot_attempts} re-shoot(s) included: "
                                "not welded blind")
 
+    def _reshoot_station(self, stud_xy, attempt: int, plane_z: float, stud_index: int) -> Station | None:
+        """The re-shoot's pose, turned further round the stud (and the camera higher) until the arm reaches it."""
+        c = self.c
+        for dh in c.station_height_steps_m:
+            for turn in range(4):
+                station = reshoot_station(stud_xy, attempt + turn, c.reshoot_offset_m, c.camera_height_m + dh,
+                                          plane_z, math.radians(c.camera_yaw_deg), stud_index=stud_index)
+                if self.reach is None or self.reach.camera_ok(station.camera_xyz_w, station.yaw_rad):
+                    return station
+        return None
+
     # -- welding and inspection --------------------------------------------------------------------
     def _weld_and_inspect(self, batch: list[tuple[Target, View]]) -> None:
+        batch = [(t, v) for t, v in batch if self._weldable(t)]  # never send what the driver would refuse
+        if not batch:
+            return
         welded = self._weld([t for t, _v in batch])
         for t, view in batch:
             if t.stud_id in welded:
@@ -479,13 +610,16 @@ class CellJob:
         """Write the weld report and the QA record (also after an early stop); the exit code: 0 only
         when the job is done and every stud welded."""
         welded = self.welded_count()
+        self.named.apply(self.stud_report, self.qa)
         self._status(state, message, studs_welded=welded,
-                     studs_failed=max(0, len(self.stud_report) - welded) if self.stud_report else 0)
+                     studs_failed=max(0, len(self.stud_report) - welded) if self.stud_report else 0,
+                     unreachable=self.unreachable, unreachable_reasons=[self.named.reasons[s] for s in self.unreachable])
         c = self.c
         if c.report_file:
             # strict JSON: an unmatched stud's NaN position is null (RFC 8259 has no NaN)
             write_json(c.report_file, {"state": state, "message": message, "stations": int(self.stations_total),
                                        "unreachable": list(self.unreachable),
+                                       "unreachable_reasons": dict(self.named.reasons),
                                        "targets": list(self.stud_report.values())})
         if c.qa_dir and self.qa:
             job = {"id": c.job_id, "part": c.part, "drawing": self.layout.source_file if self.layout else "",

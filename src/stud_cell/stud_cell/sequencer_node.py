@@ -13,7 +13,10 @@ leftovers, re-shoots, the reports); this node is its adapter to the cell:
   (``weld_resends``), and the journal skips what is welded and holds back what the crash left uncertain;
 - inspection: a shot of the same pose after the welds and ``/inspection/inspect``.
 
-Progress goes to ``/cell/status`` (CellStatus); ``/cell/start|pause|resume|stop`` (Trigger)
+The reach test is the arm driver's own (``/arm/reach_config``, latched: stud_cell.cell_reach):
+stations are planned at poses it accepts, and every target is checked before it is sent.
+
+Progress goes to ``/cell/status`` (CellStatus, with the studs the cell cannot weld and why); ``/cell/start|pause|resume|stop`` (Trigger)
 drive it (``auto_start`` starts at once). With ``report_file`` a JSON report of every stud
 (the offline report's fields plus ``welded``) and with ``qa_dir`` the QA record are written at the
 end, also of a job stopped early; ``exit_when_done`` ends the process (exit 0 only when every stud
@@ -34,16 +37,20 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo
 from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
+from std_msgs.msg import String
 from stud_welding_msgs.msg import ArmState, CellStatus, Registration, StudLayout, WeldTargetArray
 from stud_welding_msgs.srv import Inspect, MoveTo
 
 from stud_common import ros_io
 from stud_common.stacks import dump_stacks_on_signal
 from stud_perception.camera_model import nadir_rotation
-from stud_common.ros_io import Param, three_numbers
+from stud_common.ros_io import Param
 from stud_common.vocabulary import CellState
+from rm65_driver.weld.reach import ReachConfig, ReachConfigError
 from stud_cell import job as cell_job
+from stud_cell.cell_reach import CellReach
 from stud_cell.job import DriverLost, InspectionUnavailable, JobAborted, MoveRefused
+from stud_cell.stations import StationPlanningError, footprint_m
 from stud_planner.msg_convert import (inspection_extras, inspection_rows, layout_from_msg, registration_from_msg,
                                       weld_target_table)
 from stud_common import names
@@ -55,7 +62,26 @@ PARAMS = [
     Param("exit_when_done", False, "end the process when the job ends (exit 0 only if every stud was welded)"),
     Param("report_file", "", "write a JSON report of every stud here at the end (empty: none)"),
     Param("registration_station_xyz_m", list(_JOB.registration_station_xyz_m),
-          "camera position over the marking board [m]", validate=three_numbers("registration_station_xyz_m")),
+          "camera position over the marking board, where the registration looks first [m]; [] (none): the board "
+          "is searched for over board_search_area_xy_m", validate=lambda v: None if v is None or len(v) in (0, 3)
+          else f"registration_station_xyz_m needs 3 numbers (x, y, z) or [] (search for the board), got {list(v)}"),
+    Param("board_search_area_xy_m", list(_JOB.board_search_area_xy_m), "where the board may lie: [x_min, y_min, "
+          "x_max, y_max] in world [m], searched when the registration station shows no marks",
+          validate=lambda v: None if len(v) == 4 and v[2] > v[0] and v[3] > v[1]
+          else f"board_search_area_xy_m needs [x_min, y_min, x_max, y_max] with max > min, got {list(v)}"),
+    Param("board_search_plane_z_m", _JOB.board_search_plane_z_m, "world height of the table the board lies on [m]",
+          min=-2.0, max=2.0),
+    Param("board_search_heights_m", list(_JOB.board_search_heights_m), "camera heights above that table the search "
+          "tries, the highest the arm reaches at each place is used [m]",
+          validate=lambda v: None if len(v) > 0 and min(v) > 0 else f"board_search_heights_m needs positive heights, "
+          f"got {list(v)}"),
+    Param("board_search_max_shots", _JOB.board_search_max_shots, "views the board search takes at most", min=1,
+          max=200),
+    Param("station_height_steps_m", list(_JOB.station_height_steps_m), "camera height changes tried, in order, "
+          "for a station the arm cannot reach (it is also slid within its studs' room and its image turned) [m]",
+          validate=lambda v: None if len(v) > 0 else "station_height_steps_m needs at least one value (0.0)"),
+    Param("reach_config_timeout_s", 10.0, "wait this long at the job's start for the arm driver's "
+          "/arm/reach_config; without it the job plans without the reach test (warned) [s]", min=0.0, max=600.0),
     Param("camera_height_m", _JOB.camera_height_m, "camera height of the stations above the working plane [m]",
           min=0.05, max=2.0),
     Param("camera_yaw_deg", _JOB.camera_yaw_deg, "image yaw of the stations [deg]", min=-360.0, max=360.0),
@@ -106,6 +132,7 @@ class CellSequencer(Node):
         self.registration: Registration | None = None
         self.targets: list[WeldTargetArray] = []
         self.arm_state: ArmState | None = None
+        self.reach_config: str | None = None  # the arm driver's /arm/reach_config (JSON)
         self._arm_state_time: float | None = None  # monotonic arrival of the last /arm/state
         self._state_gap = False  # /arm/state paused during the running weld job
         self._lost_result = None  # the result future of a weld job the driver was believed to have lost
@@ -123,6 +150,8 @@ class CellSequencer(Node):
         self.create_subscription(WeldTargetArray, names.WELD_TARGETS, self._on_targets, ros_io.RESULT_QOS,
                                  callback_group=cb)
         self.create_subscription(ArmState, names.ARM_STATE, self._on_arm_state, ros_io.RESULT_QOS, callback_group=cb)
+        self.create_subscription(String, names.ARM_REACH_CONFIG, self._on_reach_config, ros_io.LATCHED_QOS,
+                                 callback_group=cb)
         # The camera's principal point and size: how central each target's match is, the tie-break of the
         # best-view rule (target_table.choose_best). K: the raw images' camera, as the matcher models them.
         self._image: tuple[float, float, int, int] | None = None
@@ -171,6 +200,23 @@ class CellSequencer(Node):
             self._arm_state_time = time.monotonic()
             self._cond.notify_all()
 
+    def _on_reach_config(self, msg: String) -> None:
+        with self._cond:
+            self.reach_config = msg.data
+            self._cond.notify_all()
+
+    def cell_reach(self) -> CellReach | None:
+        """The arm driver's reach test, from its /arm/reach_config (None, warned: not heard in time)."""
+        try:
+            text = self._wait_for(lambda: self.reach_config, self.p["reach_config_timeout_s"], names.ARM_REACH_CONFIG)
+            return CellReach.from_config(ReachConfig.from_json(text))
+        except JobAborted as exc:
+            self.get_logger().warn(f"{exc}: planning without the arm's reach test (the driver refuses what it "
+                                   "cannot do)")
+        except ReachConfigError as exc:
+            self.get_logger().error(f"{names.ARM_REACH_CONFIG} unusable ({exc}): planning without the arm's reach test")
+        return None
+
     def _tick(self) -> None:
         self.publish_status()
         self.diag.set(self.diag.ERROR if self.cell_status.state == CellStatus.STATE_FAILED else self.diag.OK,
@@ -217,12 +263,19 @@ class CellSequencer(Node):
         config = cell_job.JobConfig.from_params(p)
         config.job_id = time.strftime("%Y%m%d-%H%M%S")
         config.part = p["part_name"]
-        self.job = cell_job.CellJob(self, config)
+        self.job = cell_job.CellJob(self, config, reach=self.cell_reach())
         _state, self.exit_code = self.job.run()
 
     # -- cell_job.CellPorts ---------------------------------------------------------------------
     def status(self, state: str, message: str, **fields) -> None:
+        if "unreachable" in fields and "unreachable_reasons" not in fields:
+            fields["unreachable_reasons"] = [self._unreachable_reason(sid) for sid in fields["unreachable"]]
         self._set_state(STATE_OF_TEXT[state], message, **fields)
+
+    def _unreachable_reason(self, stud_id: str) -> str:
+        """Why the job cannot weld ``stud_id``: its QA row's reason, as the QA record says it."""
+        reasons = self.job.qa.get(stud_id, {}).get("reasons") if self.job is not None else None
+        return reasons[0] if reasons else "unreachable"
 
     def _set_state(self, state: int, message: str, **fields) -> None:
         changed = (state, message) != (self.cell_status.state, self.cell_status.message)
@@ -253,14 +306,19 @@ class CellSequencer(Node):
     def wait_layout(self) -> cell_job.Layout:
         msg = self._wait_for(lambda: self.layout, self.p["step_timeout_s"], names.DRAWING_LAYOUT)
         layout = layout_from_msg(msg)
-        return cell_job.Layout(ids=layout.ids, xy_m=layout.xy_m, source_file=layout.source_file)
+        return cell_job.Layout(ids=layout.ids, xy_m=layout.xy_m, source_file=layout.source_file, marks_m=layout.marks_m,
+                               mark_diameter_m=layout.mark_diameter_m)
 
     def move_camera(self, xyz, yaw_rad: float) -> None:
         pose = ros_io.rt_to_pose(nadir_rotation(yaw_rad), np.asarray(xyz, dtype=float))
         reply = self._call(self.cli_move, MoveTo.Request(pose=pose, frame=MoveTo.Request.FRAME_CAMERA),
                            self.p["step_timeout_s"])
         if not reply.success:
-            raise MoveRefused(f"camera move to {np.round(xyz, 3).tolist()} m refused: {reply.message}")
+            text = f"camera move to {np.round(xyz, 3).tolist()} m refused: {reply.message}"
+            if reply.message.startswith(("e-stop", "a weld job is running")):
+                raise JobAborted(text)  # the arm refuses every move: not the pose (the job stops, as before)
+            raise MoveRefused(text)     # this pose: the job skips what needed it and goes on
+        self._camera_status(xyz, yaw_rad)
         # The camera's pose comes from /arm/state: shoot only once a state from after the move
         # is out (two, so the camera node has surely seen one), or the shot uses a stale pose.
         arrived = self.get_clock().now().nanoseconds
@@ -273,6 +331,19 @@ class CellSequencer(Node):
             return len(seen) >= 2
 
         self._wait_for(settled, self.p["step_timeout_s"], "/arm/state after the move")
+
+    def _camera_status(self, xyz, yaw_rad: float) -> None:
+        """Where the camera now looks, for /cell/status (the HMI's plan draws the footprint): the
+        footprint on the part's top seen from the camera's height above the registered plane."""
+        st, p = self.cell_status, self.p
+        reg = self.registration
+        plane_z = float(reg.mark_o.z) if reg is not None and reg.valid and math.isfinite(reg.mark_o.z) else 0.0
+        try:
+            fp = list(footprint_m(p["fov_width_m"], p["fov_distance_m"], p["image_aspect"], float(xyz[2]) - plane_z,
+                                  p["part_height_m"]))
+        except StationPlanningError:  # the camera not above the part's top: no footprint to draw
+            fp = []
+        st.camera_xyz_m, st.camera_yaw_rad, st.camera_footprint_m = [float(v) for v in xyz], float(yaw_rad), fp
 
     def shoot(self) -> int:
         """One triggered shot; returns the ROS time (ns) taken just before it."""
@@ -289,10 +360,10 @@ class CellSequencer(Node):
             self.checkpoint()
             time.sleep(0.2)
 
-    def register(self) -> cell_job.Registration:
+    def register(self, attempts: int = 0) -> cell_job.Registration:
         p = self.p
         registration = None
-        for attempt in range(1, p["shot_retries"] + 1):
+        for attempt in range(1, (attempts or p["shot_retries"]) + 1):
             self.checkpoint()
             self._call(self.cli_register, Trigger.Request(), p["step_timeout_s"])
             t0 = self.shoot()
@@ -309,7 +380,7 @@ class CellSequencer(Node):
                 break
             self.get_logger().warn(f"registration attempt {attempt}: {registration.message}")
         if registration is None:
-            return cell_job.Registration(False, f"no registration result for {p['shot_retries']} shot(s)",
+            return cell_job.Registration(False, f"no registration result for {attempts or p['shot_retries']} shot(s)",
                                          np.eye(3), math.nan)
         return cell_job.Registration(bool(registration.valid), registration.message,
                                      registration_from_msg(registration), float(registration.mark_o.z))

@@ -38,8 +38,10 @@ class HandEyeLimits:
     ``mark_angle_tol_deg``: a shot's measured |OA|, |OB| and angle AOB against the drawing's.
     ``max_reprojection_px``: above it the intrinsics need attention (a warning, not a refusal).
     ``methods_agree_mm`` / ``methods_agree_deg``: closed-form methods within this of the refined
-    result agree (reported, not a refusal). ``check_max_mm`` / ``check_max_deg``: a check
-    (``verify``) fails when the hand-eye its own shots give is farther than this from the one checked.
+    result agree (reported, not a refusal). ``check_max_mm`` / ``check_max_deg``: the hand-eye error a check
+    (``verify``) must catch: its own shots' hand-eye farther than this from the one checked fails it,
+    whatever the noise; its pass limits are these less what the noise its shots show explains
+    (stud_perception.hand_eye_spread), and it takes as many views as that noise needs.
     """
 
     min_poses: int = 12

@@ -39,7 +39,8 @@ _LIMIT_TEXT = {
     "max_reprojection_px": ("above this reprojection RMS the intrinsics need attention (a warning) [px]", 0.01, 100.0),
     "methods_agree_mm": ("closed-form methods within this of the result agree (reported) [mm]", 0.001, 1000.0),
     "methods_agree_deg": ("closed-form methods within this of the result agree (reported) [deg]", 0.001, 180.0),
-    "check_max_mm": ("a check fails when its shots' own hand-eye is farther than this from the one checked [mm]",
+    "check_max_mm": ("the hand-eye error a check must catch: it fails when its shots' own hand-eye is farther "
+                     "than this, less what the shots' noise explains, from the one checked [mm]",
                      0.001, 100.0),
     "check_max_deg": ("the same for the rotation [deg]", 0.001, 90.0),
 }

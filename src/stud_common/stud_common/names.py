@@ -32,12 +32,14 @@ ARM_STATE = "/arm/state"
 ARM_WELDS = "/arm/welds"
 ARM_WELD_JOB = "/arm/weld_job"                     # action stud_welding_msgs/action/WeldJob
 ARM_MOVE_TO = "/arm/move_to"
+ARM_RAIL_MOVE = "/arm/rail_move"                   # stud_welding_msgs/srv/RailMove: the carriage along the rail
 ARM_STOP = "/arm/stop"
 ARM_PAUSE = "/arm/pause"
 ARM_RESUME = "/arm/resume"
 ARM_ESTOP = "/arm/estop"
 ARM_RESOLVE_STUD = "/arm/resolve_stud"
 ARM_RESOLVE_JOURNAL = "/arm/resolve_journal"
+ARM_REACH_CONFIG = "/arm/reach_config"             # std_msgs/String, JSON: rm65_driver.weld.reach.ReachConfig
 JOINT_STATES = "/joint_states"
 ROBOT_DESCRIPTION = "/robot_description"
 

@@ -147,7 +147,7 @@ def sensor_qos(choice: str) -> QoSProfile:
 
 def three_numbers(name: str) -> Callable[[Any], str | None]:
     """A :class:`Param` validator: ``name`` must hold 3 numbers (an x, y, z or a roll, pitch, yaw)."""
-    return lambda v: None if len(v) == 3 else f"{name} needs 3 numbers, got {list(v)}"
+    return lambda v: None if v is not None and len(v) == 3 else f"{name} needs 3 numbers, got {list(v or [])}"
 
 
 #: The ``sensor_qos`` parameter of the nodes that take camera views (:func:`sensor_qos`).
@@ -171,7 +171,16 @@ def declare_params(node: Node, params: list[Param], on_change: Callable[[dict], 
     ``SystemExit(2)`` -- never a traceback, never a node that starts and fails later. At run time
     the same checks refuse the change through the parameter callback.
     """
-    from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+    from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterValueException,
+                                  ParameterUninitializedException)
+
+    def current(p: Param) -> Any:
+        # An empty list (a parameter file's [], -p name:=[]) has no ROS type: rclpy holds it as "not set".
+        try:
+            value = node.get_parameter(p.name).value
+        except ParameterUninitializedException:
+            value = None
+        return [] if value is None and isinstance(p.default, list) else value
 
     by_name = {p.name: p for p in params}
     problems = []
@@ -189,7 +198,7 @@ def declare_params(node: Node, params: list[Param], on_change: Callable[[dict], 
             wrong_type = isinstance(exc, InvalidParameterTypeException)
             problems.append(f"{p.name}={_show(value)}"
                             + (f" ({type(value).__name__})" if wrong_type else "") + f": expected {p.expected()}")
-    values = {p.name: node.get_parameter(p.name).value for p in params}
+    values = {p.name: current(p) for p in params}
     problems += [r for p in params if not any(x.startswith(p.name + "=") for x in problems)
                  and (r := p.check(values[p.name]))]
     if not problems and check is not None:

@@ -42,7 +42,7 @@ ALARMS: dict[str, AlarmDef] = {d.code: d for d in (
     AlarmDef(Code.UNCERTAIN, Severity.WARNING, "uncertain studs need a decision"),
     AlarmDef(Code.CELL_FAILED, Severity.ERROR, "cell job failed"),
     AlarmDef(Code.CELL_LOST, Severity.ERROR, "no cell status"),
-    AlarmDef(Code.UNREACHABLE, Severity.WARNING, "studs no station reaches"),
+    AlarmDef(Code.UNREACHABLE, Severity.WARNING, "studs the arm cannot weld (named with the reason)"),
     AlarmDef(Code.REGISTRATION, Severity.WARNING, "registration not valid"),
     AlarmDef(Code.REWORK, Severity.WARNING, "studs need a rework decision"),
     AlarmDef(Code.HAND_EYE, Severity.ERROR, "nodes use different hand-eye calibrations"),

@@ -19,7 +19,9 @@ integrator needs to build another HMI on the same interfaces is in docs/HMI.md.
   publishes   /diagnostics (address, connected browsers)
 
 What the page says (alarms, the safety banner, which buttons are valid, progress and timing) is
-decided in :mod:`stud_hmi.model` (CellView); this node feeds it and sends its messages.
+decided in :mod:`stud_hmi.model` (CellView), the plan of the part (every stud where it is, the
+carriage on its rail, the station being worked) in :mod:`stud_hmi.part_plan`; this node feeds them
+and sends their messages.
 
 The server binds to 127.0.0.1 unless ``bind_address`` says otherwise: the page can start and
 stop the cell, so opening it to a network is the integrator's decision, and takes an
@@ -53,8 +55,9 @@ from stud_welding_msgs.srv import RecordRework, ResolveStud
 
 from stud_common import hand_eye_ros, ros_io
 from stud_perception import image_io
-from stud_common.ros_io import Param
+from stud_common.ros_io import Param, three_numbers
 from stud_hmi.model import STUD_DECISIONS, ArmInfo, ArmMode, CellInfo, CellView, TargetInfo, Timeouts
+from stud_hmi.part_plan import RM65_REACH_M, PartPlan, RailConfig, StationInfo
 from stud_inspection.inspector_node import REWORK_QOS
 from stud_hmi.server import INSPECTION_OVERLAY_URL, HmiServer, WebSocketConnection, default_static_dir
 from stud_common import names
@@ -90,6 +93,14 @@ PARAMS = [
     Param("diagnostics_timeout_s", 10.0, "a node's WARN/ERROR alarm clears when the node has not repeated it for "
           "this long [s] (nodes publish /diagnostics every second)", min=1.0, max=600.0),
     Param("table_rate_hz", 5.0, "send the stud table at most this often when it changes [Hz]", min=0.2, max=50.0),
+    # The plan of the part (stud_hmi.part_plan): the rail as the arm driver has it (pass the driver's values).
+    Param("rail_length_m", 0.0, "the rail's travel as the arm driver's rail_length_m [m]: the plan draws the rail "
+          "and the carriage; 0: no rail given (one is still drawn once /arm/state shows the carriage off zero)",
+          min=0.0, max=100.0, read_only=True),
+    Param("rail_mount_xyz_m", [0.0, 0.0, 0.0], "the arm's base on the carriage, as the driver's rail_mount_xyz_m "
+          "[m]: the reach circle is drawn about it", validate=three_numbers("rail_mount_xyz_m"), read_only=True),
+    Param("arm_reach_m", RM65_REACH_M, "the arm's working radius about its base, drawn around the carriage [m]",
+          min=0.05, max=5.0, read_only=True),
 ]
 
 @dataclass(frozen=True)
@@ -172,6 +183,8 @@ class HmiNode(Node):
         self.view = CellView(Timeouts(self.p["arm_timeout_s"], self.p["cell_timeout_s"],
                                       self.p["diagnostics_timeout_s"]), self.p["max_alarm_history"])
         self.table = self.view.table
+        self.plan = PartPlan(RailConfig(self.p["rail_length_m"], tuple(self.p["rail_mount_xyz_m"]),
+                                        self.p["arm_reach_m"]))
         self._table_dirty = False
         self._overlay: Image | None = None
         self._layout_key: tuple | None = None
@@ -247,6 +260,13 @@ class HmiNode(Node):
         if key != self._layout_key:
             self._layout_key = key
             self.view.set_layout((s.id for s in msg.studs), msg.source_file, self.p["part_name"], msg.warnings)
+            self.plan.set_layout([s.id for s in msg.studs], [(s.x, s.y) for s in msg.studs],
+                                 [s.diameter for s in msg.studs],
+                                 [("O", (msg.mark_o.x, msg.mark_o.y)), ("A", (msg.mark_a.x, msg.mark_a.y)),
+                                  ("B", (msg.mark_b.x, msg.mark_b.y)),
+                                  *((label, (m.x, m.y)) for label, m in zip(msg.reference_mark_labels,
+                                                                            msg.reference_marks))],
+                                 msg.mark_diameter)
             self._table_dirty = True
 
     def _on_targets(self, msg: WeldTargetArray) -> None:
@@ -296,6 +316,7 @@ class HmiNode(Node):
         if self.view.on_arm(ArmInfo(int(msg.mode), bool(msg.connected), msg.current_stud, msg.message,
                                     tuple(msg.errors), tuple(msg.uncertain_studs)), time.time()):
             self._table_dirty = True
+        self.plan.on_arm(msg.rail_position_m, msg.rail_moving, msg.uncertain_studs)
         p = msg.tool_pose.position
         mode = self.view.arm_mode
         self.server.publish({
@@ -304,20 +325,29 @@ class HmiNode(Node):
             "total": int(msg.total), "error_codes": [int(c) for c in msg.error_codes], "errors": list(msg.errors),
             "message": msg.message, "tool_position_mm": [p.x * 1000.0, p.y * 1000.0, p.z * 1000.0],
             "joints_deg": [v * 57.29577951308232 for v in msg.joints],
-            "uncertain_studs": list(msg.uncertain_studs)})
+            "uncertain_studs": list(msg.uncertain_studs),
+            "rail_position_m": msg.rail_position_m, "rail_moving": bool(msg.rail_moving),
+            "carriage": self.plan.carriage()})
 
     def _on_cell(self, msg: CellStatus) -> None:
-        self.view.on_cell(CellInfo(int(msg.state), int(msg.station), int(msg.stations_total), int(msg.studs_total),
-                                   int(msg.studs_welded), int(msg.studs_failed), tuple(msg.unreachable), msg.message),
-                          time.time())
+        if self.view.on_cell(CellInfo(int(msg.state), int(msg.station), int(msg.stations_total), int(msg.studs_total),
+                                      int(msg.studs_welded), int(msg.studs_failed), tuple(msg.unreachable), msg.message,
+                                      tuple(msg.unreachable_reasons)), time.time()):
+            self._table_dirty = True
+        self.plan.on_cell(StationInfo(int(msg.state), int(msg.station), int(msg.stations_total),
+                                      tuple(msg.unreachable), tuple(msg.unreachable_reasons),
+                                      tuple(msg.camera_xyz_m), float(msg.camera_yaw_rad),
+                                      tuple(msg.camera_footprint_m)))
         self.server.publish({
             "type": "cell", "state": msg.state_text, "state_code": int(msg.state), "station": int(msg.station),
             "stations_total": int(msg.stations_total), "studs_total": int(msg.studs_total),
             "studs_welded": int(msg.studs_welded), "studs_failed": int(msg.studs_failed),
-            "unreachable": list(msg.unreachable), "message": msg.message})
+            "unreachable": list(msg.unreachable), "unreachable_reasons": list(msg.unreachable_reasons),
+            "message": msg.message})
 
     def _on_registration(self, msg: Registration) -> None:
         self.view.on_registration(bool(msg.valid), msg.residual * 1000.0, msg.message, time.time())
+        self.plan.set_registration(bool(msg.valid), msg.m_local2world, msg.message)
         self.server.publish({"type": "registration", "valid": bool(msg.valid), "residual_mm": msg.residual * 1000.0,
                              "message": msg.message})
 
@@ -382,6 +412,9 @@ class HmiNode(Node):
                              "stamp": ros_io.stamp_to_ns(msg.header.stamp) * 1e-9})
 
     def _flush(self) -> None:
+        if self._table_dirty or self.plan.changed:  # the plan's colours are the table's states
+            self.plan.changed = False
+            self.server.publish(self.plan.message(self.table.rows()))
         if self._table_dirty:
             self._table_dirty = False
             self.server.publish(self.table.message())

@@ -77,6 +77,7 @@ class CellInfo:
     studs_failed: int = 0
     unreachable: tuple[str, ...] = ()
     message: str = ""
+    unreachable_reasons: tuple[str, ...] = ()   # one per unreachable id ("unreachable: approach pose ...")
 
 
 @dataclass(frozen=True)
@@ -150,20 +151,23 @@ class CellView:
         self.changed = True
         return table_changed
 
-    def on_cell(self, cell: CellInfo, now: float) -> None:
+    def on_cell(self, cell: CellInfo, now: float) -> bool:
+        """``/cell/status``; True when the stud table changed (studs named unreachable, or no longer)."""
         self.cell, self._cell_at = cell, now
+        table_changed = self.table.set_unreachable(dict(zip(cell.unreachable, cell.unreachable_reasons)))
         self.clock.cell_state(cell.state, now)
         causes: dict[tuple[str, str], str] = {}
         src = "cell_sequencer"
         if cell.state == CellState.FAILED and not cell.message.startswith(OPERATOR_STOP_TEXT):
             causes[Code.CELL_FAILED, src] = cell.message or "the job ended in failure"
         if cell.unreachable:
-            causes[Code.UNREACHABLE, src] = (f"{len(cell.unreachable)} stud(s) no station can reach: "
+            causes[Code.UNREACHABLE, src] = (f"{len(cell.unreachable)} stud(s) the arm cannot weld (see the stud table): "
                                              f"{', '.join(cell.unreachable[:10])}"
                                              f"{' …' if len(cell.unreachable) > 10 else ''}")
         self.alarms.update("cell", causes, now)
         self.alarms.update("cell_link", {}, now)
         self.changed = True
+        return table_changed
 
     def on_registration(self, valid: bool, residual_mm: float, message: str, now: float) -> None:
         self.registration = {"valid": valid, "residual_mm": residual_mm, "message": message}

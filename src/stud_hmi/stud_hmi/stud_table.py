@@ -20,6 +20,7 @@ _ACTIVE_PHASES = ("approach", "descend", "weld", "dwell")
 _WELDED_PHASE = "retract"
 STATUS_OUT_OF_VIEW = TargetStatus.OUT_OF_VIEW.text
 STATUS_NOT_SEEN = "not_seen"  # in the drawing, in no view yet
+STATUS_UNREACHABLE = "unreachable"  # the cell named it as one it cannot weld (/cell/status, with the reason)
 
 
 @dataclass(frozen=True)
@@ -46,6 +47,7 @@ class StudTable:
         self._active = ""  # the stud the arm is on now
         self._inspection: dict[str, tuple[str, tuple[str, ...]]] = {}  # stud -> (verdict, reasons)
         self._rework: dict[str, str] = {}  # stud -> the operator's decision ("rework" / "accept")
+        self._unreachable: dict[str, str] = {}  # stud -> why the cell cannot weld it (/cell/status)
         self._has_layout = False
         self.view = -1
         self.algorithm = ""
@@ -131,6 +133,15 @@ class StudTable:
         self._known(stud_id)
         self._rework[stud_id] = decision
 
+    def set_unreachable(self, reasons: dict[str, str]) -> bool:
+        """The studs the cell names as ones it cannot weld, with the reason (``/cell/status``); True if that changed."""
+        if reasons == self._unreachable:
+            return False
+        for sid in reasons:
+            self._known(sid)
+        self._unreachable = dict(reasons)
+        return True
+
     def awaiting_rework(self) -> list[dict]:
         """Inspected studs that did not pass and have no decision yet, in table order."""
         out = []
@@ -155,7 +166,8 @@ class StudTable:
         for sid in self._order:
             t = self._targets.get(sid)
             weld = self.weld_state(sid)
-            row = {"stud_id": sid, "status": t.status if t else STATUS_NOT_SEEN,
+            named = sid in self._unreachable and weld != WELD_WELDED
+            row = {"stud_id": sid, "status": STATUS_UNREACHABLE if named else t.status if t else STATUS_NOT_SEEN,
                    "status_code": t.status_code if t else None,
                    "inclination_deg": t.inclination_deg if t else None,
                    "position_mm": [v * 1000.0 for v in t.position_m] if t else None,
@@ -164,7 +176,8 @@ class StudTable:
                    "weld": weld, "phase": self._phase.get(sid, ""), "welded": weld == WELD_WELDED,
                    "inspection": self._inspection.get(sid, ("", ()))[0],
                    "inspection_reasons": list(self._inspection.get(sid, ("", ()))[1]),
-                   "rework": self._rework.get(sid, "")}
+                   "rework": self._rework.get(sid, ""),
+                   "reason": self._unreachable.get(sid, "") if named else ""}
             out.append(row)
         return out
 
@@ -180,6 +193,8 @@ class StudTable:
         for sid in self._order:
             t = self._targets.get(sid)
             key = t.status if t else STATUS_NOT_SEEN
+            if sid in self._unreachable and self.weld_state(sid) != WELD_WELDED:
+                key = STATUS_UNREACHABLE
             counts[key] = counts.get(key, 0) + 1
         return counts
 

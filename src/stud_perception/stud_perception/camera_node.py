@@ -11,6 +11,11 @@ pose in ``/arm/state`` times the hand-eye transform (tool -> optical frame). Lik
 the sim has two of those: the image is rendered with the TRUE one (``true_hand_eye_*``, by
 default the believed one), ``/camera/pose`` carries the BELIEVED one (``hand_eye_*``, or
 ``hand_eye_file``), which is also published on ``/calibration/hand_eye`` (docs/CALIBRATION.md).
+On a rail the same holds for the carriage: ``/arm/state`` places the tool on the straight, exact rail
+the cell believes in (its ``rail_position_m``, the encoder's), the image is rendered where the arm truly
+is, with the rail's TRUE deviation (``true_rail_*``, sim-only: scale, offset, yaw per metre;
+:func:`stud_common.frames.true_world_correction`); the welded studs of ``/arm/welds`` stand where they
+truly are the same way.
 
 With a real camera, run the vendor's ROS 2 driver instead and remap its topics onto the
 four above (see the package README); nothing downstream depends on this node.
@@ -33,12 +38,14 @@ from stud_perception.camera_model import CameraModel
 from stud_perception.rectify import FISHEYE_MODELS, PINHOLE_MODELS, has_distortion
 from stud_common.ros_io import Param, three_numbers
 from stud_common.hand_eye_in_use import camera_in_world
+from stud_common.frames import RailDeviation, true_world_correction
 from stud_common.rotations import transform, transform_xyz_rpy
 from stud_perception.scene import demo_dome_scene
 from stud_perception.scene_cameras import (DEMO_FOV_DISTANCE_M, DEMO_FOV_WIDTH_M, DEMO_IMAGE_SIZE, distort_view,
                                            view_camera)
 from stud_perception.scene_file import load_scene
 from stud_perception.scene_render import render
+from stud_perception.scene_sensor import MAX_DEPTH_NOISE_M
 from stud_perception.scene_solids import SceneError
 from stud_perception.welded_studs import StudCylinder, welded_stud
 from stud_common import names
@@ -54,7 +61,7 @@ def _distortion_d(d) -> str | None:
 PARAMS = [
     Param("source", "sim", "where frames come from; only 'sim' here (real cameras: run the vendor driver)",
           choices=("sim",), read_only=True),
-    Param("scene_file", "", "scene description (.json/.yaml, see stud_perception/scene_file.py); "
+    Param("scene_file", "", "scene description (.json/.yaml, docs/SCENES.md); "
           "empty: the bundled dome"),
     Param("image_width", DEMO_IMAGE_SIZE[0], "image width [px]", min=16, max=8192),
     Param("image_height", DEMO_IMAGE_SIZE[1], "image height [px]", min=16, max=8192),
@@ -62,7 +69,8 @@ PARAMS = [
     Param("fov_distance_m", DEMO_FOV_DISTANCE_M, "distance at which fov_width_m is spanned [m]", min=0.05, max=10.0),
     Param("depth_encoding", "16UC1", "depth image encoding: '16UC1' (mm, 0 = none; what RGB-D drivers send) or "
           "'32FC1' (m, NaN = none; not quantised)", choices=("16UC1", "32FC1")),
-    Param("depth_noise_m", 0.0005, "std of Gaussian depth noise [m]", min=0.0, max=0.05),
+    Param("depth_noise_m", 0.0005, "std of Gaussian depth noise [m] (at most the cell's working envelope: beyond "
+          "it the hand-eye cannot be verified to 0.5 mm / 0.15 deg)", min=0.0, max=MAX_DEPTH_NOISE_M),
     Param("depth_noise_correlation_px", 1.5, "how far the depth noise is correlated across pixels, as a real "
           "structured-light camera's is (sigma of a Gaussian blur of the noise; 0: independent pixels) [px]",
           min=0.0, max=20.0),
@@ -90,6 +98,12 @@ PARAMS = [
     Param("true_hand_eye_rpy_deg", [math.nan] * 3, "sim only: the camera's TRUE orientation in the tool frame, "
           "roll-pitch-yaw, used to render [deg]; NaN: the believed hand-eye", validate=three_numbers("true_hand_eye_rpy_deg"),
           nan_means="the believed hand-eye"),
+    Param("true_rail_scale_ppm", 0.0, "sim only, with a rail: the carriage really travels (1 + this x 1e-6) m per "
+          "metre the encoder counts, used to render [ppm]", min=-1e5, max=1e5),
+    Param("true_rail_offset_m", 0.0, "sim only, with a rail: where the encoder's zero really is along the rail, "
+          "used to render [m]", min=-1.0, max=1.0),
+    Param("true_rail_yaw_urad_per_m", 0.0, "sim only, with a rail: the carriage's heading turns this much per metre "
+          "(a rail bent in plan), used to render [urad/m]", min=-1e5, max=1e5),
     Param("distortion_model", "plumb_bob", "lens distortion model of the raw images (CameraInfo distortion_model)",
           choices=PINHOLE_MODELS + FISHEYE_MODELS),
     Param("distortion_d", [0.0, 0.0, 0.0, 0.0, 0.0], "lens distortion coefficients of the raw images, OpenCV "
@@ -154,6 +168,9 @@ class CameraNode(Node):
                                     zip(self.p["true_hand_eye_xyz_m"], self.hand_eye.xyz_m)),
                               tuple(v if math.isfinite(v) else b for v, b in
                                     zip(self.p["true_hand_eye_rpy_deg"], self.hand_eye.rpy_deg)))
+        self.rail_deviation = RailDeviation(self.p["true_rail_scale_ppm"], self.p["true_rail_offset_m"],
+                                            self.p["true_rail_yaw_urad_per_m"])
+        self._rail_m = 0.0  # the carriage in the last /arm/state (the encoder's, m)
         if self.p["pose_source"] == "arm":
             self.calibration_topic = hand_eye_ros.CalibrationTopic(self, self.hand_eye)
         self.create_timer(1.0, self.diag.publish)
@@ -180,8 +197,15 @@ class CameraNode(Node):
             f"'{self.p['scene_file'] or 'bundled dome'}' ({len(self.scene.stud_ids)} studs), pose from "
             f"{self.p['pose_source']}, {'%.1f Hz' % self.p['rate_hz'] if self.p['rate_hz'] else 'on /camera/trigger'}")
 
+    def _true_pose(self, R: np.ndarray, t: np.ndarray, rail_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """A pose the driver reports in world, moved to where the rail's true deviation puts it."""
+        if self.rail_deviation == RailDeviation():
+            return R, t
+        C = true_world_correction(rail_m, self.rail_deviation)
+        return C[:3, :3] @ R, C[:3, :3] @ t + C[:3, 3]
+
     def _on_weld(self, msg) -> None:
-        R, t = ros_io.pose_to_rt(msg.tool_pose)
+        R, t = self._true_pose(*ros_io.pose_to_rt(msg.tool_pose), msg.rail_position_m)
         if msg.stud_id not in self.scene.stud_ids:
             self.get_logger().warn(f"welded stud {msg.stud_id!r} is not a stud of the scene: shown without its "
                                    "scene defects", throttle_duration_sec=5.0)
@@ -196,6 +220,7 @@ class CameraNode(Node):
     # -- pose -----------------------------------------------------------------------------------
     def _on_arm_state(self, msg) -> None:
         self._arm_tool_pose = ros_io.pose_to_rt(msg.tool_pose)
+        self._rail_m = msg.rail_position_m
         self._arm_pose_time = self.get_clock().now()
 
     def camera_model(self, true_pose: bool = False) -> CameraModel | None:
@@ -214,7 +239,8 @@ class CameraNode(Node):
         if (self.get_clock().now() - self._arm_pose_time).nanoseconds * 1e-9 > p["max_pose_age_s"]:
             return None  # a stale pose would put the picture somewhere else than the pose says
         xyz, rpy = self.true_hand_eye if true_pose else (self.hand_eye.xyz_m, self.hand_eye.rpy_deg)
-        return template.with_pose(*camera_pose_from_tool(*self._arm_tool_pose, xyz, rpy))
+        tool = self._true_pose(*self._arm_tool_pose, self._rail_m) if true_pose else self._arm_tool_pose
+        return template.with_pose(*camera_pose_from_tool(*tool, xyz, rpy))
 
     # -- shots ------------------------------------------------------------------------------------
     def shoot(self) -> tuple[bool, str]:

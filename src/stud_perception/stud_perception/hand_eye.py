@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -35,10 +36,11 @@ from stud_common.hand_eye_in_use import HandEyeLimits
 from stud_common.rotations import matrix_to_quaternion, matrix_to_rpy, rigid_inverse, transform
 from stud_perception.hand_eye_solvers import (HandEyeError, project_so3, rotation_angle_deg, rotation_exp, rotation_log,
                                               solve_ax_xb)
+from stud_perception.hand_eye_spread import CheckLimits, check_limits, measure_mark_noise, solution_covariance
 
 __all__ = ["BoardShot", "MarkCheck", "HandEyeResult", "HandEyeCheck",
            "board_points_m", "board_pose_from_marks", "check_marks", "rotation_spread_deg", "pose_set_problems",
-           "calibrate_hand_eye", "check_hand_eye", "rebase_camera_pose"]
+           "calibrate_hand_eye", "check_hand_eye", "check_with_enough_views", "rebase_camera_pose"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -428,6 +430,9 @@ class HandEyeCheck:
     T_tool_cam_shots: np.ndarray | None = None
     difference_mm: float = float("nan")
     difference_deg: float = float("nan")
+    #: The limits the difference was held to, from the marks' noise the shots show and their number
+    #: (:mod:`stud_perception.hand_eye_spread`); None when the difference was not tested.
+    spread: CheckLimits | None = None
 
     @property
     def passed(self) -> bool:
@@ -450,8 +455,36 @@ class HandEyeCheck:
         return float(np.max(self.shot_residual_deg))
 
 
+def _mark_jacobian(X: np.ndarray, T_world_board: np.ndarray, T_world_tool: np.ndarray, board_pts: np.ndarray,
+                   eps: float = 1e-7) -> np.ndarray:
+    """d(marks predicted in ``cam``) / d(X's rotation vector and translation, the board's): (3m, 12)."""
+    def marks(d):
+        return _predict(_perturb(X, d[:6]), _perturb(T_world_board, d[6:]), T_world_tool, board_pts)[0].ravel()
+
+    J = np.empty((3 * 3 * len(T_world_tool), 12))
+    for k in range(12):
+        d = np.zeros(12)
+        d[k] = eps
+        J[:, k] = (marks(d) - marks(-d)) / (2 * eps)
+    return J
+
+
+def check_spread(X_shots: np.ndarray, T_world_board: np.ndarray, T_world_tool: np.ndarray, marks: np.ndarray,
+                 board_pts: np.ndarray, limits: HandEyeLimits, reference_views: int = 0) -> CheckLimits:
+    """The limits of a check whose own shots give ``X_shots`` and the board ``T_world_board`` (the full
+    fit): the marks' noise measured on its residuals, the spread of ``X_shots`` it implies, and the limits
+    that catch an error of ``check_max_mm`` / ``check_max_deg`` (:mod:`stud_perception.hand_eye_spread`)."""
+    J = _mark_jacobian(X_shots, T_world_board, T_world_tool, board_pts)
+    m = marks.reshape(-1, 3)
+    rays = m / np.linalg.norm(m, axis=1, keepdims=True)
+    residuals = _predict(X_shots, T_world_board, T_world_tool, board_pts)[0].reshape(-1, 3) - m
+    noise = measure_mark_noise(residuals, rays, J, RAY_WEIGHT)
+    cov = solution_covariance(J, rays, RAY_WEIGHT, noise)
+    return check_limits(cov, noise, len(T_world_tool), limits.check_max_mm, limits.check_max_deg, reference_views)
+
+
 def check_hand_eye(shots: list[BoardShot], T_tool_cam: np.ndarray, drawing_marks_m,
-                   limits: HandEyeLimits = HandEyeLimits()) -> HandEyeCheck:
+                   limits: HandEyeLimits = HandEyeLimits(), reference_views: int = 0) -> HandEyeCheck:
     """How well ``T_tool_cam`` explains a few shots of the board. Two tests:
 
     * the residuals: the board pose is fitted (it may have been moved since the calibration), the
@@ -459,10 +492,15 @@ def check_hand_eye(shots: list[BoardShot], T_tool_cam: np.ndarray, drawing_marks
       marks' residuals (``max_rms_mm``, ``max_shot_mm``) and each shot's board orientation
       (``max_shot_deg``) are checked.
     * the difference: the hand-eye is solved from the check's shots alone and compared with the one
-      checked (``check_max_mm``, ``check_max_deg``). This sees what the residuals hardly show: a
-      rotation about the optical axis moves marks near the image centre little, and the few views'
-      orientation residuals carry it at a fraction of its size, under the three marks' noise.
-      It needs rotations about two axes (``CHECK_MIN_SPREAD_DEG``); with fewer, it is skipped.
+      checked. This sees what the residuals hardly show: a rotation about the optical axis moves
+      marks near the image centre little, and the few views' orientation residuals carry it at a
+      fraction of its size, under the three marks' noise. Its limits follow from the marks' noise
+      the shots show and their number (:func:`check_spread`): an error of ``check_max_mm`` /
+      ``check_max_deg`` fails, a correct hand-eye passes, each but with probability ``ALPHA``; when
+      the noise is too large for the views to tell the two apart the check fails as inconclusive and
+      ``spread.views_needed`` says how many views would do. ``reference_views``: the shots of the
+      calibration checked (its own error counts; 0: taken as exact). It needs rotations about two
+      axes (``CHECK_MIN_SPREAD_DEG``); with fewer, it is skipped.
 
     Needs two shots at least (more, at different tilts, see more)."""
     shots = list(shots)
@@ -478,15 +516,49 @@ def check_hand_eye(shots: list[BoardShot], T_tool_cam: np.ndarray, drawing_marks
                                solve_x=False, ray_weight=RAY_WEIGHT)
     res = _residuals(X, T_world_board, shots, board_pts)
     problems += _residual_problems(res, limits, orientation_rms=False)
-    X_shots, mm, deg = None, float("nan"), float("nan")
+    X_shots, mm, deg, spread = None, float("nan"), float("nan"), None
     if len(shots) >= 3 and rotation_spread_deg(T_world_tool[:, :3, :3])[1] >= CHECK_MIN_SPREAD_DEG:
-        X_shots, _ = _refine(X, T_world_board, T_world_tool, marks, board_pts, ray_weight=RAY_WEIGHT)
+        X_shots, T_world_board_shots = _refine(X, T_world_board, T_world_tool, marks, board_pts, ray_weight=RAY_WEIGHT)
         mm, deg = _difference(X, X_shots)
-        if mm > limits.check_max_mm or deg > limits.check_max_deg:
+        spread = check_spread(X_shots, T_world_board_shots, T_world_tool, marks, board_pts, limits, reference_views)
+        if not spread.conclusive:
+            remedy = (f"take at least {spread.views_needed} views" if spread.views_needed else
+                      f"no number of views will do: the calibration's own {reference_views} shots leave it too uncertain "
+                      "at this noise; recalibrate with more poses")
+            problems.append(f"inconclusive: {spread.describe()}, so an error of {limits.check_max_mm:g} mm / "
+                            f"{limits.check_max_deg:g} deg could hide in it; {remedy}")
+        elif mm > spread.limit_mm or deg > spread.limit_deg:
             problems.append(f"the check's shots put the hand-eye {mm:.2f} mm / {deg:.3f} deg from the one checked "
-                            f"(limits {limits.check_max_mm:g} mm / {limits.check_max_deg:g} deg)")
+                            f"(limits {spread.limit_mm:.2f} mm / {spread.limit_deg:.3f} deg: the "
+                            f"{limits.check_max_mm:g} mm / {limits.check_max_deg:g} deg to catch, less what noise "
+                            f"explains)")
     return HandEyeCheck(res.shot_mm, res.shot_deg, res.reprojection_px, T_world_board, tuple(problems),
-                        X_shots, mm, deg)
+                        X_shots, mm, deg, spread)
 
 
-
+def check_with_enough_views(shoot: Callable[[int], list[BoardShot]], T_tool_cam: np.ndarray, drawing_marks_m,
+                            limits: HandEyeLimits = HandEyeLimits(), reference_views: int = 0, first_views: int = 5,
+                            max_views: int = 60, on_more: Callable[[HandEyeCheck, int], None] | None = None,
+                            rounds: int = 4) -> HandEyeCheck:
+    """``verify``'s procedure: ``shoot(k)`` takes ``k`` more shots (fewer when views fail) of the check
+    views, again as often as asked. It starts with ``first_views``; while the noise the shots show needs
+    more views to tell a ``check_max`` error from noise (``spread.views_needed``), it takes more, up to
+    ``max_views`` in all (the measured noise settles as shots come in: a few rounds). ``on_more(check,
+    wanted)`` hears of each round. Returns the last check (inconclusive, and so failed, when even
+    ``max_views`` would not do)."""
+    shots = list(shoot(first_views))
+    check = check_hand_eye(shots, T_tool_cam, drawing_marks_m, limits, reference_views)
+    for _ in range(rounds):
+        spread = check.spread
+        if spread is None or spread.conclusive or len(shots) >= max_views:
+            break
+        # none would do by this estimate: take all there may be, the noise is measured better with them
+        wanted = min(spread.views_needed or max_views, max_views)
+        if on_more is not None:
+            on_more(check, wanted)
+        more = list(shoot(wanted - len(shots)))
+        if not more:
+            break
+        shots += more
+        check = check_hand_eye(shots, T_tool_cam, drawing_marks_m, limits, reference_views)
+    return check

@@ -108,6 +108,14 @@ def check_record(check: HandEyeCheck, in_use: HandEyeInUse, *, date: str | None 
             "hand_eye_from_shots": None if check.T_tool_cam_shots is None else {
                 "difference_mm": _num(check.difference_mm), "difference_deg": _num(check.difference_deg),
                 "transform": _pose(check.T_tool_cam_shots)},
+            # the difference's limits, from the marks' noise the shots show and their number (hand_eye_spread.py)
+            "limits_from_noise": None if check.spread is None else {
+                "mark_noise_along_ray_mm": _num(check.spread.noise.along_m * 1e3, 5),
+                "mark_noise_across_ray_mm": _num(check.spread.noise.across_m * 1e3, 5),
+                "noise_bound_mm": _num(check.spread.bound_mm), "noise_bound_deg": _num(check.spread.bound_deg),
+                "limit_mm": _num(check.spread.limit_mm), "limit_deg": _num(check.spread.limit_deg),
+                "conclusive": check.spread.conclusive, "views": check.spread.views,
+                "views_needed": check.spread.views_needed},
             "board_in_world": _pose(check.T_world_board), "problems": list(check.problems),
             "shots": [{"residual_mm": _num(mm), "residual_deg": _num(deg)}
                       for mm, deg in zip(check.shot_residual_mm, check.shot_residual_deg)]}

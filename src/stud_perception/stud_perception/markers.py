@@ -445,10 +445,10 @@ def _board_depth(masked: np.ndarray, uv: np.ndarray, reach_px: np.ndarray, max_w
 
 
 def _lift_candidates(cand: np.ndarray, depth_m: np.ndarray, camera: CameraModel, config: MarkDetectorConfig,
-                     border_note: str):
+                     border_note: str, need: int = 3):
     """Stage 3: depth of the board around each candidate (the mark discs masked, the window grown into
     the board), candidates too small or large for their depth dropped. A :class:`_Lifted`, or the
-    NO_CANDIDATES / NO_DEPTH :class:`MarkDetection` when fewer than three remain."""
+    NO_CANDIDATES / NO_DEPTH :class:`MarkDetection` when fewer than ``need`` remain."""
     uv, r_eq, r_major = cand[:, :2], cand[:, 2], cand[:, 3]
     r_m = config.mark_diameter_m / 2
     masked = np.array(depth_m, dtype=np.float32, copy=True)
@@ -471,14 +471,14 @@ def _lift_candidates(cand: np.ndarray, depth_m: np.ndarray, camera: CameraModel,
     uv, r_eq, world, rules, reach_px = uv[keep], r_eq[keep], world[keep], rules[keep], reach_px[keep]
     has_depth = has_depth[keep]
     n_nodepth = int((~has_depth).sum())
-    if len(uv) < 3:
+    if len(uv) < need:
         return _failure(
             MarkStatus.NO_CANDIDATES,
-            f"{len(uv)} mark-sized circle(s) found, need 3 (mark diameter {config.mark_diameter_m * 1000:.0f} mm)"
+            f"{len(uv)} mark-sized circle(s) found, need {need} (mark diameter {config.mark_diameter_m * 1000:.0f} mm)"
             f"{border_note}",
             uv, r_eq, world,
         )
-    if np.count_nonzero(has_depth) < 3:
+    if np.count_nonzero(has_depth) < need:
         return _failure(
             MarkStatus.NO_DEPTH,
             f"{n_nodepth} of {len(uv)} mark candidates have no depth on the board around them{border_note}",
@@ -527,14 +527,16 @@ def _identify_triple(lifted: _Lifted, expected: np.ndarray, turn_sign: float, to
     return idx_depth[trip[best]], err[best]
 
 
-def _corrected_marks(lifted: _Lifted, sel: np.ndarray, camera: CameraModel, r_m: float):
-    """Stage 5: (marks_uv (3, 2), marks_w (3, 3)) with the perspective offset of the imaged centres
-    removed, using the board plane the three marks span, and lifted again (Eq. 1) with the board depth
-    at the corrected pixels."""
+def _corrected_marks(lifted: _Lifted, sel: np.ndarray, camera: CameraModel, r_m: float,
+                     normal: np.ndarray | None = None):
+    """Stage 5: (marks_uv (M, 2), marks_w (M, 3)) with the perspective offset of the imaged centres
+    removed, using the surface normal ``normal`` (world; default: the plane the first three marks
+    span), and lifted again (Eq. 1) with the board depth at the corrected pixels."""
     uv, world = lifted.uv, lifted.world
     marks_uv = uv[sel]
-    normal = np.cross(world[sel[1]] - world[sel[0]], world[sel[2]] - world[sel[0]])
-    normal /= np.linalg.norm(normal)
+    if normal is None:
+        normal = np.cross(world[sel[1]] - world[sel[0]], world[sel[2]] - world[sel[0]])
+        normal /= np.linalg.norm(normal)
     marks_w = world[sel]
     for _ in range(2):
         marks_uv = uv[sel] - _perspective_bias_px(camera, marks_w, normal, r_m)
@@ -543,3 +545,57 @@ def _corrected_marks(lifted: _Lifted, sel: np.ndarray, camera: CameraModel, r_m:
     if not np.isfinite(marks_w).all():  # cannot happen unless the correction left the board
         marks_uv, marks_w = uv[sel], world[sel]
     return marks_uv, marks_w
+
+
+# -- every mark of a view (registration along a part: stud_perception.mark_registration) ---------------
+@dataclass(frozen=True, eq=False)
+class MarkCandidates:
+    """Every mark-sized dark disc of a view with the depth of the surface around it (stages 1-3 of
+    :func:`detect_marks`), before any is named: ``uv`` (K, 2) sub-pixel centres, ``radius_px`` (K,),
+    ``world_m`` (K, 3) lifted with Eq. 1 (NaN rows without depth), ``has_depth`` (K,); ``note`` says
+    what was left out (marks cut by the image border)."""
+
+    uv: np.ndarray
+    radius_px: np.ndarray
+    world_m: np.ndarray
+    has_depth: np.ndarray
+    note: str
+    _lifted: _Lifted
+
+    def __len__(self) -> int:
+        return int(self.uv.shape[0])
+
+    def corrected(self, idx, camera: CameraModel, radius_m: float, normal_w=None) -> tuple[np.ndarray, np.ndarray]:
+        """(uv (M, 2), world (M, 3)) of candidates ``idx`` with the perspective offset of the imaged disc
+        centres removed (stage 5) for discs of ``radius_m`` on a surface of unit normal ``normal_w``
+        (default: the plane of the first three)."""
+        idx = np.asarray(idx, dtype=np.int64)
+        n = None if normal_w is None else np.asarray(normal_w, dtype=np.float64)
+        return _corrected_marks(self._lifted, idx, camera, radius_m, n)
+
+    def board_triple(self, drawing_marks_m, tol_m: float) -> tuple[np.ndarray, float] | MarkDetection:
+        """Stage 4: (candidate indices (3,) of O, A, B, largest distance error) -- the one triple at the
+        drawing's |OA|, |OB|, |AB| with its handedness -- or the failed :class:`MarkDetection`."""
+        D = np.asarray(drawing_marks_m, dtype=np.float64)
+        expected = np.array([np.linalg.norm(D[1] - D[0]), np.linalg.norm(D[2] - D[0]), np.linalg.norm(D[2] - D[1])])
+        oa, ob = D[1] - D[0], D[2] - D[0]
+        turn_sign = float(np.sign(oa[0] * ob[1] - oa[1] * ob[0]))
+        if np.count_nonzero(self.has_depth) < 3:
+            return _failure(MarkStatus.NO_CANDIDATES, f"{int(np.count_nonzero(self.has_depth))} mark candidate(s) "
+                            f"with depth, need 3 for O, A, B{self.note}", self.uv, self.radius_px, self.world_m)
+        return _identify_triple(self._lifted, expected, turn_sign, tol_m, self.note)
+
+
+def find_mark_candidates(color_bgr: np.ndarray, depth_m: np.ndarray, camera: CameraModel,
+                         config: MarkDetectorConfig = MarkDetectorConfig()) -> MarkCandidates | MarkDetection:
+    """Stages 1-3 of :func:`detect_marks` on a view: every dark disc of the mark size, lifted with the
+    depth around it. A failed :class:`MarkDetection` (NO_CANDIDATES / NO_DEPTH) when none is usable."""
+    gray, depth_m = _checked_inputs(color_bgr, depth_m, camera)
+    found = _find_candidates(gray, camera, config)
+    if isinstance(found, MarkDetection):
+        return found
+    refined, border_note = found
+    lifted = _lift_candidates(np.array(refined), depth_m, camera, config, border_note, need=1)
+    if isinstance(lifted, MarkDetection):
+        return lifted
+    return MarkCandidates(lifted.uv, lifted.r_eq, lifted.world, lifted.has_depth, border_note, lifted)

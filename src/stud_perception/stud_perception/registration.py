@@ -14,7 +14,7 @@ marks are given, the same construction on them makes any drawing placement of O,
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -39,6 +39,15 @@ class MarkRegistration:
     ``angle_AOB_deg``: measured angle at O. ``distance_errors_m`` (3,): measured minus drawing
     |OA|, |OB|, |AB| (NaN without a drawing); ``scale_error``: the largest relative length error.
     ``method``: ``eq3`` (paper) or ``least_squares``.
+
+    Every mark the fit used (O, A, B and the reference marks M1, M2, ... of a long part:
+    :func:`fit_marks`): ``labels_used`` (L,), ``marks_used_world_m`` (L, 3) measured,
+    ``marks_used_drawing_m`` (L, 2), ``mark_residuals_m`` (L,) the distance (world XY) between each
+    measured mark and where the transform puts its drawing position, ``residual_max_m`` the largest.
+    A fit without O, A, B in view has NaN rows in ``marks_world_m`` for the marks it did not see and
+    NaN ``angle_AOB_deg``. ``extrapolated_m``: 0 for a registration on the view's own marks; for a
+    station that saw too few marks and took the nearest registered one, how far that one was
+    (:class:`~stud_perception.mark_registration.RegistrationTrail`), metres.
     """
 
     M_local2world: np.ndarray
@@ -49,6 +58,17 @@ class MarkRegistration:
     distance_errors_m: np.ndarray
     scale_error: float
     method: str
+    labels_used: tuple[str, ...] = ("O", "A", "B")
+    marks_used_world_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    marks_used_drawing_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    mark_residuals_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    residual_max_m: float = float("nan")
+    extrapolated_m: float = 0.0
+
+    @property
+    def extrapolated(self) -> bool:
+        """True when this registration was not measured on the view it is used for."""
+        return self.extrapolated_m > 0.0
 
     @property
     def yaw_rad(self) -> float:
@@ -211,7 +231,7 @@ def registration_from_marks(
         residual = float(np.sqrt(np.mean(res**2)))
     else:
         fit = fit_rigid_2d(D, xy)
-        M, residual = fit.M_local2world, fit.rms_m
+        M, residual, res = fit.M_local2world, fit.rms_m, fit.residuals_m
     return MarkRegistration(
         M_local2world=M,
         marks_world_m=Pw,
@@ -221,6 +241,10 @@ def registration_from_marks(
         distance_errors_m=dist_err,
         scale_error=scale_error,
         method=method,
+        marks_used_world_m=Pw,
+        marks_used_drawing_m=D,
+        mark_residuals_m=res,
+        residual_max_m=float(res.max()),
     )
 
 
@@ -282,3 +306,77 @@ def layout_marks_m(layout) -> np.ndarray:
     ``mark_b`` points), drawing frame, metres: what :func:`registration_from_marks` checks against."""
     return np.array([(m.x, m.y) for m in (layout.mark_o, layout.mark_a, layout.mark_b)], dtype=np.float64)
 
+
+
+# -- every visible mark (a long part, registered station by station) ---------------------------------
+BOARD_LABELS = ("O", "A", "B")
+
+
+def fit_marks(labels, drawing_xy_m, world_m, board_drawing_m, max_residual_m: float | None = None,
+              min_marks: int = 2, min_separation_m: float = 0.005) -> MarkRegistration:
+    """Least-squares drawing -> world registration over any set of marks (paper Eq. 2, rigid, by
+    :func:`fit_rigid_2d`): the board's O, A, B and the reference marks painted along the part.
+
+    ``labels`` (L,) names each mark (``O``, ``A``, ``B``, ``M1``, ...); ``drawing_xy_m`` (L, 2) their
+    drawing positions; ``world_m`` (L, 3) their measured world positions (Eq. 1). The drawing is the
+    part's plan: a mark's drawing (x, y) is where it lies seen from above, whatever its height, so
+    M_local2world maps drawing (x, y) to world (x, y) and the marks' heights (a cambered, sloped flange
+    puts them at different z) are not part of the fit -- each mark's own z is measured. With the plane
+    known that way, two marks fix the transform (``min_marks``; their distance is then the only check),
+    three or more over-determine it. ``board_drawing_m`` (3, 2): O, A, B in the drawing, for
+    ``marks_drawing_m``.
+
+    Raises :class:`RegistrationError` with fewer than ``min_marks`` marks, coincident drawing marks,
+    or (with ``max_residual_m``) a mark farther than that from where the fit puts it -- a wrong
+    association (two marks swapped), a mis-detected mark or a mark lifted with a wrong depth; the
+    message names the worst mark and its residual.
+    """
+    labels = tuple(str(lb) for lb in labels)
+    D = np.asarray(drawing_xy_m, dtype=np.float64).reshape(-1, 2)
+    W = np.asarray(world_m, dtype=np.float64).reshape(-1, 3)
+    if not (len(labels) == len(D) == len(W)):
+        raise RegistrationError(f"{len(labels)} labels, {len(D)} drawing and {len(W)} world positions: need one each")
+    if len(set(labels)) != len(labels):
+        raise RegistrationError(f"a mark is used twice: {', '.join(labels)}")
+    if len(labels) < max(min_marks, 2):
+        seen = ", ".join(labels) if labels else "none"
+        raise RegistrationError(f"{len(labels)} mark(s) associated ({seen}), need {max(min_marks, 2)}")
+    if not (np.isfinite(D).all() and np.isfinite(W).all()):
+        raise RegistrationError("a mark has no position (NaN): one without depth?")
+    spread = float(np.max(np.linalg.norm(D - D.mean(axis=0), axis=1)))
+    if spread < min_separation_m:
+        raise RegistrationError(f"the marks {', '.join(labels)} lie within {spread * 1000:.1f} mm of each other in the "
+                                "drawing: their direction is undetermined")
+    fit = fit_rigid_2d(D, W[:, :2])
+    res = fit.residuals_m
+    worst = int(np.argmax(res))
+    if max_residual_m is not None and res[worst] > max_residual_m:
+        raise RegistrationError(
+            f"mark {labels[worst]} is {res[worst] * 1000:.1f} mm from where the fit over "
+            f"{', '.join(labels)} puts it (limit {max_residual_m * 1000:.1f} mm; RMS {fit.rms_m * 1000:.1f} mm): "
+            "a wrong association (marks swapped?), a mis-detected mark or a wrong depth; refused"
+        )
+    board = np.asarray(board_drawing_m, dtype=np.float64).reshape(3, 2)
+    oab_w = np.full((3, 3), np.nan)
+    for i, name in enumerate(BOARD_LABELS):
+        if name in labels:
+            oab_w[i] = W[labels.index(name)]
+    angle = _angle_deg(oab_w[1, :2] - oab_w[0, :2], oab_w[2, :2] - oab_w[0, :2]) if np.isfinite(oab_w).all() \
+        else float("nan")
+    return MarkRegistration(
+        M_local2world=fit.M_local2world, marks_world_m=oab_w, marks_drawing_m=board, residual_m=fit.rms_m,
+        angle_AOB_deg=angle, distance_errors_m=np.full(3, np.nan), scale_error=float("nan"), method="least_squares",
+        labels_used=labels, marks_used_world_m=W, marks_used_drawing_m=D, mark_residuals_m=res,
+        residual_max_m=float(res[worst]),
+    )
+
+
+def layout_reference_marks_m(layout) -> dict[str, np.ndarray]:
+    """The reference marks of a stud_welding_msgs/StudLayout message (``reference_mark_labels``,
+    ``reference_marks``): label -> drawing (x, y), metres, in the layout's order; {} for a layout
+    without them (or a message from before they existed)."""
+    labels = list(getattr(layout, "reference_mark_labels", []))
+    points = list(getattr(layout, "reference_marks", []))
+    if len(labels) != len(points):
+        raise RegistrationError(f"layout has {len(labels)} reference mark labels but {len(points)} positions")
+    return {str(lb): np.array([p.x, p.y], dtype=np.float64) for lb, p in zip(labels, points)}

@@ -9,12 +9,21 @@ By default the node registers on the first view where the marks are found and th
 that result (the board does not move during a job); ``/registration/trigger`` re-runs it on
 the next view, ``continuous:=true`` registers every view. A bad view publishes
 ``valid=false`` with the reason (logged once per distinct reason) and never kills the node.
+
+Long parts: when the layout carries reference marks (M1, M2, ...), every view is registered on
+all the marks it sees (stud_perception.mark_registration): the first one needs O, A, B, each
+later one names its marks by the nearest registration made before (the rail's error between two
+stations stays within ``gate_m``), and a view with too few marks publishes the nearest registration
+with ``extrapolated_distance`` set (valid, the message says how far). ``labels_used``,
+``mark_residuals`` and ``residual_max`` say which marks the fit used and how well each agreed; a
+new layout starts the trail afresh. Without reference marks the node behaves as before.
 """
 from __future__ import annotations
 
 import functools
 import math
 
+import numpy as np
 from geometry_msgs.msg import Point, PoseStamped
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
@@ -23,8 +32,10 @@ from stud_welding_msgs.msg import Registration, StudLayout
 
 from stud_common import ros_io
 from stud_perception import image_io
+from stud_perception.mark_registration import MarkFitConfig, RegistrationTrail
 from stud_perception.markers import MarkDetectorConfig
-from stud_perception.registration import layout_marks_m
+from stud_perception.registration import (BOARD_LABELS, MarkRegistration, layout_marks_m, layout_reference_marks_m,
+                                          local_to_world)
 from stud_common.ros_io import Param
 from stud_perception.view_registration import config_for_layout, draw_registration_overlay, register_view
 from stud_common import names
@@ -40,6 +51,13 @@ PARAMS = [
     Param("min_contrast", 40.0, "least grey-level difference between a mark and its surround", min=1.0, max=255.0),
     Param("sync_slop_s", 0.0, "stamps closer than this belong to one view [s] (0: equal stamps)", min=0.0, max=1.0),
     Param("publish_overlay", True, "publish /registration/overlay"),
+    Param("gate_m", 0.03, "with reference marks: a dark disc is named after a drawing mark only within this distance "
+          "of where the nearest earlier registration puts it [m] (below half the smallest mark spacing, above the "
+          "rail's error between stations)", min=0.001, max=0.5),
+    Param("max_residual_m", 0.002, "with reference marks: the largest distance a mark may lie from the fit over all "
+          "marks seen [m]; beyond it the registration is refused (a wrong association)", min=1e-4, max=0.05),
+    Param("min_marks", 2, "with reference marks: the fewest marks a registration uses (2: the plane is known)",
+          min=2, max=20),
     image_io.IMAGES_RECTIFIED_PARAM,
 ]
 
@@ -49,6 +67,7 @@ class RegistrationNode(Node):
         super().__init__("registration")
         self.p = ros_io.declare_params(self, PARAMS)
         self.layout: StudLayout | None = None
+        self.trail = RegistrationTrail()  # registrations along a part with reference marks
         self.armed = True  # register on the next complete view
         self._pending: dict | None = None  # the last view that came before the layout
         self._last_reason = ""
@@ -68,6 +87,7 @@ class RegistrationNode(Node):
 
     def _on_layout(self, msg: StudLayout) -> None:
         self.layout = msg
+        self.trail.clear()
         self.armed = True  # a new drawing needs a new registration
         self.get_logger().info(f"layout '{msg.source_file}': marks |OA|={msg.mark_a.x * 1e3:.1f} mm, "
                                f"mark diameter {msg.mark_diameter * 1e3:.1f} mm")
@@ -102,8 +122,15 @@ class RegistrationNode(Node):
             depth_range_m=(self.p["depth_min_m"], self.p["depth_max_m"]), distance_tol_m=self.p["distance_tol_m"],
             min_contrast=self.p["min_contrast"]), self.layout.mark_diameter)
         try:
-            result = register_view(color, depth, camera, marks, config, method=self.p["method"])
-        except ValueError as exc:  # sizes of colour/depth/camera info disagree
+            references = layout_reference_marks_m(self.layout)
+            if references:
+                fit = MarkFitConfig(gate_m=self.p["gate_m"], max_residual_m=self.p["max_residual_m"],
+                                    min_marks=self.p["min_marks"], method=self.p["method"])
+                all_marks = {**dict(zip(BOARD_LABELS, marks)), **references}
+                result = self.trail.register(color, depth, camera, all_marks, config, fit)
+            else:
+                result = register_view(color, depth, camera, marks, config, method=self.p["method"])
+        except ValueError as exc:  # sizes of colour/depth/camera info disagree, or a malformed layout
             self._publish_invalid(stamp, f"unusable view: {exc}")
             return
         if self.p["publish_overlay"]:
@@ -114,17 +141,13 @@ class RegistrationNode(Node):
             return
         reg = result.registration
         assert reg is not None  # an ok result carries its registration
-        msg = Registration(valid=True, message=result.message, residual=float(reg.residual_m))
-        msg.header.stamp, msg.header.frame_id = stamp, "world"
-        msg.m_local2world = [float(v) for v in reg.M_local2world.ravel()]
-        msg.mark_o, msg.mark_a, msg.mark_b = (Point(x=float(p[0]), y=float(p[1]), z=float(p[2]))
-                                              for p in reg.marks_world_m)
-        msg.angle_aob = math.radians(float(reg.angle_AOB_deg))
-        self.pub_result.publish(msg)
+        self.pub_result.publish(registration_msg(reg, result.message, stamp))
         self.armed = False
         self._last_reason = ""
         self.get_logger().info(result.message)
-        self.diag.set(self.diag.OK, result.message, residual_mm=f"{reg.residual_m * 1e3:.3f}")
+        self.diag.set(self.diag.OK if not reg.extrapolated else self.diag.WARN, result.message,
+                      residual_mm=f"{reg.residual_m * 1e3:.3f}", residual_max_mm=f"{reg.residual_max_m * 1e3:.3f}",
+                      marks=",".join(reg.labels_used), extrapolated_m=f"{reg.extrapolated_m:.3f}")
 
     def _publish_invalid(self, stamp, reason: str) -> None:
         msg = Registration(valid=False, message=reason)
@@ -134,6 +157,27 @@ class RegistrationNode(Node):
             self.get_logger().warn(f"registration failed: {reason}")
             self._last_reason = reason
         self.diag.set(self.diag.WARN, f"registration failed: {reason}")
+
+
+def registration_msg(reg: MarkRegistration, message: str, stamp) -> Registration:
+    """The Registration message of a valid registration. O, A, B the fit did not see are put where the
+    transform puts them, at the mean height of the marks it used (the drawing frame's height there)."""
+    msg = Registration(valid=True, message=message, residual=float(reg.residual_m))
+    msg.header.stamp, msg.header.frame_id = stamp, "world"
+    msg.m_local2world = [float(v) for v in reg.M_local2world.ravel()]
+    oab = np.array(reg.marks_world_m, dtype=np.float64)
+    unseen = ~np.isfinite(oab).all(axis=1)
+    if unseen.any():
+        oab[unseen, :2] = local_to_world(reg.M_local2world, reg.marks_drawing_m[unseen])
+        oab[unseen, 2] = float(np.mean(reg.marks_used_world_m[:, 2]))
+    msg.mark_o, msg.mark_a, msg.mark_b = (Point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in oab)
+    msg.angle_aob = math.radians(float(reg.angle_AOB_deg))
+    msg.labels_used = list(reg.labels_used)
+    msg.marks_used = [Point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in reg.marks_used_world_m]
+    msg.mark_residuals = [float(r) for r in reg.mark_residuals_m]
+    msg.residual_max = float(reg.residual_max_m)
+    msg.extrapolated_distance = float(reg.extrapolated_m)
+    return msg
 
 
 def main(args=None) -> int:

@@ -3,8 +3,9 @@
 Used by the tests, the benchmarks, the simulated camera node and the demo. A scene is the
 paper's set-up: a working plane (world z = 0, z up, metres), a marking board (a flat raised
 plate carrying the dark circular marks O, A, B) and one curved steel component (a dome, a
-horizontal cylinder section, a tilted plate or a flat plate) with the stud positions drawn on
-it as small dark circles or crosses.
+horizontal cylinder section, a trough, a cambered girder flange, a tilted plate or a flat plate)
+with the stud positions drawn on it as small dark circles or crosses, and optionally reference
+marks (dark discs like O, A, B) painted along a long part. docs/SCENES.md has the file form.
 
 Frames: the drawing frame has its origin at mark O, x toward A, y toward B (metres); the
 board is printed in that frame and ``SceneSpec.drawing_to_world`` (a 2D rigid pose) places it
@@ -14,8 +15,8 @@ positions are given in the drawing frame, as in a layout drawing.
 The synthetic scene in modules by concern:
 
 - ``scene_solids``: :class:`~stud_perception.scene_solids.Pose2D`, the solids (``Dome``,
-  ``Cylinder``, ``Trough``, ``Plate``) and :class:`~stud_perception.scene_solids.SceneError`;
-- ``scene`` (this module): :class:`MarkingBoard`, :class:`SceneSpec`, the exact top surface
+  ``Cylinder``, ``Trough``, ``Girder``, ``Plate``) and :class:`~stud_perception.scene_solids.SceneError`;
+- ``scene`` (this module): :class:`MarkingBoard`, :class:`ReferenceMark`, :class:`SceneSpec`, the exact top surface
   (:func:`surface_height`, :func:`surface_normal`) and the bundled scenes;
 - ``scene_file``: the plain-dict / JSON / YAML form (``scene_from_dict``, ``load_scene``);
 - ``scene_render``: the ray caster (``render``, ``RenderedView``), shading and painted marks;
@@ -32,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from stud_perception.scene_solids import Component, Dome, Plate, Pose2D, SceneError
+from stud_perception.scene_solids import Component, Dome, Girder, Plate, Pose2D, SceneError, _pair
 from stud_perception.welded_studs import DEFAULT_STUD_DIAMETER_M, DEFAULT_STUD_LENGTH_M
 
 # Surface ids of :attr:`stud_perception.scene_render.RenderedView.surface_id`.
@@ -69,6 +70,23 @@ class MarkingBoard:
 
 
 @dataclass(frozen=True)
+class ReferenceMark:
+    """A reference mark painted on the part (or the table) beside the board's O, A, B: a dark disc
+    of the board marks' diameter centred at ``drawing_xy_m`` (drawing frame, metres), named
+    ``label`` (``M1``, ``M2``, ... in a drawing)."""
+
+    label: str
+    drawing_xy_m: tuple[float, float]
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.label, str) or not self.label.strip() or self.label.strip() in ("O", "A", "B"):
+            raise SceneError(f"reference_marks label must be a name other than O, A, B (e.g. 'M1'), got "
+                             f"{self.label!r}")
+        object.__setattr__(self, "label", self.label.strip())
+        object.__setattr__(self, "drawing_xy_m", _pair(self.drawing_xy_m, f"reference_marks {self.label} drawing_xy_m"))
+
+
+@dataclass(frozen=True)
 class SceneSpec:
     """Everything a view of the work cell shows (world frame, metres).
 
@@ -76,7 +94,9 @@ class SceneSpec:
     ``studs_drawing_m`` (N, 2) are stud positions in the drawing frame, ``stud_ids`` their
     names; ``stud_mark_style`` is ``circle``, ``cross`` or ``none``. ``obstacles``: flat boxes
     standing on the plane (stiffeners, webs, flanges: world frame, their tops ``height_m`` above
-    the plane) that a welding gun must not hit. ``specular_lobe_deg``: the component is shiny
+    the plane) that a welding gun must not hit. ``reference_marks``: dark discs of the board marks'
+    diameter painted along the part (or on the table) at drawing positions, for registering a long part
+    station by station. ``specular_lobe_deg``: the component is shiny
     steel -- a structured-light camera gets no depth where the surface mirrors its projector into
     the camera, within this angle (0: a matte part). ``stud_length_m`` / ``stud_diameter_m``: the
     welded studs' size, ``weld_defects``: {stud id: WeldDefect} (stud_perception.welded_studs).
@@ -94,8 +114,17 @@ class SceneSpec:
     stud_length_m: float = DEFAULT_STUD_LENGTH_M
     stud_diameter_m: float = DEFAULT_STUD_DIAMETER_M
     weld_defects: dict = field(default_factory=dict)
+    reference_marks: tuple[ReferenceMark, ...] = ()
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "reference_marks", tuple(self.reference_marks))
+        seen: set[str] = set()
+        for mark in self.reference_marks:
+            if not isinstance(mark, ReferenceMark):
+                raise SceneError(f"reference_marks must hold ReferenceMark entries, got {mark!r}")
+            if mark.label in seen:
+                raise SceneError(f"reference_marks label {mark.label!r} is used twice")
+            seen.add(mark.label)
         if not (0.001 <= self.stud_length_m <= 1.0 and 0.001 <= self.stud_diameter_m <= 0.1):
             raise SceneError(f"stud_length_mm={self.stud_length_m * 1e3:g} and stud_diameter_mm="
                              f"{self.stud_diameter_m * 1e3:g} must be in [1, 1000] and [1, 100] mm")
@@ -127,6 +156,17 @@ class SceneSpec:
         """(3, 3) world centres of O, A, B on the board's top face."""
         xy = self.drawing_to_world.apply(np.asarray(self.board.marks_drawing_m))
         return np.column_stack([xy, np.full(3, self.board.thickness_m)])
+
+    @property
+    def reference_marks_world_m(self) -> np.ndarray:
+        """(K, 3) world centres of the reference marks (scene order) on the surface under them."""
+        xy = self.drawing_to_world.apply(np.array([m.drawing_xy_m for m in self.reference_marks]).reshape(-1, 2))
+        return np.column_stack([xy, surface_height(self, xy[:, 0], xy[:, 1])])
+
+    @property
+    def reference_marks_drawing_m(self) -> dict[str, tuple[float, float]]:
+        """The reference marks as the drawing gives them: label -> drawing (x, y), metres, scene order."""
+        return {m.label: m.drawing_xy_m for m in self.reference_marks}
 
     @property
     def studs_world_xy_m(self) -> np.ndarray:
@@ -240,3 +280,48 @@ def grid_stud_scene(
         stud_mark_diameter_m=min(base.stud_mark_diameter_m, 0.5 * pitch),
     )
 
+
+
+def girder_scene(
+    length_m: float = 6.0,
+    width_m: float = 0.4,
+    camber_m: float = 0.03,
+    cross_slope_deg: float = 2.5,
+    height_m: float = 0.12,
+    row_pitch_m: float = 0.2,
+    studs_per_row: int = 3,
+    stud_spacing_m: float = 0.1,
+    mark_pitch_m: float = 0.2,
+    mark_offset_m: float = 0.13,
+    start_xy_m: tuple[float, float] = (0.3, 0.0),
+) -> SceneSpec:
+    """A long part along the rail (world x): a cambered, cross-sloped girder flange
+    (:class:`~stud_perception.scene_solids.Girder`, heading +X from ``start_xy_m``) with rows of
+    ``studs_per_row`` studs ``stud_spacing_m`` apart across it every ``row_pitch_m`` (as bridge decks
+    use), the marking board on the table beside its start (O 0.1 m before it, A along the rail), and
+    reference marks ``M1``, ``M2``, ... every ``mark_pitch_m`` along it, alternately ``mark_offset_m``
+    right and left of its centreline (with the default pitches half a row pitch from the stud rows), so a camera view of the
+    demo's field (0.46 x 0.345 m, the long side along the rail) sees two or three of them anywhere
+    along the part.
+
+    The drawing frame is the board's: x along the rail, y across; the studs' and marks' drawing
+    positions are their plan positions."""
+    girder = Girder(start_xy_m, 0.0, length_m, width_m, camber_m, math.radians(cross_slope_deg), height_m)
+    board = MarkingBoard()
+    # O on the table beside the girder's start, the board 28 mm clear of its edge: one view sees O, A, B and M1
+    pose = Pose2D(x_m=start_xy_m[0] - 0.1, y_m=start_xy_m[1] - width_m / 2 - 0.15, yaw_rad=0.0)
+    u_rows = np.arange(row_pitch_m / 2, length_m - row_pitch_m / 4, row_pitch_m)
+    v_studs = (np.arange(studs_per_row) - (studs_per_row - 1) / 2) * stud_spacing_m
+    uu, vv = np.meshgrid(u_rows, v_studs, indexing="ij")
+    world = np.column_stack([start_xy_m[0] + uu.ravel(), start_xy_m[1] + vv.ravel()])
+    u_marks = np.arange(mark_pitch_m, length_m - mark_pitch_m / 4, mark_pitch_m)
+    v_marks = np.where(np.arange(len(u_marks)) % 2 == 0, -mark_offset_m, mark_offset_m)
+    marks_w = np.column_stack([start_xy_m[0] + u_marks, start_xy_m[1] + v_marks])
+    marks_d = pose.apply_inverse(marks_w)
+    return SceneSpec(
+        component=girder, board=board, drawing_to_world=pose,
+        studs_drawing_m=tuple(map(tuple, np.round(pose.apply_inverse(world), 6))),
+        stud_mark_diameter_m=0.008,
+        reference_marks=tuple(ReferenceMark(f"M{i + 1}", (float(round(x, 6)), float(round(y, 6))))
+                              for i, (x, y) in enumerate(marks_d)),
+    )

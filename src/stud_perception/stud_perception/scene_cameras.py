@@ -52,6 +52,8 @@ def distort_view(view: RenderedView, d, model: str = "plumb_bob") -> RenderedVie
 
     def distort_pixels(uv):
         uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        if len(uv) == 0:
+            return uv
         xn = np.column_stack([(uv[:, 0] - K[0, 2]) / K[0, 0], (uv[:, 1] - K[1, 2]) / K[1, 1]])
         if fisheye:
             return cv2.fisheye.distortPoints(xn.reshape(-1, 1, 2), K, D.reshape(4, 1)).reshape(-1, 2)
@@ -64,6 +66,7 @@ def distort_view(view: RenderedView, d, model: str = "plumb_bob") -> RenderedVie
         depth_mm=nearest(view.depth_mm, 0), depth_exact_m=nearest(view.depth_exact_m, np.nan),
         surface_id=nearest(view.surface_id, SURFACE_NONE), hole_mask=nearest(view.hole_mask, False),
         stud_pixels_uv=distort_pixels(view.stud_pixels_uv), marks_pixels_uv=distort_pixels(view.marks_pixels_uv),
+        reference_marks_pixels_uv=distort_pixels(view.reference_marks_pixels_uv),
         distortion_d=tuple(D.tolist()), distortion_model=model)
 
 

@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from stud_perception.scene import MarkingBoard, SceneSpec
-from stud_perception.scene_solids import Component, Cylinder, Dome, Plate, Pose2D, SceneError, Trough
+from stud_perception.scene import MarkingBoard, ReferenceMark, SceneSpec
+from stud_perception.scene_solids import Component, Cylinder, Dome, Girder, Plate, Pose2D, SceneError, Trough
 from stud_perception.welded_studs import (DEFAULT_STUD_DIAMETER_M, DEFAULT_STUD_LENGTH_M, WeldDefectError,
                                          parse_weld_defects)
 
@@ -30,20 +30,29 @@ def _component_from_dict(d: dict | None) -> Component | None:
     try:
         if kind == "dome":
             _take(d, "component (dome)", {"kind", "centre_xy_m", "base_radius_m", "height_m"})
-            return Dome(d["centre_xy_m"], float(d["base_radius_m"]), float(d["height_m"]))
+            return Dome(d["centre_xy_m"], _number(d, kind, "base_radius_m"), _number(d, kind, "height_m"))
         if kind == "cylinder":
             _take(d, "component (cylinder)",
                   {"kind", "centre_xy_m", "radius_m", "axis_yaw_deg", "length_m", "height_m"})
             return Cylinder(
-                d["centre_xy_m"], float(d["radius_m"]), math.radians(float(d.get("axis_yaw_deg", 0.0))),
-                float(d["length_m"]), float(d["height_m"]),
+                d["centre_xy_m"], _number(d, kind, "radius_m"), math.radians(_number(d, kind, "axis_yaw_deg", 0.0)),
+                _number(d, kind, "length_m"), _number(d, kind, "height_m"),
             )
         if kind == "trough":
             _take(d, "component (trough)",
                   {"kind", "centre_xy_m", "radius_m", "axis_yaw_deg", "length_m", "width_m", "rim_height_m"})
             return Trough(
-                d["centre_xy_m"], float(d["radius_m"]), math.radians(float(d.get("axis_yaw_deg", 0.0))),
-                float(d["length_m"]), float(d["width_m"]), float(d["rim_height_m"]),
+                d["centre_xy_m"], _number(d, kind, "radius_m"), math.radians(_number(d, kind, "axis_yaw_deg", 0.0)),
+                _number(d, kind, "length_m"), _number(d, kind, "width_m"), _number(d, kind, "rim_height_m"),
+            )
+        if kind == "girder":
+            _take(d, "component (girder)", {"kind", "start_xy_m", "yaw_deg", "length_m", "width_m", "camber_m",
+                                             "cross_slope_deg", "height_m"})
+            return Girder(
+                d["start_xy_m"], math.radians(_number(d, "girder", "yaw_deg", 0.0)),
+                _number(d, "girder", "length_m"), _number(d, "girder", "width_m"),
+                _number(d, "girder", "camber_m", 0.0), math.radians(_number(d, "girder", "cross_slope_deg", 0.0)),
+                _number(d, "girder", "height_m"),
             )
         if kind in ("tilted_plane", "plane"):
             keys = {"kind", "centre_xy_m", "size_m", "yaw_deg", "height_m"}
@@ -51,12 +60,38 @@ def _component_from_dict(d: dict | None) -> Component | None:
                 keys.add("tilt_deg")
             _take(d, f"component ({kind})", keys)
             return Plate(
-                d["centre_xy_m"], d["size_m"], math.radians(float(d.get("yaw_deg", 0.0))), float(d["height_m"]),
-                math.radians(float(d.get("tilt_deg", 0.0))) if kind == "tilted_plane" else 0.0,
+                d["centre_xy_m"], d["size_m"], math.radians(_number(d, kind, "yaw_deg", 0.0)),
+                _number(d, kind, "height_m"),
+                math.radians(_number(d, kind, "tilt_deg", 0.0)) if kind == "tilted_plane" else 0.0,
             )
     except KeyError as exc:
         raise SceneError(f"scene component ({kind}) misses key {exc.args[0]!r}") from None
-    raise SceneError(f"unknown component kind {kind!r}: use dome, cylinder, trough, tilted_plane or plane")
+    raise SceneError(f"unknown component kind {kind!r}: use dome, cylinder, trough, girder, tilted_plane or plane")
+
+
+def _number(d: dict, what: str, key: str, default: float | None = None) -> float:
+    """``d[key]`` as a finite float (``default`` when absent and one is given); names the key otherwise."""
+    if key not in d and default is not None:
+        return default
+    value = d[key]  # KeyError: the caller names the missing key
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise SceneError(f"scene component ({what}) {key}={value!r}: expected a finite number")
+    return float(value)
+
+
+def _reference_marks(data) -> tuple[ReferenceMark, ...]:
+    if data is None:
+        return ()
+    if not isinstance(data, list):
+        raise SceneError(f"scene reference_marks must be a list of {{label, drawing_xy_m}}, got {type(data).__name__}")
+    marks = []
+    for i, m in enumerate(data):
+        _take(m, f"reference_marks[{i}]", {"label", "drawing_xy_m"})
+        if "label" not in m or "drawing_xy_m" not in m:
+            missing = "label" if "label" not in m else "drawing_xy_m"
+            raise SceneError(f"scene reference_marks[{i}] misses key {missing!r}")
+        marks.append(ReferenceMark(m["label"], m["drawing_xy_m"]))
+    return tuple(marks)
 
 
 def _component_to_dict(c: Component | None) -> dict | None:
@@ -69,6 +104,12 @@ def _component_to_dict(c: Component | None) -> dict | None:
         return {
             "kind": "cylinder", "centre_xy_m": list(c.centre_xy_m), "radius_m": c.radius_m,
             "axis_yaw_deg": math.degrees(c.axis_yaw_rad), "length_m": c.length_m, "height_m": c.height_m,
+        }
+    if isinstance(c, Girder):
+        return {
+            "kind": "girder", "start_xy_m": list(c.start_xy_m), "yaw_deg": math.degrees(c.yaw_rad),
+            "length_m": c.length_m, "width_m": c.width_m, "camber_m": c.camber_m,
+            "cross_slope_deg": math.degrees(c.cross_slope_rad), "height_m": c.height_m,
         }
     if isinstance(c, Trough):
         return {
@@ -96,12 +137,19 @@ def scene_from_dict(d: dict[str, Any]) -> SceneSpec:
 
     Component kinds: ``dome`` (centre_xy_m, base_radius_m, height_m), ``cylinder`` (centre_xy_m,
     radius_m, axis_yaw_deg, length_m, height_m), ``trough`` (centre_xy_m, radius_m, axis_yaw_deg,
-    length_m, width_m, rim_height_m), ``tilted_plane`` / ``plane`` (centre_xy_m, size_m, yaw_deg,
-    height_m, tilt_deg). ``obstacles`` are flat boxes (stiffeners); ``specular_lobe_deg`` makes the
-    component shiny (see :class:`~stud_perception.scene.SceneSpec`).
+    length_m, width_m, rim_height_m), ``girder`` (start_xy_m, yaw_deg, length_m, width_m, camber_m,
+    cross_slope_deg, height_m: a cambered flange plate,
+    :class:`~stud_perception.scene_solids.Girder`), ``tilted_plane`` / ``plane`` (centre_xy_m,
+    size_m, yaw_deg, height_m, tilt_deg); sizes in metres at any scale (a 6 m girder renders one
+    view as fast as the demo dome: only what a view sees is traced). ``obstacles`` are flat boxes
+    (stiffeners); ``specular_lobe_deg`` makes the component shiny (see
+    :class:`~stud_perception.scene.SceneSpec`). ``reference_marks``: ``[{"label": "M1",
+    "drawing_xy_m": [x, y]}, ...]``, dark discs of the board marks' diameter painted on whatever
+    surface lies under them (part, table), placed through ``drawing_to_world`` like the studs.
+    docs/SCENES.md describes every key.
     """
     _take(d, "", {"component", "board", "drawing_to_world", "studs", "obstacles", "specular_lobe_deg",
-                  "stud_length_mm", "stud_diameter_mm", "weld_defects"})
+                  "stud_length_mm", "stud_diameter_mm", "weld_defects", "reference_marks"})
     board_keys = {"marks_drawing_m", "mark_diameter_m", "thickness_m", "margin_m"}
     board = MarkingBoard(**_take(d.get("board", {}), "board", board_keys))
     pose_d = _take(d.get("drawing_to_world", {}), "drawing_to_world", {"x_m", "y_m", "yaw_deg"})
@@ -133,6 +181,7 @@ def scene_from_dict(d: dict[str, Any]) -> SceneSpec:
         stud_length_m=1e-3 * _mm(d, "stud_length_mm", DEFAULT_STUD_LENGTH_M * 1e3),
         stud_diameter_m=1e-3 * _mm(d, "stud_diameter_mm", DEFAULT_STUD_DIAMETER_M * 1e3),
         weld_defects=_weld_defects(d.get("weld_defects"), studs.get("ids", ()), len(studs.get("xy_m", []))),
+        reference_marks=_reference_marks(d.get("reference_marks")),
     )
 
 
@@ -167,6 +216,7 @@ def scene_to_dict(scene: SceneSpec) -> dict[str, Any]:
         "specular_lobe_deg": scene.specular_lobe_deg,
         "stud_length_mm": scene.stud_length_m * 1e3, "stud_diameter_mm": scene.stud_diameter_m * 1e3,
         "weld_defects": {sid: defect.to_dict() for sid, defect in scene.weld_defects.items()},
+        "reference_marks": [{"label": m.label, "drawing_xy_m": list(m.drawing_xy_m)} for m in scene.reference_marks],
     }
 
 

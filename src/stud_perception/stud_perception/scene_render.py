@@ -9,7 +9,7 @@ imperfections (noise, holes, specular dropout) are :mod:`stud_perception.scene_s
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -77,6 +77,10 @@ class RenderedView:
     #: Lens distortion of the images (CameraInfo D and distortion_model); () for a pinhole view.
     distortion_d: tuple = ()
     distortion_model: str = "plumb_bob"
+    #: The scene's reference marks (scene order; labels in ``scene.reference_marks``): world centres
+    #: (K, 3) on the surface under them, and their projections (K, 2) (in the image or not).
+    reference_marks_world_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    reference_marks_pixels_uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
     @property
     def depth_m(self) -> np.ndarray:
@@ -111,16 +115,15 @@ def _coverage(signed_dist_m: np.ndarray, pixel_m: np.ndarray) -> np.ndarray:
 
 
 
-def _stud_mark_coverage(scene, camera, hit_x, hit_y, depth, px_m_per_depth):
-    """(H, W) darkness coverage of the stud marks, gathered in small patches around each stud."""
+def _patch_coverage(camera, centres_w, r_m, hit_x, hit_y, depth, px_m_per_depth, signed_distance):
+    """(H, W) coverage of small painted shapes of radius ``r_m`` at world ``centres_w`` (K, 3), gathered
+    in image patches around each: ``signed_distance(ex, ey, k)`` is the world-XY signed distance of
+    hit points at offsets (ex, ey) from the centres ``k`` to the shape's edge (< 0 inside)."""
     h, w = depth.shape
     cover = np.zeros(h * w, dtype=np.float32)
-    if scene.stud_mark_style == "none" or not scene.stud_ids:
+    if len(centres_w) == 0:
         return cover.reshape(h, w)
-    xy = scene.studs_world_xy_m
-    z = surface_height(scene, xy[:, 0], xy[:, 1])
-    u, v, zc = camera.world_to_pixel(np.column_stack([xy, z]))
-    r_m = scene.stud_mark_diameter_m / 2
+    u, v, zc = camera.world_to_pixel(centres_w)
     with np.errstate(invalid="ignore", divide="ignore"):
         r_px = camera.fx * r_m / zc
     keep = camera.in_image(u, v, margin=-float(np.nanmax(r_px, initial=0.0)) - 2) & (zc > 0)
@@ -129,8 +132,6 @@ def _stud_mark_coverage(scene, camera, hit_x, hit_y, depth, px_m_per_depth):
     half = int(math.ceil(np.max(r_px[keep]) * 1.6)) + 2  # 1.6: tilted views stretch a mark
     offs = np.arange(-half, half + 1)
     dv, du = [a.ravel() for a in np.meshgrid(offs, offs, indexing="ij")]
-    yaw = scene.drawing_to_world.yaw_rad
-    cy, sy = math.cos(yaw), math.sin(yaw)
     idx_keep = np.flatnonzero(keep)
     flat_x, flat_y, flat_d = hit_x.ravel(), hit_y.ravel(), depth.ravel()
     chunk = max(1, 2_000_000 // du.size)
@@ -140,20 +141,44 @@ def _stud_mark_coverage(scene, camera, hit_x, hit_y, depth, px_m_per_depth):
         rows = np.rint(v[k])[:, None].astype(np.int64) + dv[None, :]
         ok = (cols >= 0) & (cols < w) & (rows >= 0) & (rows < h)
         flat = np.where(ok, rows * w + cols, 0)
-        ex = flat_x[flat] - xy[k, 0][:, None]
-        ey = flat_y[flat] - xy[k, 1][:, None]
-        if scene.stud_mark_style == "circle":
-            sd = np.hypot(ex, ey) - r_m
-        else:  # cross with arms along the drawing axes, arm width a fifth of its length
-            lx, ly = cy * ex + sy * ey, -sy * ex + cy * ey
-            arm = r_m / 5
-            sd = np.minimum(
-                np.maximum(np.abs(lx) - r_m, np.abs(ly) - arm), np.maximum(np.abs(ly) - r_m, np.abs(lx) - arm)
-            )
-        cov = _coverage(sd, flat_d[flat] * px_m_per_depth)
+        ex = flat_x[flat] - centres_w[k, 0][:, None]
+        ey = flat_y[flat] - centres_w[k, 1][:, None]
+        cov = _coverage(signed_distance(ex, ey, k), flat_d[flat] * px_m_per_depth)
         cov = np.where(ok & np.isfinite(cov), cov, 0.0).astype(np.float32)
         np.maximum.at(cover, flat.ravel(), cov.ravel())
     return cover.reshape(h, w)
+
+
+def _stud_mark_coverage(scene, camera, hit_x, hit_y, depth, px_m_per_depth):
+    """(H, W) darkness coverage of the stud marks, gathered in small patches around each stud."""
+    if scene.stud_mark_style == "none" or not scene.stud_ids:
+        return np.zeros(depth.shape, dtype=np.float32)
+    xy = scene.studs_world_xy_m
+    z = surface_height(scene, xy[:, 0], xy[:, 1])
+    r_m = scene.stud_mark_diameter_m / 2
+    yaw = scene.drawing_to_world.yaw_rad
+    cy, sy = math.cos(yaw), math.sin(yaw)
+
+    def signed_distance(ex, ey, _k):
+        if scene.stud_mark_style == "circle":
+            return np.hypot(ex, ey) - r_m
+        # cross with arms along the drawing axes, arm width a fifth of its length
+        lx, ly = cy * ex + sy * ey, -sy * ex + cy * ey
+        arm = r_m / 5
+        return np.minimum(np.maximum(np.abs(lx) - r_m, np.abs(ly) - arm), np.maximum(np.abs(ly) - r_m, np.abs(lx) - arm))
+
+    return _patch_coverage(camera, np.column_stack([xy, z]), r_m, hit_x, hit_y, depth, px_m_per_depth,
+                           signed_distance)
+
+
+def _reference_mark_coverage(scene, camera, hits, px_m_per_depth):
+    """(H, W) coverage of the reference marks: discs of the board marks' diameter painted on whatever
+    top surface lies under them (part, table, board; not a wall or a welded stud)."""
+    r_m = scene.board.mark_diameter_m / 2
+    cover = _patch_coverage(camera, scene.reference_marks_world_m, r_m, hits.hit_x, hits.hit_y, hits.depth_exact,
+                            px_m_per_depth, lambda ex, ey, _k: np.hypot(ex, ey) - r_m)
+    cover[hits.wall | (hits.sid == SURFACE_STUD) | (hits.sid == SURFACE_NONE)] = 0.0
+    return cover
 
 
 def render(
@@ -271,8 +296,8 @@ def _shade(scene: SceneSpec, camera: CameraModel, hits: _Hits, projector_offset_
 
 
 def _paint_marks(scene: SceneSpec, camera: CameraModel, hits: _Hits, grey: np.ndarray):
-    """(grey, mark coverage, stud-mark coverage): marks O, A, B on the board top and the stud marks
-    on the part, anti-aliased from the exact hit points."""
+    """(grey, mark coverage, stud-mark coverage): marks O, A, B on the board top, the reference marks on
+    whatever lies under them and the stud marks on the part, anti-aliased from the exact hit points."""
     h, w = hits.sid.shape
     sid = hits.sid
     px_per_depth = 1.0 / camera.fx  # pixel footprint: metres per pixel per metre of depth
@@ -284,6 +309,8 @@ def _paint_marks(scene: SceneSpec, camera: CameraModel, hits: _Hits, grey: np.nd
         dist = np.min(np.hypot(local[:, 0, None] - marks[None, :, 0], local[:, 1, None] - marks[None, :, 1]), axis=1)
         mark_cover[on_board] = _coverage(dist - scene.board.mark_diameter_m / 2,
                                          hits.depth_exact[on_board] * px_per_depth)
+    if scene.reference_marks:
+        mark_cover = np.maximum(mark_cover, _reference_mark_coverage(scene, camera, hits, px_per_depth))
     grey = grey * (1 - mark_cover) + np.float32(_MARK_GREY) * mark_cover
     stud_cover = _stud_mark_coverage(scene, camera, hits.hit_x, hits.hit_y, hits.depth_exact, px_per_depth)
     stud_cover[sid == SURFACE_STUD] = 0.0  # the marks are painted on the part, not on a stud standing there
@@ -318,6 +345,8 @@ def _with_truth(scene: SceneSpec, camera: CameraModel, hits: _Hits, seed: int, c
         visible[vis_idx] = np.abs(d_pix - sz[vis_idx]) < _VISIBLE_TOL_M
     marks_w = scene.marks_world_m
     mu, mv, _ = camera.world_to_pixel(marks_w)
+    refs_w = scene.reference_marks_world_m
+    ru, rv, _ = camera.world_to_pixel(refs_w)
     return RenderedView(
         color_bgr=color_bgr,
         depth_mm=depth_mm,
@@ -333,4 +362,6 @@ def _with_truth(scene: SceneSpec, camera: CameraModel, hits: _Hits, seed: int, c
         stud_visible=visible,
         marks_world_m=marks_w,
         marks_pixels_uv=np.column_stack([mu, mv]),
+        reference_marks_world_m=refs_w,
+        reference_marks_pixels_uv=np.column_stack([ru, rv]).reshape(-1, 2),
     )

@@ -59,6 +59,13 @@ def specular_mask(normals_w: np.ndarray, points_w: np.ndarray, camera_w: np.ndar
     return cos_half > math.cos(math.radians(lobe_deg))
 
 
+#: The most depth noise (1-sigma, m) the simulated camera offers: the cell's working envelope. Beyond about
+#: 2 mm at the cell's 0.3 m views the hand-eye cannot be vouched for to 0.5 mm / 0.15 deg: a calibration's
+#: 24 poses leave it too uncertain for ``verify`` to tell such an error from noise with any number of views
+#: (stud_perception.hand_eye_spread), and from about 3 mm its residual limits refuse it.
+MAX_DEPTH_NOISE_M = 0.002
+
+
 def depth_noise(shape: tuple[int, int], sigma_m: float, correlation_px: float, rng: np.random.Generator) -> np.ndarray:
     """Gaussian depth noise (H, W) of standard deviation ``sigma_m``, correlated over ``correlation_px``
     (the sigma of the Gaussian blur of white noise; 0: independent pixels)."""

@@ -1,7 +1,7 @@
 """The synthetic scene's solids: the 2D drawing -> world pose and the parts' surfaces.
 
-Every solid (a dome, a horizontal cylinder section, a trough, a flat or tilted plate; the marking
-board and the obstacles are plates too) is a prism over a footprint on the working plane (world
+Every solid (a dome, a horizontal cylinder section, a trough, a cambered girder flange, a flat or
+tilted plate; the marking board and the obstacles are plates too) is a prism over a footprint on the working plane (world
 z = 0, z up, metres) capped by a height field, with its exact top height and outward normal at any
 world (x, y) and an analytic ray intersection (:mod:`stud_perception.scene_render` casts one ray
 per pixel through them). :class:`SceneError` is the one error of every scene module.
@@ -408,4 +408,162 @@ class Plate:
         return t, np.isfinite(t_wall) & (t_wall < t_top)
 
 
-Component = Union[Dome, Cylinder, Trough, Plate]
+
+@dataclass(frozen=True)
+class Girder:
+    """A cambered flange plate, the top of a bridge girder laid along the rail: its centreline
+    starts at world ``start_xy_m`` and heads ``yaw_rad`` from world +X (0: along the rail) for
+    ``length_m``; the plate is ``width_m`` wide, its edges vertical. At distance u in [0, L] along
+    the centreline and v across it (v > 0 to the left of the heading) the top is at
+
+        z(u, v) = height_m - (R - c) + sqrt(R^2 - (u - L/2)^2) + v tan(cross_slope)
+
+    with c = ``camber_m`` (the crown's rise over the ends, at mid-length) and
+    R = (L^2/4 + c^2) / (2c): a circular arc through the ends at ``height_m`` (a flat plate when
+    c = 0), tilted across by ``cross_slope_rad`` (the top rises toward +v)."""
+
+    start_xy_m: tuple[float, float]
+    yaw_rad: float
+    length_m: float
+    width_m: float
+    camber_m: float
+    cross_slope_rad: float
+    height_m: float
+    kind: ClassVar[str] = "girder"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "start_xy_m", _pair(self.start_xy_m, "girder start_xy_m"))
+        for name in ("yaw_rad", "length_m", "width_m", "camber_m", "cross_slope_rad", "height_m"):
+            if not math.isfinite(getattr(self, name)):
+                raise SceneError(f"girder {name} must be finite, got {getattr(self, name)!r}")
+        if not (self.length_m > 0 and self.width_m > 0):
+            raise SceneError(f"girder needs length_m > 0 and width_m > 0, got length_m={self.length_m}, "
+                             f"width_m={self.width_m}")
+        if not 0 <= self.camber_m < self.length_m / 2:
+            raise SceneError(f"girder camber_m must be in [0, length_m / 2) (a crown above the ends), got "
+                             f"camber_m={self.camber_m} for length_m={self.length_m}")
+        if not abs(self.cross_slope_rad) < math.radians(45):
+            raise SceneError(f"girder cross_slope_deg {math.degrees(self.cross_slope_rad):.1f} must be within "
+                             f"(-45, 45)")
+        low = self.height_m - abs(math.tan(self.cross_slope_rad)) * self.width_m / 2
+        if low <= 0:
+            raise SceneError(f"girder dips to the working plane (low edge at {low * 1000:.1f} mm at its ends): "
+                             f"raise height_m above {self.height_m - low:.4f} m or reduce cross_slope_deg/width_m")
+
+    @property
+    def centre_xy_m(self) -> tuple[float, float]:
+        """World XY of the footprint's centre (mid-length on the centreline)."""
+        h = self.length_m / 2
+        return (self.start_xy_m[0] + h * math.cos(self.yaw_rad), self.start_xy_m[1] + h * math.sin(self.yaw_rad))
+
+    @property
+    def radius_m(self) -> float:
+        """R of the camber arc (inf for a flat plate)."""
+        c, L = self.camber_m, self.length_m
+        return (L * L / 4 + c * c) / (2 * c) if c > 0 else math.inf
+
+    def _local(self, x, y):
+        c, s = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
+        dx, dy = np.asarray(x) - self.start_xy_m[0], np.asarray(y) - self.start_xy_m[1]
+        return c * dx + s * dy, -s * dx + c * dy  # u along the centreline, v to its left
+
+    def _crown(self, a):
+        """Rise of the camber arc over the ends at ``a = u - L/2`` (0 at the ends, c at mid-length)."""
+        if self.camber_m == 0:
+            return np.zeros(np.shape(a))
+        R, c = self.radius_m, self.camber_m
+        # sqrt(R^2 - a^2) - (R - c), written without the cancellation of two ~R terms
+        return c - np.square(a) / (np.sqrt(np.maximum(R * R - np.square(a), 0.0)) + R)
+
+    def top_height(self, x, y):
+        """(z of the top at world (x, y), inside footprint) -- vectorised, metres."""
+        u, v = self._local(x, y)
+        inside = (u >= 0) & (u <= self.length_m) & (np.abs(v) <= self.width_m / 2)
+        z = self.height_m + self._crown(u - self.length_m / 2) + v * math.tan(self.cross_slope_rad)
+        return np.where(inside, z, 0.0), inside
+
+    def top_normal(self, x, y) -> np.ndarray:
+        """Unit outward normal (..., 3) of the top above world (x, y): (-dz/du, -dz/dv, 1) turned to world."""
+        u, _ = self._local(x, y)
+        shape = np.broadcast(np.asarray(x), np.asarray(y)).shape
+        a = np.broadcast_to(u - self.length_m / 2, shape)
+        if self.camber_m == 0:
+            dzdu = np.zeros(shape)
+        else:
+            dzdu = -a / np.sqrt(np.maximum(self.radius_m**2 - a * a, 1e-300))
+        k = math.tan(self.cross_slope_rad)
+        c, s = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
+        inv = 1.0 / np.sqrt(dzdu * dzdu + (k * k + 1.0))
+        n = np.empty(shape + (3,))
+        n[..., 0] = -(c * dzdu - s * k) * inv
+        n[..., 1] = -(s * dzdu + c * k) * inv
+        n[..., 2] = inv
+        return n
+
+    def bounding_box_w(self) -> np.ndarray:
+        c, s = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
+        half = np.array([[c, s], [-s, c]]) * np.array([[self.length_m / 2], [self.width_m / 2]])
+        centre = np.asarray(self.start_xy_m) + half[0]
+        top = self.height_m + self.camber_m + abs(math.tan(self.cross_slope_rad)) * self.width_m / 2
+        return _box_corners(centre, half, top)
+
+    def _top_t(self, o: np.ndarray, u_o, v_o, u_d, v_d, dz):
+        """Ray parameter of the first hit of the (unbounded) top surface, inf for none."""
+        k = math.tan(self.cross_slope_rad)
+        if self.camber_m == 0:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                return (self.height_m + k * v_o - o[2]) / (dz - k * v_d)
+        # Top: (R + e)^2 + a^2 = R^2 with a = u - L/2 and e = z - k v - height_m - c (e <= 0 on the
+        # arc's upper half); quadratic in t with e = e0 + e1 t, a = a0 + a1 t, solved without the
+        # cancellation of R-sized terms (R is ~100 m for a few cm of camber over metres).
+        R = self.radius_m
+        e0, e1 = o[2] - k * v_o - self.height_m - self.camber_m, dz - k * v_d
+        a0, a1 = u_o - self.length_m / 2, u_d
+        qa = e1 * e1 + a1 * a1
+        qb = e0 * e1 + R * e1 + a0 * a1  # half the linear coefficient
+        qc = e0 * e0 + 2 * R * e0 + a0 * a0
+        disc = qb * qb - qa * qc
+        with np.errstate(invalid="ignore", divide="ignore"):
+            root = np.sqrt(disc)
+            q = -(qb + np.where(qb >= 0, root, -root))
+            t1, t2 = q / qa, qc / q
+        t_near = np.minimum(t1, t2)
+        # a ray from above enters the circle through the arc's upper half (R + e >= 0); an entry
+        # through the lower half is below the plate, which the plane hides
+        return np.where((disc >= 0) & (R + e0 + e1 * t_near >= 0), t_near, _INF)
+
+    def intersect(self, o: np.ndarray, dx, dy, dz):
+        c, s = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
+        ox, oy = o[0] - self.start_xy_m[0], o[1] - self.start_xy_m[1]
+        u_o, v_o = c * ox + s * oy, -s * ox + c * oy
+        u_d, v_d = c * dx + s * dy, -s * dx + c * dy
+        L, hw = self.length_m, self.width_m / 2
+        t_top = self._top_t(o, u_o, v_o, u_d, v_d, dz)
+        ok = (np.abs(u_o + t_top * u_d - L / 2) <= L / 2) & (np.abs(v_o + t_top * v_d) <= hw) & (o[2] + t_top * dz >= 0)
+        t_top = np.where(ok & np.isfinite(t_top), t_top, _INF)
+        # The solid is convex (a concave top over a rectangle), so a ray meets it in one interval: where it
+        # enters through the top, no wall comes first. Walls are cast for the other rays only.
+        rest = ~np.isfinite(t_top)
+        t_wall = np.full(np.shape(t_top), _INF)
+        if rest.any():
+            u_o_r, v_o_r = np.broadcast_to(u_o, rest.shape)[rest], np.broadcast_to(v_o, rest.shape)[rest]
+            u_d_r, v_d_r, dz_r = u_d[rest], v_d[rest], np.broadcast_to(dz, rest.shape)[rest]
+            walls = []
+            for axis_o, axis_d, other_o, other_d, lo, hi, other_lo, other_hi, is_end in (
+                (u_o_r, u_d_r, v_o_r, v_d_r, 0.0, L, -hw, hw, True),
+                (v_o_r, v_d_r, u_o_r, u_d_r, -hw, hw, 0.0, L, False),
+            ):
+                for side in (lo, hi):
+                    with np.errstate(invalid="ignore", divide="ignore"):
+                        t = (side - axis_o) / axis_d
+                    z = o[2] + t * dz_r
+                    other = other_o + t * other_d
+                    uu, vv = (side, other) if is_end else (other, side)
+                    top = self.height_m + self._crown(uu - L / 2) + vv * math.tan(self.cross_slope_rad)
+                    ok = np.isfinite(t) & (other >= other_lo) & (other <= other_hi) & (z >= 0) & (z <= top)
+                    walls.append(np.where(ok, t, _INF))
+            t_wall[rest] = _first_positive(*walls)
+        t = _first_positive(t_top, t_wall)
+        return t, np.isfinite(t_wall) & (t_wall < t_top)
+
+Component = Union[Dome, Cylinder, Trough, Plate, Girder]

@@ -19,12 +19,15 @@ from stud_perception.registration import MarkRegistration, RegistrationError, re
 
 @dataclass(frozen=True, eq=False)
 class ViewRegistration:
-    """``registration`` is set when ``ok``; ``message`` says what was found or what went wrong."""
+    """``registration`` is set when ``ok``; ``message`` says what was found or what went wrong.
+    ``refused``: the marks were found and named but disagree with the drawing (a wrong association,
+    a mis-detected mark): not a view that merely saw too little."""
 
     ok: bool
     message: str
     detection: MarkDetection
     registration: MarkRegistration | None
+    refused: bool = False
 
 
 def register_view(color_bgr: np.ndarray, depth_m: np.ndarray, camera: CameraModel, drawing_marks_m: np.ndarray,
@@ -52,12 +55,14 @@ def config_for_layout(config: MarkDetectorConfig, mark_diameter_m: float) -> Mar
 
 
 def draw_registration_overlay(color_bgr: np.ndarray, result: ViewRegistration, camera: CameraModel) -> np.ndarray:
-    """Colour image with the mark candidates (grey), the chosen O, A, B and the drawing axes."""
+    """Colour image with the mark candidates (grey), the chosen O, A, B and the drawing axes, and the
+    reference marks a registration along a part used, with their residuals."""
     img = color_bgr.copy()
     det = result.detection
     for (u, v), r in zip(det.candidates_uv, det.candidates_radius_px):
         cv2.circle(img, (int(round(u)), int(round(v))), int(round(r)), (160, 160, 160), 1, cv2.LINE_AA)
-    if result.ok and result.registration is not None:
+    reg = result.registration
+    if result.ok and reg is not None and np.isfinite(det.marks_pixels_uv).all():
         uv = det.marks_pixels_uv
         for name, (u, v) in zip("OAB", uv):
             cv2.drawMarker(img, (int(round(u)), int(round(v))), (0, 200, 255), cv2.MARKER_CROSS, 24, 2)
@@ -65,6 +70,15 @@ def draw_registration_overlay(color_bgr: np.ndarray, result: ViewRegistration, c
         o = tuple(int(round(c)) for c in uv[0])
         cv2.arrowedLine(img, o, tuple(int(round(c)) for c in uv[1]), (0, 0, 255), 2, tipLength=0.05)  # x: red
         cv2.arrowedLine(img, o, tuple(int(round(c)) for c in uv[2]), (0, 255, 0), 2, tipLength=0.05)  # y: green
+    if result.ok and reg is not None and not reg.extrapolated and len(reg.labels_used):
+        # the other marks the fit used (reference marks along a part), with their residuals
+        u, v, z = camera.world_to_pixel(reg.marks_used_world_m)
+        for name, uu, vv, zz, res in zip(reg.labels_used, u, v, z, reg.mark_residuals_m):
+            if name in ("O", "A", "B") or not (zz > 0 and camera.in_image(uu, vv)):
+                continue
+            cv2.drawMarker(img, (int(round(uu)), int(round(vv))), (0, 200, 255), cv2.MARKER_CROSS, 24, 2)
+            cv2.putText(img, f"{name} {res * 1e3:.2f} mm", (int(uu) + 12, int(vv) - 12), cv2.FONT_HERSHEY_SIMPLEX,
+                        0.7, (0, 200, 255), 2)
     colour = (0, 160, 0) if result.ok else (0, 0, 220)
     cv2.putText(img, result.message[:110], (10, 30), cv2.FONT_HERSHEY_SIMPLEX, 0.7, colour, 2)
     return img

@@ -6,13 +6,13 @@ the other way, the hot path, is target_cdr) and inspection results.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from geometry_msgs.msg import Point, Pose, PoseArray, Quaternion
 from stud_welding_msgs.msg import Registration, Stud, StudLayout, WeldTargetArray
 
-from stud_perception.registration import layout_marks_m
+from stud_perception.registration import layout_marks_m, layout_reference_marks_m
 from stud_planner import drawing
 from stud_planner.matching.target_cdr import WELD_TARGET_BLOCK
 from stud_planner.matching.target_table import TargetTable, centre_offset
@@ -29,6 +29,8 @@ def layout_to_msg(layout: drawing.DrawingLayout, stamp=None) -> StudLayout:
     msg.mark_a = Point(x=layout.mark_a.x_m, y=layout.mark_a.y_m)
     msg.mark_b = Point(x=layout.mark_b.x_m, y=layout.mark_b.y_m)
     msg.mark_diameter = float(layout.mark_diameter_m)
+    msg.reference_mark_labels = [m.name for m in layout.reference_marks]
+    msg.reference_marks = [Point(x=m.x_m, y=m.y_m) for m in layout.reference_marks]
     msg.studs = [Stud(id=s.id, x=s.x_m, y=s.y_m, diameter=s.diameter_m, layer=s.layer) for s in layout.studs]
     msg.warnings = list(layout.warnings)
     return msg
@@ -43,6 +45,7 @@ class LayoutView:
     marks_m: np.ndarray       # (3, 2) O, A, B
     mark_diameter_m: float
     source_file: str
+    reference_marks_m: dict[str, np.ndarray] = field(default_factory=dict)  # label -> (2,), label order
 
 
 def layout_from_msg(msg: StudLayout) -> LayoutView:
@@ -52,6 +55,7 @@ def layout_from_msg(msg: StudLayout) -> LayoutView:
         marks_m=layout_marks_m(msg),
         mark_diameter_m=float(msg.mark_diameter),
         source_file=msg.source_file,
+        reference_marks_m=layout_reference_marks_m(msg),
     )
 
 
@@ -80,8 +84,8 @@ def weld_target_table(msg: WeldTargetArray, image: tuple[float, float, int, int]
         if k is not None:
             widths[column] = max(widths.get(column, 0), k + 1)
     columns: dict[str, np.ndarray] = {}
-    for field, kind, column, k in WELD_TARGET_BLOCK:
-        path = field.split(".")  # "pose.position.x": nested messages
+    for wire_name, kind, column, k in WELD_TARGET_BLOCK:
+        path = wire_name.split(".")  # "pose.position.x": nested messages
         values = []
         for t in targets:
             value = t

@@ -30,7 +30,8 @@ from stud_perception import image_io
 from stud_common.strict_json import write_json
 from stud_perception.markers import MarkDetectorConfig
 from stud_perception.view_registration import config_for_layout, register_view
-from stud_planner.drawing import DrawingError, read_layout
+from stud_planner.drawing import DrawingError, DrawingLimits, read_layout
+from stud_planner.drawing.limits import add_limit_arguments, cli_hint, limits_from_args
 from stud_planner.matching.gun_clearance import GunModel
 from stud_planner.matching.target_table import TargetTable
 from stud_planner.matching.view_targets import ALGORITHMS, PlannerConfig, draw_targets_overlay, plan_view
@@ -258,16 +259,17 @@ def _progress(i: int, n: int, quiet: bool, what: str) -> None:
 def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, str] | None = None,
          overlay_dir: Path | None = None, quiet: bool = True, config: PlannerConfig | None = None,
          sync_slop_ms: float = DEFAULT_SYNC_SLOP_MS, allow_damaged: bool = False,
-         images_rectified: bool = False) -> dict:
+         images_rectified: bool = False, drawing_limits: DrawingLimits | None = None) -> dict:
     """Run the offline planning and return the report (see the module docstring). ``report["warnings"]``
     lists what the user must know about the result (a damaged bag read anyway, drawing circles left
     out for non-finite or out-of-range values). Raw images with lens distortion are rectified; ``images_rectified``: they were already (see
-    :func:`image_io.camera_model_from_msgs`)."""
+    :func:`image_io.camera_model_from_msgs`). ``drawing_limits``: the drawing's work budget (a drawing
+    beyond it is a PlanError naming the block, its level and the count, before the bag is read)."""
     topics = topics or DEFAULT_TOPICS
     try:
-        layout = read_layout(drawing)
+        layout = read_layout(drawing, limits=drawing_limits)
     except DrawingError as exc:
-        raise PlanError(str(exc)) from None
+        raise PlanError(str(exc) + cli_hint(exc)) from None
     config = config or PlannerConfig(algorithm=algorithm)
     warnings: list[str] = []
     if layout.invalid_entities:  # not studs of the report: the user must hear of them here
@@ -375,6 +377,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--gun-length-m", type=float, default=gun.length_m,
                         help="surface to the gun's top at the approach pose, for the clearance check [m]")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_limit_arguments(parser)
     from rclpy.utilities import remove_ros_args
 
     # `ros2 run` may append --ros-args ...: drop only those, so a misspelt option is a usage error
@@ -385,13 +388,14 @@ def main(argv: list[str] | None = None) -> int:
         config = PlannerConfig(algorithm=args.algorithm, lean_budget_deg=args.lean_budget_deg,
                                arm_orientation_error_deg=args.arm_orientation_error_deg,
                                gun=GunModel(radius_m=args.gun_radius_m, length_m=args.gun_length_m))
+        drawing_limits = limits_from_args(args)
     except ValueError as exc:
         print(f"plan: error: {exc}", file=sys.stderr)
         return 2
     try:
         report = plan(args.drawing, args.bag, args.algorithm, topics, args.overlay_dir, args.quiet, config=config,
                       sync_slop_ms=args.sync_slop_ms, allow_damaged=args.allow_damaged_bag,
-                      images_rectified=args.images_rectified)
+                      images_rectified=args.images_rectified, drawing_limits=drawing_limits)
         for warning in report["warnings"]:
             print(f"plan: warning: {warning}", file=sys.stderr)
         if args.out:

@@ -18,11 +18,12 @@ import itertools
 import re
 import signal
 import sys
-import threading
 import time
 from dataclasses import dataclass, field
 
 from stud_bag import BagError, BagReader, Qos, message_class
+
+from ros2_lite.stop_flag import StopFlag
 
 LOG_NAME = "rosbag2_player"
 LATCHED_DEPTH = 10  # rosbag2: the recorded profile with default history (keep last 10)
@@ -68,7 +69,7 @@ class Player:
     def __init__(self, reader: BagReader, options: PlayOptions):
         self.reader = reader
         self.options = options
-        self._stop = threading.Event()
+        self._stop = StopFlag()  # set by the SIGINT/SIGTERM handler: no lock
         self.published = 0
         self.playable = self._select_topics()
 

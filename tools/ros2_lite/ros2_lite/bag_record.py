@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 from stud_bag import BagError, BagWriter, Qos, message_class
 from stud_bag.metadata import INFINITE_NS
 
+from ros2_lite.stop_flag import StopFlag
+
 SUBSCRIPTION_DEPTH = 100  # reader history: absorbs a burst while the writer thread is busy
 LOG_NAME = "rosbag2_recorder"
 
@@ -98,7 +100,7 @@ class Recorder:
         self._queue: queue.Queue = queue.Queue()
         self._pending_bytes = 0
         self._lock = threading.Lock()
-        self._stop = threading.Event()
+        self._stop = StopFlag()  # set by the SIGINT/SIGTERM handler: no lock
         self._received = 0
         self.dropped = 0
         self.written = 0

@@ -12,10 +12,13 @@ Interfaces
   publishes  /arm/state (stud_welding_msgs/ArmState, reliable depth 10), /joint_states
              (sensor_msgs/JointState, joint1..joint6, rad), /diagnostics, and with
              ``publish_camera_pose`` /camera/pose (geometry_msgs/PoseStamped: weld-tool pose ×
-             hand-eye, the optical frame in ``world``) — all at ``state_rate_hz``.
+             hand-eye, the optical frame in ``world``) — all at ``state_rate_hz``; /arm/reach_config
+             (std_msgs/String, latched: JSON of the reach test's configuration, :mod:`rm65_driver.weld.reach`).
   action     /arm/weld_job (stud_welding_msgs/action/WeldJob); a cancel is graceful (see
              weld_sequence: motions before the trigger stop at once, a started weld completes).
   services   /arm/stop, /arm/pause, /arm/resume, /arm/estop (std_srvs/Trigger);
+             /arm/move_to (stud_welding_msgs/srv/MoveTo; with a rail, optionally the carriage first);
+             /arm/rail_move (stud_welding_msgs/srv/RailMove: the carriage, with a rail);
              /arm/resolve_stud (stud_welding_msgs/srv/ResolveStud);
              /arm/resolve_journal (stud_welding_msgs/srv/ResolveJournal).
   subscribes /arm/estop (std_msgs/Bool): true engages the e-stop latch, false releases it.
@@ -35,6 +38,13 @@ The e-stop here is a *software* stop (``set_arm_stop`` + trigger output low + a 
 new jobs until released). It is not a safety-rated emergency stop: the cell's hardware e-stop
 chain must stay wired to the controller.
 
+The rail (``rail_length_m`` > 0; :mod:`~rm65_driver.rail.control`): the arm rides a linear axis, the
+controller's expansion joint. ``world`` is then the rail's frame; the weld targets and /arm/move_to poses
+arrive in it and are converted to the arm's base with the carriage's position
+(:func:`stud_common.frames.world_T_base`); /arm/state, /joint_states (``rail_joint``, m) and /arm/welds
+carry the carriage. The carriage moves only while the arm is still and never during a weld job; stop
+and e-stop stop it too. With ``rail_length_m`` 0 nothing of this exists and the driver is what it was.
+
 Addresses: ``arm_ip`` defaults to 127.0.0.1 (the simulator, ``ros2 run rm65_driver simulator``)
 so nothing in this repository reaches for real hardware by default; the factory address of a
 real RM-65 controller is 192.168.1.18, port 8080.
@@ -48,38 +58,36 @@ from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from stud_welding_msgs.action import WeldJob
+from std_msgs.msg import String
 from stud_welding_msgs.msg import WeldTarget
 
 from stud_common import hand_eye_ros, ros_io
 
-from rm65_driver.driver.params import PARAMS, default_journal, job_config, job_config_problem
+from rm65_driver.driver.params import (PARAMS, default_journal, goal_tolerances, job_config, job_config_problem,
+                                       rail_axis)
 from rm65_driver.driver.services import DriverServices
 from rm65_driver.driver.shared_state import DriverState
 from rm65_driver.driver.status import DriverStatus
 from rm65_driver.kinematics.rm65 import D6_BY_VARIANT, DHModel, RM65Kinematics
-from rm65_driver.protocol.arm_client import ArmClient
-from rm65_driver.weld.safety import SafetyChecker
+from rm65_driver.protocol.arm_client import ArmClient, ArmError
+from rm65_driver.rail.control import RailControl, target_in_base
 from rm65_driver.weld.weld_job import JobResult, StudTarget
 from rm65_driver.weld.weld_sequence import WeldSequence
+from rm65_driver.weld.goal_checks import GoalTolerances, check_target_fields
 from stud_common import names
 
 
 # -- message <-> core conversions --------------------------------------------------------------
 
 
-def target_from_msg(msg: WeldTarget) -> tuple[StudTarget | None, str]:
-    """WeldTarget -> StudTarget, or (None, reason) for a target the matcher did not mark usable.
-
-    The normal is ``msg.normal``; if that is zero, the z axis of ``msg.pose`` (outward normal).
-    """
+def target_from_msg(msg: WeldTarget, tol: GoalTolerances = GoalTolerances()) -> tuple[StudTarget | None, str]:
+    """WeldTarget -> StudTarget, or (None, reason) for a target the matcher did not mark usable or
+    whose position, normal and orientation are not consistent (:mod:`.goal_checks`: the normal is
+    the authority, the orientation must agree with it)."""
     if msg.status != WeldTarget.STATUS_OK:
         return None, f"matcher status {msg.status_text or msg.status}"
-    n = np.array([msg.normal.x, msg.normal.y, msg.normal.z])
-    if np.linalg.norm(n) < 1e-9:
-        R, _ = ros_io.pose_to_rt(msg.pose)
-        n = R[:, 2]
-    p = msg.pose.position
-    return StudTarget(msg.stud_id, np.array([p.x, p.y, p.z]), n), ""
+    p, n, q = msg.pose.position, msg.normal, msg.pose.orientation
+    return check_target_fields(msg.stud_id, (p.x, p.y, p.z), (n.x, n.y, n.z), (q.x, q.y, q.z, q.w), tol)
 
 
 def result_to_msg(res: JobResult, pre_skipped: list[tuple[str, str]]) -> WeldJob.Result:
@@ -107,10 +115,15 @@ class DriverNode(Node):
                                    "checked against the welded stud's height; set it to the stud's standing height")
         hand_eye = hand_eye_ros.hand_eye_in_use(self, p)
         self.calibration_topic = hand_eye_ros.CalibrationTopic(self, hand_eye)
-        self.state = DriverState(p, self.get_logger(), ArmClient(p["arm_ip"], p["tcp_port"], p["connect_timeout_s"],
-                                                                 p["reply_timeout_s"]),
+        client = ArmClient(p["arm_ip"], p["tcp_port"], p["connect_timeout_s"], p["reply_timeout_s"])
+        self.state = DriverState(p, self.get_logger(), client,
                                  RM65Kinematics(dh=DHModel.rm65(D6_BY_VARIANT[p["arm_variant"]])), hand_eye,
-                                 Path(p["journal_file"] or default_journal()).expanduser())
+                                 Path(p["journal_file"] or default_journal()).expanduser(),
+                                 RailControl(client, rail_axis(p), p["rail_mount_xyz_m"]))
+        if self.state.rail.present and p["workspace_max_m"][0] < p["rail_length_m"]:
+            self.get_logger().warn(f"the workspace box is in world, the rail's frame: it ends at x = "
+                                   f"{p['workspace_max_m'][0]:g} m, the rail runs to {p['rail_length_m']:g} m; every "
+                                   "pose beyond the box is refused (widen workspace_max_m)")
         try:
             self.state.open_journal()
         except OSError as exc:
@@ -123,17 +136,44 @@ class DriverNode(Node):
         self.action = ActionServer(self, WeldJob, names.ARM_WELD_JOB, execute_callback=self._execute,
                                    goal_callback=self._on_goal, cancel_callback=self._on_cancel,
                                    callback_group=group)
+        # The reach test's configuration for the planner (rm65_driver.weld.reach): reliable + transient local.
+        self.pub_reach_config = self.create_publisher(String, names.ARM_REACH_CONFIG, ros_io.LATCHED_QOS)
+        self._reach_config_sent = ""
+        self._publish_reach_config()
+        self.create_timer(1.0, self._publish_reach_config, callback_group=group)
         self.status.start()
         self.get_logger().info(f"RM65 driver for {p['arm_ip']}:{p['tcp_port']} ({p['arm_variant']}), "
                                f"state at {p['state_rate_hz']:.1f} Hz, trigger DO{p['trigger_io']}"
-                               f"{' (tool)' if p['trigger_on_tool'] else ''}")
+                               f"{' (tool)' if p['trigger_on_tool'] else ''}"
+                               + (f", on a rail of {p['rail_length_m']:g} m" if self.state.rail.present else ""))
 
     # -- configuration per job ------------------------------------------------------------------
-    def _make_sequence(self) -> WeldSequence:
+    def _make_sequence(self, world_T_base: np.ndarray | None = None) -> WeldSequence:
         s = self.state
-        params, limits = job_config(s.p)
+        params, _limits = job_config(s.p)
         assert s.journal is not None
-        return WeldSequence(s.client, s.journal, SafetyChecker(s.kin, limits, params.tool_T), params)
+        return WeldSequence(s.client, s.journal, s.safety_checker(world_T_base), params)
+
+    def _publish_reach_config(self) -> None:
+        """``/arm/reach_config`` (latched): the configuration of this driver's reach test, whenever it
+        changed (a parameter set at run time), so the planner's verdicts stay the driver's."""
+        text = self.state.reach().config.to_json()
+        if text != self._reach_config_sent:
+            self.pub_reach_config.publish(String(data=text))
+            self._reach_config_sent = text
+
+    def _job_base_in_world(self) -> tuple[np.ndarray | None, float, str]:
+        """The arm's base in world for a job (the carriage read now), the carriage (m), or (None, 0, why not)."""
+        rail = self.state.rail
+        if not rail.present:
+            return np.eye(4), 0.0, ""
+        try:
+            reading = rail.read()
+        except ArmError as exc:
+            return None, 0.0, f"the carriage's position is unknown: {exc}"
+        if reading is not None and reading.moving:
+            return None, 0.0, "the carriage is moving: a weld job starts only with it still"
+        return rail.world_T_base(), rail.position_m, ""
 
     # -- weld job action --------------------------------------------------------------------------
     def _on_goal(self, goal) -> GoalResponse:
@@ -164,14 +204,22 @@ class DriverNode(Node):
             goal_handle.abort()
             return out
         targets, pre_skipped = [], []
+        tol = goal_tolerances(s.p)
         for t in goal.targets:
-            st, why = target_from_msg(t)
+            st, why = target_from_msg(t, tol)
             if st is None:
                 pre_skipped.append((t.stud_id, why))
             else:
                 targets.append(st)
         with s.job_lock:
-            seq = self._make_sequence()
+            W, carriage_m, why = self._job_base_in_world()
+            if W is None:
+                self.get_logger().warn(f"weld job refused: {why}")
+                goal_handle.abort()
+                return WeldJob.Result(success=False, message=f"refused: {why}")
+            if s.rail.present:
+                targets = [target_in_base(t, W) for t in targets]
+            seq = self._make_sequence(W)
             total = len(goal.targets)
 
             def feedback(stud_id: str, phase: str, done: int, _total: int) -> None:
@@ -179,7 +227,8 @@ class DriverNode(Node):
                 goal_handle.publish_feedback(fb)
 
             seq.on_phase = feedback
-            seq.on_welded = lambda stud_id, q, job=seq: self.status.publish_weld(stud_id, q, job.job_id)
+            seq.on_welded = lambda stud_id, q, job=seq, W=W, c=carriage_m: self.status.publish_weld(
+                stud_id, q, job.job_id, W, c)
             s.sequence = seq
             self.get_logger().info(f"weld job: {len(targets)} target(s), {len(pre_skipped)} not usable, "
                                    f"resume={goal.resume}")

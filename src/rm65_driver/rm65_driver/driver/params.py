@@ -13,13 +13,17 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
+
 from stud_common import hand_eye_ros
 from stud_common.ros_io import Param, three_numbers
 
-from rm65_driver.kinematics.rm65 import D6_BY_VARIANT
+from rm65_driver.kinematics.rm65 import D6_BY_VARIANT, DHModel, RM65Kinematics
 from rm65_driver.protocol import messages as P
-from rm65_driver.weld.safety import SafetyLimits
+from rm65_driver.rail.axis import RailAxis, RailRequestError
+from rm65_driver.weld.safety import SafetyChecker, SafetyLimits
 from rm65_driver.weld.weld_job import WeldParams
+from rm65_driver.weld.goal_checks import GoalTolerances
 
 
 def default_journal() -> str:
@@ -89,6 +93,13 @@ PARAMS = [
           min=0.0, max=90.0),
     Param("yaw_step_deg", 15.0, "the free rotation about the stud's axis is searched in these steps for the "
           "reachable solution nearest the current joints [deg]", min=1.0, max=180.0),
+    # A weld target's normal is the authority; its orientation must agree (weld/goal_checks.py)
+    Param("target_normal_length_tol", 1e-3, "a weld target's normal must be a unit vector within this (| |n| - 1 |): "
+          "a zero or NaN normal is refused, named", min=1e-9, max=0.1),
+    Param("target_quaternion_norm_tol", 1e-2, "a weld target's orientation quaternion within this of unit length "
+          "(| |q| - 1 |) is normalised, beyond it refused", min=1e-9, max=0.5),
+    Param("target_axis_tol_deg", 1.0, "a weld target whose pose z axis is farther than this from its normal is "
+          "refused: the two disagree on the weld direction [deg]", min=0.01, max=30.0),
     Param("motion_timeout_s", 60.0, "a motion that has not arrived by then aborts the job [s]", min=1.0, max=600.0),
     Param("reconnect_timeout_s", 10.0, "reconnection attempts before a job aborts [s]", min=0.5, max=300.0),
     Param("on_disconnect", "continue", "after a connection loss mid-weld: 'continue' with the next studs or 'abort'",
@@ -97,7 +108,28 @@ PARAMS = [
           read_only=True),
     Param("publish_camera_pose", False, "publish /camera/pose = weld-tool pose x hand-eye (an eye-in-hand camera)"),
     *hand_eye_ros.PARAMS,  # hand_eye_xyz_m / hand_eye_rpy_deg, or hand_eye_file (/arm/move_to FRAME_CAMERA)
+    # The rail: a linear axis under the arm, the controller's expansion joint (device 4; rail.py). 0 m: none,
+    # and the driver is what it is without one (world = the arm's base).
+    Param("rail_length_m", 0.0, "the rail's travel [m]: world is then the rail's frame (x along it, origin at its "
+          "zero) and the carriage moves 0..rail_length_m; 0: no rail, world = the arm's base", min=0.0, max=100.0,
+          read_only=True),
+    Param("rail_mount_xyz_m", [0.0, 0.0, 0.0], "the arm's base on the carriage (carriage -> base_link) [m]",
+          validate=three_numbers("rail_mount_xyz_m"), read_only=True),
+    Param("rail_speed_pct", 30, "rail moves: speed [% of the axis maximum]", min=1, max=100),
+    Param("rail_max_speed_m_s", 0.5, "the axis's speed at 100 % (the drive's setting; for move-time estimates "
+          "and timeouts) [m/s]", min=0.001, max=10.0),
+    Param("rail_accel_m_s2", 0.5, "the axis's acceleration at 100 % (the drive's setting) [m/s^2]",
+          min=0.001, max=50.0),
+    Param("rail_pos_unit_m", 1e-6, "metres per count of the expansion joint's wire pos (RealMan's documents "
+          "say 0.001 of the drive's unit: 1e-6 for a drive in mm)", min=1e-9, max=0.01, read_only=True),
 ]
+
+
+def rail_axis(p: dict) -> RailAxis | None:
+    """The rail the parameters describe (None: rail_length_m 0, no rail). Raises RailRequestError."""
+    if not p["rail_length_m"] > 0:
+        return None
+    return RailAxis(p["rail_length_m"], p["rail_pos_unit_m"], p["rail_max_speed_m_s"], p["rail_accel_m_s2"])
 
 
 def job_config(p: dict) -> tuple[WeldParams, SafetyLimits]:
@@ -119,6 +151,23 @@ def job_config(p: dict) -> tuple[WeldParams, SafetyLimits]:
     return params, limits
 
 
+def goal_tolerances(p: dict) -> GoalTolerances:
+    """How consistent a weld goal's targets must be (:mod:`.goal_checks`), from the parameter values."""
+    return GoalTolerances(normal_length_tol=p["target_normal_length_tol"],
+                          quaternion_norm_tol=p["target_quaternion_norm_tol"], axis_tol_deg=p["target_axis_tol_deg"])
+
+
+def safety_checker(p: dict, hand_eye_T: np.ndarray, kin: RM65Kinematics | None = None,
+                   world_T_base: np.ndarray | None = None) -> SafetyChecker:
+    """The checks of a weld job and of /arm/move_to from the parameter values and the hand-eye in
+    use, with the arm's base at ``world_T_base`` (identity: no rail); its
+    :meth:`~rm65_driver.weld.safety.SafetyChecker.reach_for` is the reach test the driver publishes."""
+    params, limits = job_config(p)
+    kin = kin if kin is not None else RM65Kinematics(dh=DHModel.rm65(D6_BY_VARIANT[p["arm_variant"]]))
+    return SafetyChecker(kin, limits, params.tool_T, world_T_base=np.eye(4) if world_T_base is None else world_T_base,
+                         prefer_signs=tuple(p["preferred_joint_signs"]), hand_eye_T=hand_eye_T)
+
+
 def job_config_problem(p: dict) -> str | None:
     """Why the weld job would refuse these parameter values together (None: it accepts them)."""
     lo, hi = list(p["workspace_min_m"]), list(p["workspace_max_m"])
@@ -128,4 +177,8 @@ def job_config_problem(p: dict) -> str | None:
         job_config(p)
     except ValueError as exc:
         return f"combination refused by the weld job: {exc}"
+    try:
+        rail_axis(p)
+    except RailRequestError as exc:
+        return str(exc)
     return None

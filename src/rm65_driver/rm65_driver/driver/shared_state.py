@@ -17,6 +17,9 @@ from rm65_driver.journal.writer import Journal
 from rm65_driver.kinematics.rm65 import RM65Kinematics
 from rm65_driver.protocol.arm_client import ArmClient
 from rm65_driver.protocol.messages import ArmStateReading
+from rm65_driver.rail.control import RailControl
+from rm65_driver.weld.reach import Reach
+from rm65_driver.weld.safety import SafetyChecker
 from rm65_driver.weld.weld_sequence import WeldSequence
 from stud_common.hand_eye_in_use import HandEyeInUse
 
@@ -25,11 +28,12 @@ class DriverState:
     """The driver node's state, made once by the node and read by its parts (on their own threads)."""
 
     def __init__(self, p: dict[str, Any], logger: RcutilsLogger, client: ArmClient, kin: RM65Kinematics,
-                 hand_eye: HandEyeInUse, journal_path: Path) -> None:
+                 hand_eye: HandEyeInUse, journal_path: Path, rail: RailControl | None = None) -> None:
         self.p = p                        # the validated parameters (driver.params.PARAMS)
         self.log = logger                 # the node's logger
         self.client = client
         self.kin = kin
+        self.rail = rail if rail is not None else RailControl(client, None)  # the carriage (no axis: no rail)
         self.hand_eye = hand_eye
         self.journal_path = journal_path
         self.journal: Journal | None = None               # None while the journal is in FAULT
@@ -75,3 +79,18 @@ class DriverState:
 
     def hand_eye_T(self) -> np.ndarray:
         return self.hand_eye.T_tool_cam
+
+    # -- the checks -------------------------------------------------------------------------------
+    def safety_checker(self, world_T_base: np.ndarray | None = None) -> SafetyChecker:
+        """The checks of a weld job and of /arm/move_to with the parameters as they are now (the base at
+        ``world_T_base`` in world; identity: no rail)."""
+        from rm65_driver.driver.params import safety_checker  # (params imports the weld modules, not this one)
+
+        return safety_checker(self.p, self.hand_eye_T(), self.kin, world_T_base)
+
+    def reach(self) -> Reach:
+        """The reach test as the planner gets it (``/arm/reach_config``): the verdicts' configuration."""
+        from rm65_driver.driver.params import job_config
+
+        params, _limits = job_config(self.p)
+        return self.safety_checker().reach_for(params.standoff_m, params.plunge_m)

@@ -6,7 +6,8 @@ the journal it reads are the node's :class:`~rm65_driver.driver.shared_state.Dri
 are its own): a thread polls the arm state at ``state_rate_hz`` (Hz), with
 a back-off of 0.2 s doubling to 5 s while the controller is not connected, and publishes each
 reading -- joints in rad, the ``weld_tool`` pose in ``world`` (m) from the driver's own forward
-kinematics, whatever the controller's tool frame.
+kinematics, whatever the controller's tool frame; with a rail also the carriage (``expand_get_state``),
+which places the base in ``world`` and is ``rail_joint`` (m) in ``/joint_states``.
 """
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from stud_welding_msgs.msg import ArmState, WeldRecord
 
-from stud_common import names, ros_io
+from stud_common import frames, names, ros_io
 from stud_common.hand_eye_in_use import camera_in_world
 
 from rm65_driver.driver.shared_state import DriverState
@@ -30,6 +31,7 @@ from rm65_driver.journal.scan import JournalCorrupt
 from rm65_driver.protocol.arm_client import ArmError
 
 JOINT_NAMES = [f"joint{i}" for i in range(1, 7)]
+RAIL_JOINT = frames.RAIL_JOINT  # prismatic world -> carriage, m (with a rail)
 WELDS_QOS = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
@@ -92,9 +94,21 @@ class DriverStatus:
                     reading = s.client.get_state()
                 except ArmError as exc:
                     self._node.get_logger().warn(f"arm state not read: {exc}", throttle_duration_sec=5.0)
+                if s.rail.present and s.client.connected:
+                    self._read_rail()
             self._log_connection(s.client.connected, s.client.last_error)
             self._publish(reading)
             self._sleep(period - (time.monotonic() - t0))
+
+    def _read_rail(self) -> None:
+        try:
+            rail = self.state.rail.read()
+        except ArmError as exc:
+            self._node.get_logger().warn(f"rail state not read: {exc}", throttle_duration_sec=5.0)
+            return
+        if rail is not None and not rail.enabled:
+            self._node.get_logger().warn("rail_length_m is set but the controller's expansion joint is not enabled "
+                                         "(expand_get_state en_flag 0)", throttle_duration_sec=30.0)
 
     def _sleep(self, seconds: float) -> None:
         self._wake.wait(max(0.0, seconds))  # set at shutdown
@@ -123,6 +137,8 @@ class DriverStatus:
             return ArmState.MODE_PAUSED
         if seq is not None and seq.running:
             return ArmState.MODE_WELDING if seq.phase in ("weld", "dwell") else ArmState.MODE_MOVING
+        if s.rail.moving:
+            return ArmState.MODE_MOVING
         return ArmState.MODE_IDLE
 
     def _publish(self, reading) -> None:
@@ -139,17 +155,21 @@ class DriverStatus:
         fault = s.journal_fault
         msg.message = s.fault_text(fault) if fault is not None else s.message
         msg.uncertain_studs = self.uncertain_studs()
+        if s.rail.present:
+            msg.rail_position_m, msg.rail_moving = s.rail.position_m, s.rail.moving
         if reading is not None:
             s.last_state = reading
-            T_tool = s.kin.fk(reading.joints_rad) @ s.tool_T  # weld_tool in world, whatever the controller's tool frame
+            T_tool = s.kin.fk(reading.joints_rad) @ s.tool_T  # weld_tool in base, whatever the controller's tool frame
+            if s.rail.present:
+                T_tool = s.rail.world_T_base() @ T_tool  # ... in world
             msg.joints = [float(v) for v in reading.joints_rad]
             msg.tool_pose = ros_io.rt_to_pose(T_tool[:3, :3], T_tool[:3, 3])
             msg.error_codes = [int(c) & 0xFFFF for c in reading.error_codes]
             msg.errors = reading.errors_text
             js = JointState()
             js.header.stamp = stamp
-            js.name = JOINT_NAMES
-            js.position = [float(v) for v in reading.joints_rad]
+            js.name = JOINT_NAMES + ([RAIL_JOINT] if s.rail.present else [])
+            js.position = [float(v) for v in reading.joints_rad] + ([s.rail.position_m] if s.rail.present else [])
             self.pub_joints.publish(js)
             if self.pub_camera is not None:
                 T_cam = camera_in_world(T_tool, s.hand_eye_T())
@@ -161,10 +181,14 @@ class DriverStatus:
         self.pub_state.publish(msg)
         self._update_diagnostics(msg)
 
-    def publish_weld(self, stud_id: str, joints_rad: np.ndarray, job_id: str) -> None:
+    def publish_weld(self, stud_id: str, joints_rad: np.ndarray, job_id: str, world_T_base: np.ndarray | None = None,
+                     rail_m: float = 0.0) -> None:
+        """A confirmed weld on /arm/welds: the tool pose in world, the base there where the job had it."""
         T_tool = self.state.kin.fk(joints_rad) @ self.state.tool_T
+        if self.state.rail.present and world_T_base is not None:
+            T_tool = world_T_base @ T_tool
         msg = WeldRecord(stud_id=stud_id, job_id=job_id, joints=[float(v) for v in joints_rad],
-                         tool_pose=ros_io.rt_to_pose(T_tool[:3, :3], T_tool[:3, 3]))
+                         tool_pose=ros_io.rt_to_pose(T_tool[:3, :3], T_tool[:3, 3]), rail_position_m=float(rail_m))
         msg.header.stamp = self._node.get_clock().now().to_msg()
         msg.header.frame_id = "world"
         self.pub_welds.publish(msg)

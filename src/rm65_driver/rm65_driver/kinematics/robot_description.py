@@ -9,6 +9,12 @@ out of joint 6 into a fixed joint ``link6 -> rm65_flange`` (same product, and th
 one number in one place). Then ``rm65_flange -> weld_tool`` (the tool offset along flange z, as the
 driver's ``tool_offset_m``), and ``weld_tool -> camera_color_optical_frame`` (the hand-eye).
 
+On a rail (``rail_length_m`` > 0) ``world`` is the rail's frame and the arm rides it: a prismatic
+``rail_joint`` ``world -> carriage`` along x (0 .. ``rail_length_m``, metres) and a fixed
+``rail_mount_joint`` ``carriage -> base_link`` (``rail_mount_xyz_m``) replace the fixed
+``world_joint``; a ``rail`` link fixed to ``world`` shows the rail. Without one the document is what
+it always was.
+
 The shapes are plain cylinders and spheres along the links, enough to see the arm's pose in a
 viewer; no meshes, no inertia (RealMan publishes masses, not inertia tensors we could check).
 ``urdf/rm65.urdf`` in this package is :func:`rm65_urdf` at its defaults (a test keeps them equal).
@@ -43,12 +49,17 @@ class RM65Description:
     hand_eye_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     include_camera: bool = True
     dh: DHModel = field(default=None)  # type: ignore[assignment]
+    rail_length_m: float = 0.0  # 0: no rail (world = the arm's base)
+    rail_mount_xyz_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # carriage -> base_link
+    rail_max_speed_m_s: float = 0.5  # rail_joint's velocity limit
 
     def __post_init__(self) -> None:
         if self.variant not in D6_BY_VARIANT:
             raise ValueError(f"arm variant '{self.variant}' is not one of {list(D6_BY_VARIANT)}")
         if self.dh is None:
             object.__setattr__(self, "dh", DHModel.rm65(D6_BY_VARIANT[self.variant]))
+        if not (math.isfinite(self.rail_length_m) and self.rail_length_m >= 0):
+            raise ValueError(f"rail_length_m={self.rail_length_m}: expected a finite number >= 0")
 
     @property
     def hand_eye(self) -> np.ndarray:
@@ -100,6 +111,12 @@ def _cylinder_between(vector: np.ndarray, radius: float, material: str) -> str:
             f"length=\"{_clean(length):.12g}\"/></geometry>\n      <material name=\"{material}\"/>\n    </visual>\n")
 
 
+def _box(size, center, material: str) -> str:
+    return (f"    <visual>\n      <origin xyz=\"{_fmt(center)}\" rpy=\"0 0 0\"/>\n"
+            f"      <geometry><box size=\"{_fmt(size)}\"/></geometry>\n"
+            f"      <material name=\"{material}\"/>\n    </visual>\n")
+
+
 def _sphere(radius: float, material: str) -> str:
     return (f"    <visual>\n      <geometry><sphere radius=\"{radius:g}\"/></geometry>\n"
             f"      <material name=\"{material}\"/>\n    </visual>\n")
@@ -148,10 +165,25 @@ def rm65_urdf(desc: RM65Description = RM65Description()) -> str:
         '  <material name="joint_grey"><color rgba="0.35 0.35 0.38 1"/></material>\n'
         '  <material name="gun_copper"><color rgba="0.80 0.45 0.20 1"/></material>\n'
         '  <material name="camera_black"><color rgba="0.10 0.10 0.12 1"/></material>\n',
+        '  <material name="rail_grey"><color rgba="0.55 0.57 0.60 1"/></material>\n' if desc.rail_length_m > 0 else "",
         link(frames.WORLD),
-        joint("world_joint", "fixed", frames.WORLD, frames.BASE_LINK, np.eye(4)),
-        link(frames.BASE_LINK, arm_body(frames.BASE_LINK)),
     ]
+    if desc.rail_length_m > 0:
+        L = desc.rail_length_m
+        mount = np.eye(4)
+        mount[:3, 3] = desc.rail_mount_xyz_m
+        out += [
+            joint("rail_base_joint", "fixed", frames.WORLD, "rail", np.eye(4)),
+            link("rail", _box((L + 0.3, 0.12, 0.04), (L / 2, 0.0, -0.06), "rail_grey")),
+            joint(frames.RAIL_JOINT, "prismatic", frames.WORLD, frames.CARRIAGE, np.eye(4),
+                  f"    <axis xyz=\"1 0 0\"/>\n    <limit lower=\"0\" upper=\"{_clean(L):.12g}\" effort=\"0\" "
+                  f"velocity=\"{_clean(desc.rail_max_speed_m_s):.12g}\"/>\n"),
+            link(frames.CARRIAGE, _box((0.30, 0.25, 0.04), (0.0, 0.0, -0.02), "joint_grey")),
+            joint("rail_mount_joint", "fixed", frames.CARRIAGE, frames.BASE_LINK, mount),
+        ]
+    else:
+        out.append(joint("world_joint", "fixed", frames.WORLD, frames.BASE_LINK, np.eye(4)))
+    out.append(link(frames.BASE_LINK, arm_body(frames.BASE_LINK)))
     parent = frames.BASE_LINK
     for i in range(6):
         extra = (f"    <axis xyz=\"0 0 1\"/>\n    <limit lower=\"{_clean(limits[i, 0]):.12g}\" "

@@ -445,6 +445,42 @@ class ArmClient:
         """
         self._connected_move_and_wait([P.movel(p6, v) for p6, v in segments], timeout_s, stop_count, on_handover)
 
+    def move_axis_and_wait(self, msg: dict[str, Any], device: int, timeout_s: float = 30.0,
+                           stop_count: int | None = None) -> None:
+        """An external axis's position move (the rail: :func:`rm65_driver.rail.axis.expand_set_pos`) and the wait for its arrival.
+
+        The axis reports its end with an arrival message of its own ``device`` (4: expansion joint,
+        3: lift); arm waits ignore those and this one ignores the arm's. A refusal raises
+        :class:`ArmCommandError`, a stopped move (``trajectory_state`` false) too; a stop requested
+        meanwhile (:meth:`stop`, or any since ``stop_count``) :class:`ArmStopped`.
+        """
+        name = str(msg["command"])
+        with self._state_lock:
+            stop_seq = self._stop_seq if stop_count is None else stop_count
+            gen = self._generation
+            if stop_seq != self._stop_seq:
+                raise ArmStopped(f"{name} not sent: a stop was requested")
+        pending = self._request_raw(msg)
+        if not P.reply_ok(name, pending.reply or {}):
+            raise ArmCommandError(name, 0, "refused by the controller (target outside the travel, the axis moving, "
+                                           "or no such axis)")
+        seen, end = pending.traj_seq, time.monotonic() + timeout_s
+        with self._traj_cond:
+            while True:
+                if self._stop_seq != stop_seq:
+                    raise ArmStopped(f"{name} interrupted by a stop")
+                if self._generation != gen or self._sock is None:
+                    raise ArmConnectionError(f"connection lost during {name} ({self.last_error})")
+                ev = next((e for seq, e in self._traj_events if seq > seen and e.device == device), None)
+                if ev is not None:
+                    if ev.success:
+                        return
+                    raise ArmCommandError(name, 0, "the axis stopped before its target (trajectory_state false)")
+                left = end - time.monotonic()
+                if left <= 0:
+                    raise ArmTimeout(f"{name} did not arrive within {timeout_s:.1f} s")
+                self._traj_cond.wait(min(left, 0.05))
+
     # -- stop fast path ------------------------------------------------------------------
     def stop(self, wait_reply: bool = True) -> None:
         """Trajectory stop (``set_arm_stop``), sent at once; wakes every motion waiter.

@@ -365,6 +365,7 @@ REPLY_TAG: dict[str, str] = {
     "get_IO_input": "IO_input_state",
     "get_tool_IO_state": "tool_IO_state",
     "get_arm_max_line_speed": "arm_max_line_speed",
+    "expand_get_state": "expand_state",  # the rail (expansion joint, device 4): rail/axis.py
 }
 
 #: Set/action command -> the boolean result key of its acknowledgement (§1.4 – §1.8).
@@ -395,6 +396,8 @@ RESULT_KEY: dict[str, str] = {
     "set_tool_voltage": "state",
     "set_arm_power": "arm_power",
     "set_realtime_push": "state",
+    "expand_set_pos": "set_pos_state",  # the rail (expansion joint, device 4): rail/axis.py
+    "expand_set_speed": "set_speed_state",
 }
 
 TRAJECTORY_STATE = "current_trajectory_state"

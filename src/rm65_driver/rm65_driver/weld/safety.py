@@ -9,9 +9,16 @@ reachable solution nearest the current joints.
 Every check returns a reason string a person can act on (``None``/``ok`` when it passes), and
 nothing here talks to the controller: a rejected target is never sent.
 
-Frames: ``world`` is the arm base frame (the controller's work frame must be the base, which
+Whether a stud can be welded at all is the reach verdict (:mod:`.reach`), the same function the
+cell's planner applies, so a stud the plan accepted is never refused here; how the arm gets to it
+from its current joints is :mod:`.reach_move`'s (the nearest solution, or a detour).
+
+Frames: poses and targets here are in the arm's base frame, where the kinematics and the controller
+work (the controller's work frame must be the base, which
 :class:`~rm65_driver.weld.weld_sequence.WeldSequence` verifies); the tool is ``weld_tool``, given as
-the flange -> tool transform ``tool_T`` (4x4, m).
+the flange -> tool transform ``tool_T`` (4x4, m). The cell's limits are in ``world``: ``world_T_base``
+(4x4) places the base there -- the identity without a rail, :func:`stud_common.frames.world_T_base` on
+one -- and the workspace box and the gun's tilt from vertical are checked in ``world``.
 """
 from __future__ import annotations
 
@@ -20,7 +27,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike
 
-from rm65_driver.kinematics.rm65 import SHOULDER_M, WORKING_RADIUS_M, RM65Kinematics, tool_pose_facing
+from rm65_driver.kinematics.rm65 import SHOULDER_M, WORKING_RADIUS_M, DHModel, RM65Kinematics
+from rm65_driver.weld.reach import Reach, ReachConfig
+from rm65_driver.weld.reach_move import plan_move
 
 
 @dataclass(frozen=True)
@@ -63,6 +72,12 @@ class StudPlan:
     q_approach: np.ndarray
     q_contact: np.ndarray
     yaw_rad: float
+    via: tuple[np.ndarray, ...] = ()  # joint waypoints before the approach (a detour), each (6,) rad
+
+    @property
+    def waypoints(self) -> tuple[np.ndarray, ...]:
+        """The joint moves to the approach: the detour's waypoints, then the approach joints."""
+        return (*self.via, self.q_approach)
 
 
 @dataclass(frozen=True)
@@ -79,14 +94,35 @@ class SafetyChecker:
     kin: RM65Kinematics
     limits: SafetyLimits = field(default_factory=SafetyLimits)
     tool_T: np.ndarray = field(default_factory=lambda: np.eye(4))
+    world_T_base: np.ndarray = field(default_factory=lambda: np.eye(4))  # the arm's base in world (the rail)
+    prefer_signs: tuple[int, ...] = (0, 0, 0, 0, 0, 0)   # the working branch (preferred_joint_signs)
+    hand_eye_T: np.ndarray = field(default_factory=lambda: np.eye(4))  # camera in the weld-tool frame
+
+    def __post_init__(self) -> None:
+        self._reach: dict[tuple[float, float], Reach] = {}
+
+    def reach_for(self, standoff_m: float, plunge_m: float = 0.0) -> Reach:
+        """The reach test of this cell with these approach distances (the planner builds the same one
+        from :attr:`Reach.config`, which the driver publishes)."""
+        key = (float(standoff_m), float(plunge_m))
+        if key not in self._reach:
+            d6 = float(self.kin.dh.d[5])
+            rm65 = DHModel.rm65(d6)
+            if not all(np.array_equal(getattr(self.kin.dh, f), getattr(rm65, f)) for f in ("a", "alpha", "d", "offset")):
+                raise ValueError("the reach test knows the RM65's DH table only")
+            self._reach[key] = Reach(ReachConfig(
+                standoff_m=key[0], plunge_m=key[1], tool_T=tuple(np.asarray(self.tool_T, float).ravel()),
+                max_tool_tilt_deg=self.limits.max_tool_tilt_deg, yaw_step_deg=self.limits.yaw_step_deg,
+                workspace_min_m=self.limits.workspace_min_m, workspace_max_m=self.limits.workspace_max_m,
+                preferred_joint_signs=tuple(self.prefer_signs), d6_m=d6,
+                joint_limits_deg=tuple(map(tuple, np.degrees(self.kin.limits_rad))),
+                hand_eye_T=tuple(np.asarray(self.hand_eye_T, float).ravel())))
+        return self._reach[key]
 
     @property
     def yaw_candidates_deg(self) -> np.ndarray:
-        """Rotations about the stud's axis tried, from the current wrist yaw outward: 0, +s, -s, ..."""
-        step = self.limits.yaw_step_deg
-        k = np.arange(1, int(np.floor(180.0 / step + 1e-9)) + 1)
-        yaws = np.concatenate([[0.0], np.ravel(np.column_stack([k * step, -k * step]))])
-        return yaws[np.abs(yaws) <= 180.0 + 1e-9][: int(round(360.0 / step))]
+        """Rotations about the stud's axis tried, from a fixed direction (away from the arm's axis): 0, +s, -s, ..."""
+        return self.reach_for(1.0).yaw_candidates_deg
 
     # -- single checks -------------------------------------------------------------------
     def check_speed(self, v_pct: int, linear: bool) -> str | None:
@@ -97,8 +133,8 @@ class SafetyChecker:
         return None
 
     def check_tool_tilt(self, normal: ArrayLike) -> str | None:
-        """The gun, along -normal, leans from vertical by the normal's angle to world +z."""
-        n = np.asarray(normal, dtype=np.float64)
+        """The gun, along -normal (base frame), leans from vertical by the normal's angle to world +z."""
+        n = self.world_T_base[:3, :3] @ np.asarray(normal, dtype=np.float64)
         norm = np.linalg.norm(n)
         if not np.isfinite(norm) or norm < 1e-9:
             return f"surface normal {n.tolist()} is not a usable direction"
@@ -109,8 +145,8 @@ class SafetyChecker:
         return None
 
     def check_points(self, points_m: np.ndarray, what: str) -> str | None:
-        """All points (N, 3) inside the workspace box?"""
-        pts = np.atleast_2d(np.asarray(points_m, dtype=np.float64))
+        """All points (N, 3, base frame) inside the workspace box (world)?"""
+        pts = np.atleast_2d(np.asarray(points_m, dtype=np.float64)) @ self.world_T_base[:3, :3].T + self.world_T_base[:3, 3]
         lo, hi = np.asarray(self.limits.workspace_min_m), np.asarray(self.limits.workspace_max_m)
         bad = np.any((pts < lo - 1e-9) | (pts > hi + 1e-9), axis=1)
         if bad.any():
@@ -157,51 +193,22 @@ class SafetyChecker:
     # -- a whole stud --------------------------------------------------------------------
     def check_target(self, position_m: ArrayLike, normal: ArrayLike, standoff_m: float,
                      q_current: np.ndarray, plunge_m: float = 0.0) -> TargetCheck:
-        """Plan and check one stud: gun tilt, approach pose on the normal at ``standoff_m``, contact
-        pose (``plunge_m`` beyond the surface), both in the workspace and reachable inside the
-        joint limits, the straight descent (and so the retract, the same line back) feasible, the
-        joint move from ``q_current`` inside the workspace.
-
-        The rotation about the stud's axis is free: every ``yaw_step_deg`` is tried, and of the
-        reachable ones the plan whose approach joints are nearest ``q_current`` is taken. Only
-        when no rotation works is the stud refused, with the first reason met."""
-        p = np.asarray(position_m, dtype=np.float64).reshape(3)
-        if not np.all(np.isfinite(p)):
-            return TargetCheck(False, f"position {p.tolist()} is not finite")
-        reason = self.check_tool_tilt(normal)
-        if reason:
-            return TargetCheck(False, reason)
-        n = np.asarray(normal, dtype=np.float64)
-        n = n / np.linalg.norm(n)
-        q_current = np.asarray(q_current, dtype=np.float64)
-        x_hint = (self.kin.fk(q_current) @ self.tool_T)[:3, 0]  # yaw 0: keep the wrist's current yaw
-        # The tip's positions do not depend on the yaw about the tool axis: check them once (the
-        # flange's do, when the gun is mounted off the flange axis: checked per yaw below).
-        for point, what in ((p + standoff_m * n, "approach pose"), (p - plunge_m * n, "contact pose")):
-            reason = self.check_points(point, what)
-            if reason:
-                return TargetCheck(False, reason)
-        # Approach solutions for every yaw, each seeded from its neighbour's (a yaw step is mostly
-        # a step of the wrist), then the full plan for the nearest first.
-        candidates: list[tuple[float, float, np.ndarray, np.ndarray]] = []
-        first_reason = ""
-        seed = q_current
-        for yaw_deg in self.yaw_candidates_deg:
-            yaw = float(np.radians(yaw_deg))
-            T_approach = tool_pose_facing(p + standoff_m * n, n, x_hint=x_hint, yaw=yaw)
-            q_app, why = self.check_pose(T_approach, seed if candidates else q_current, "approach pose")
-            if q_app is None:
-                first_reason = first_reason or why
-                continue
-            seed = q_app
-            candidates.append((float(np.linalg.norm(q_app - q_current)), yaw, T_approach, q_app))
-        for _dist, yaw, T_approach, q_app in sorted(candidates, key=lambda c: c[0]):
-            T_contact = tool_pose_facing(p - plunge_m * n, n, x_hint=x_hint, yaw=yaw)
-            q_con, why = self.check_pose(T_contact, q_app, "contact pose")
-            if q_con is not None:
-                why = (self.check_linear(q_app, T_contact, "descent")
-                       or self.check_joint_path(q_current, q_app, "approach move") or "")
-                if not why:
-                    return TargetCheck(True, "", StudPlan(T_approach, T_contact, q_app, q_con, yaw))
-            first_reason = first_reason or why
-        return TargetCheck(False, first_reason or "no rotation about the stud's axis is reachable")
+        """Plan and check one stud (position and normal in the base frame; the verdict is taken in world
+        with the base at :attr:`world_T_base`, as the planner takes it): the reach verdict (:meth:`Reach.stud`: gun tilt, approach pose on
+        the normal at ``standoff_m`` and contact pose ``plunge_m`` beyond the surface in the workspace
+        and reachable inside the joint limits for some rotation about the stud's axis, the straight
+        descent and retract feasible) -- refused with its reason, prefixed ``unreachable:`` --, then
+        the way there from ``q_current`` (:func:`~rm65_driver.weld.reach_move.plan_move`: the rotation and
+        solution nearest the current joints whose joint move stays in the workspace, or a detour)."""
+        reach = self.reach_for(standoff_m, plunge_m)
+        B = self.world_T_base
+        p_w = B[:3, :3] @ np.asarray(position_m, dtype=np.float64).reshape(3) + B[:3, 3]
+        n_w = B[:3, :3] @ np.asarray(normal, dtype=np.float64).reshape(3)
+        verdict = reach.stud(p_w, n_w, world_T_base=B)
+        if not verdict.ok:
+            return TargetCheck(False, f"unreachable: {verdict.reason}")
+        move, why = plan_move(reach, verdict, q_current, world_T_base=B)
+        if move is None:
+            return TargetCheck(False, why)
+        return TargetCheck(True, "", StudPlan(move.T_approach, move.T_contact, move.q_approach, move.q_contact,
+                                              move.yaw_rad, move.via))

@@ -4,7 +4,8 @@ needs before it (tool frame, trigger output) and after a lost connection (set up
 Used by :class:`~rm65_driver.weld.weld_sequence.WeldSequence`, which decides which stud comes next
 and what the journal already settles. Once a stud has passed its safety check, in order:
 
-3. ``approach``: ``movej`` to the checked joint solution of the approach (clearance) pose,
+3. ``approach``: ``movej`` to the checked joint solution of the approach (clearance) pose (through
+   a detour's waypoints when the straight joint move would leave the workspace box),
    ``standoff_m`` out along the surface normal, tool z pointing into the surface; then, with
    ``final_approach_m`` shorter than the standoff, a fast ``movel`` (``approach_speed_pct``)
    along the normal to the short standoff ``final_approach_m`` from the surface;
@@ -86,14 +87,17 @@ class LookAhead:
         if not check.ok or not np.max(np.abs(planned[1] - q_now)) <= LOOKAHEAD_TOL_RAD:
             return None  # a refusal may depend on the start: planned again, as is a start elsewhere
         assert check.plan is not None
-        if self.safety.check_joint_path(q_now, check.plan.q_approach, "approach move"):
+        if self.safety.check_joint_path(q_now, check.plan.waypoints[0], "approach move"):
             return None
         self.used += 1
         return check
 
 
 class StudCycle:
-    """Welds one stud at a time for a weld job (:attr:`control`: its flags and progress)."""
+    """Welds one stud at a time for a weld job (:attr:`control`: its flags and progress).
+
+    Targets are in the arm's base frame; the journal's weld points are in ``world``, where
+    ``safety.world_T_base`` puts the base (the identity without a rail)."""
 
     def __init__(self, client: ArmClient, journal: Journal, safety: SafetyChecker, params: WeldParams,
                  control: JobControl, on_welded: WeldedCallback | None = None):
@@ -201,7 +205,7 @@ class StudCycle:
             if c.cancelled:
                 raise JobEnded("cancelled")
             c.set_phase(t, "approach")
-            motion_s = {"move": self._timed_move("joint", plan.q_approach, p.joint_speed_pct)}
+            motion_s = {"move": sum(self._timed_move("joint", q, p.joint_speed_pct) for q in plan.waypoints)}
             if p.fast_approach:
                 self.below_clearance = True  # from here on, a recovery backs out along the normal
                 T_short = plan.T_contact.copy()
@@ -256,7 +260,8 @@ class StudCycle:
         p = self.params
         if not p.min_stud_spacing_m > 0:
             return ""
-        standing = {sid: (np.asarray(pos), np.asarray(n)) for sid, pos, n in self.journal.standing_studs()}
+        B = np.linalg.inv(self.safety.world_T_base)  # the journal's world -> this job's base frame
+        standing = {sid: (B[:3, :3] @ pos + B[:3, 3], B[:3, :3] @ n) for sid, pos, n in self.journal.standing_studs()}
         for o in self.job_targets:
             if o.stud_id not in standing and self.journal.status(o.stud_id) in ("welded", "uncertain"):
                 standing[o.stud_id] = (o.position, o.normal)
@@ -274,7 +279,9 @@ class StudCycle:
         # (forward kinematics), for the QA record and the demo's check against the true normal.
         q_at_weld = self.client.get_state().joints_rad
         # Durable *before* the trigger: after a crash this stud reads "uncertain", never "not welded".
-        self.journal.started(t.stud_id, job=c.job_id, position=t.position, normal=t.normal, joints=plan.q_contact,
+        W = self.safety.world_T_base
+        self.journal.started(t.stud_id, job=c.job_id, position=W[:3, :3] @ t.position + W[:3, 3],
+                             normal=W[:3, :3] @ t.normal, joints=plan.q_contact,
                              joints_at_weld=q_at_weld, **({"motion_s": motion_s} if motion_s else {}))
         try:
             self.client.set_do(p.trigger_io, True, tool=p.trigger_on_tool)

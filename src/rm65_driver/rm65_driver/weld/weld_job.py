@@ -20,7 +20,9 @@ STUD_ORDERS = ("given", "path", "tour")
 
 @dataclass(frozen=True)
 class StudTarget:
-    """One stud to weld: ``position`` (3,) m on the surface and unit outward ``normal`` (3,), world frame."""
+    """One stud to weld: ``position`` (3,) m on the surface and unit outward ``normal`` (3,), in ``world``
+    as the cell sends it; the weld job works in the arm's base frame (the same without a rail;
+    :func:`rm65_driver.rail.control.target_in_base` on one)."""
 
     stud_id: str
     position: np.ndarray

@@ -11,9 +11,10 @@ Per target, in order:
 1. journal says **welded** -> not touched (reported welded when ``resume``, else skipped
    "already welded"); journal says **uncertain** -> refused (failed, "needs an operator
    decision": ``/arm/resolve_stud``);
-2. safety check (gun tilt from vertical, workspace, reach/IK inside the joint limits for the
-   free rotation about the stud's axis nearest the current joints, straight descent
-   feasible; with ``min_stud_spacing_m``, room for the gun's foot beside the job's studs
+2. safety check: the reach verdict (:mod:`.reach`, the planner's own test: gun tilt from
+   vertical, workspace, reach/IK inside the joint limits for some rotation about the stud's axis,
+   straight descent feasible), then the rotation and solution nearest the current joints
+   (:mod:`.reach_move`); with ``min_stud_spacing_m``, room for the gun's foot beside the job's studs
    already welded or uncertain: :mod:`.welded_neighbours`): a rejection is journaled
    ``skipped(reason)`` and nothing is sent;
 3.-7. the stud's cycle (:mod:`.stud_cycle`): ``approach``, ``descend`` along the normal, ``weld``

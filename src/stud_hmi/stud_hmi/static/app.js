@@ -333,12 +333,14 @@ function onTargets(m) {
     if ((prev ? prev.nextSibling : tbody.firstChild) !== tr) tbody.insertBefore(tr, prev ? prev.nextSibling : tbody.firstChild);
     prev = tr;
     const p = r.position_mm || [null, null, null];
-    const weld = r.weld === "active" ? "● " + (r.phase || "active") : r.weld === "welded" ? "✔ welded" : r.weld;
+    const weld = r.weld === "active" ? "● " + (r.phase || "active") : r.weld === "welded" ? "✔ welded"
+      : r.reason ? "✖ " + r.reason.replace(/^unreachable: /, "") : r.weld;
     const insp = (r.inspection || "").replace(/_/g, " ") + (r.rework ? " → " + r.rework : "");
     const cells = [r.stud_id, r.status.replace(/_/g, " "), fmt(r.inclination_deg, 1), fmt(p[0], 1), fmt(p[1], 1),
                    fmt(p[2], 1), fmt(r.xy_error_mm, 2), r.view === null ? "–" : String(r.view), weld, insp];
     cells.forEach((v, i) => text(tr.children[i], v));
     tr.lastChild.title = (r.inspection_reasons || []).join(", ");
+    tr.children[1].title = tr.children[8].title = r.reason || "";
     const cls = "st-" + r.status + (r.weld ? " weld-" + r.weld : "") + (r.inspection ? " insp-" + r.inspection : "");
     if (tr.className !== cls) tr.className = cls;
   }
@@ -358,4 +360,4 @@ const HANDLERS = { hello: onHello, targets: onTargets, overlay: onOverlay, arm: 
                    inspection_overlay: onInspectionOverlay };
 
 setConnected(false, "connecting…");
-connect();
+document.addEventListener("DOMContentLoaded", connect); // once the page's other scripts (plan.js) added their handlers

@@ -6,7 +6,8 @@ Pure Python (ezdxf + numpy), no ROS: the drawing node converts :class:`DrawingLa
 Modules: ``dxf_file`` (file checks, ezdxf, recovery), ``plain_circles`` (the fast reader of plain
 CIRCLE entities), ``circles`` (modelspace and block expansion, labels), ``visibility`` (what CAD
 shows), ``units``, ``neighbours`` (grid-hash neighbour search), ``marks`` (O, A, B and the frame),
-``layout`` (ids, order, checks: :func:`read_layout`), ``layout_types`` (the results),
+``layout`` (ids, order, checks: :func:`read_layout`), ``layout_types`` (the results), ``limits`` (the
+work budget of block expansion: :class:`DrawingLimits`),
 ``dxf_writer`` (drawings for tests, demos and benchmarks).
 
 What is read
@@ -51,6 +52,11 @@ Decisions (each one is reported as a warning when it applies)
     * A degenerate INSERT (zero scale, a transform that raises in ezdxf) is skipped; the rest
       of the drawing is kept.
     * Unitless drawings (``$INSUNITS`` 0 or absent) use ``units_if_unitless`` (default mm).
+    * Block expansion has a work budget (:class:`DrawingLimits`: nesting depth, entities expanded,
+      MINSERT cells, text size), counted before anything is expanded: a drawing that asks for more
+      (ten nested levels of ten INSERTs each are 10^10 circles in 3 KB) is refused with
+      :class:`DrawingLimitError`, one line naming the block, its level and the count. The defaults
+      are far beyond real drawings; each can be raised.
 
 Marks (``marks_rule``)
     * ``"labels"``: each circle on the mark layer takes the letter of its nearest TEXT /
@@ -62,6 +68,16 @@ Marks (``marks_rule``)
       from A, a right-handed frame).
     Concentric mark circles (centres within ``duplicate_tol_m``) count as one mark (the
     largest circle), so a target symbol drawn as two rings is one mark.
+
+Reference marks (``DrawingLayout.reference_marks``)
+    A long part may carry reference marks beside O, A, B, painted along the part so that each
+    camera station registers on the marks it sees: circles on the mark layer labelled ``M1``,
+    ``M2``, ... by TEXT / MTEXT / ATTRIB as O, A, B are (``M01`` reads as ``M1``). They are read
+    in label order (M1, M2, ..., M10), in the drawing frame (metres), and are never studs. In a
+    drawing with reference marks every mark-layer circle must be labelled: an unlabelled one is
+    an error naming where it is (a reference mark without its label would silently be left
+    out), as is a label nearest to two circles; an ``M`` label next to no mark circle is warned
+    about (``M16`` may be a thread size).
 
 Drawing frame (INTERFACES.md, frame ``drawing``)
     Origin at O, x along OA, y perpendicular to x on B's side; metres. If the labels put B
@@ -95,8 +111,9 @@ from stud_planner.drawing.circles import collect_circles, read_circles
 from stud_planner.drawing.dxf_file import load_document
 from stud_planner.drawing.layout import read_layout
 from stud_planner.drawing.layout_types import CircleSet, DrawingError, DrawingLayout, Mark, Stud
+from stud_planner.drawing.limits import DrawingLimitError, DrawingLimits
 from stud_planner.drawing.neighbours import close_pairs
 from stud_planner.drawing.units import UNITS, units_to_metres
 
-__all__ = ["DrawingError", "Stud", "Mark", "DrawingLayout", "CircleSet", "read_layout", "read_circles", "collect_circles",
+__all__ = ["DrawingError", "DrawingLimitError", "DrawingLimits", "Stud", "Mark", "DrawingLayout", "CircleSet", "read_layout", "read_circles", "collect_circles",
            "load_document", "close_pairs", "UNITS", "units_to_metres"]

@@ -3,9 +3,16 @@ nesting, layer 0 inheritance), visibility, and the labels next to them.
 
 Each DXF entity type we read has its handler (:attr:`_Collector.handlers`: CIRCLE, TEXT, MTEXT,
 INSERT; every other type holds nothing we use); whether CAD shows an entity is decided before
-any handler runs, in :mod:`stud_planner.drawing.visibility`."""
+any handler runs, in :mod:`stud_planner.drawing.visibility`.
+
+Block expansion is budgeted (:mod:`stud_planner.drawing.limits`): nesting depth, MINSERT cells,
+text size and the entities all block references produce are counted *before* anything is
+expanded, so a drawing that asks for 10^10 circles stops at once with a
+:class:`~stud_planner.drawing.limits.DrawingLimitError` naming the block, its level and the count."""
 from __future__ import annotations
 
+import itertools
+import math
 import re
 from collections import Counter
 from dataclasses import dataclass, field
@@ -17,6 +24,7 @@ import numpy as np
 from stud_planner.drawing.plain_circles import PlainCircles
 from stud_planner.drawing.dxf_file import _check_file, _load_document, _load_with_plain_circles, _one_line
 from stud_planner.drawing.layout_types import CircleSet, DrawingError
+from stud_planner.drawing.limits import DrawingLimitError, DrawingLimits
 from stud_planner.drawing.units import UNITS, units_to_metres
 from stud_planner.drawing.visibility import Visibility
 
@@ -28,8 +36,9 @@ from stud_planner.drawing.visibility import Visibility
 #: broken export or a corrupt file writes; such values would also overflow the frame arithmetic.
 MAX_COORDINATE_M = 1e8
 _LABEL_LETTERS = ("O", "A", "B")
+#: a reference mark's label: M1, M2, ... (``M01`` and ``M 1`` read as M1)
+_REFERENCE_LABEL = re.compile(r"M\s*0*([1-9][0-9]{0,5})")
 _TEXT_CODES = re.compile(r"%%[uUoOkK]")
-_MAX_NESTING = 32
 # A transformed circle whose axes differ in length or squareness by more than this (relative),
 # or whose plane tilts from XY by more than acos(1 - this) (0.8 deg), is an ellipse in plan view.
 # Rounded scale factors in real files (1.000001) stay circles.
@@ -96,7 +105,8 @@ def _concat(parts: list[_Content]) -> _Content:
     return _Content(
         np.concatenate([p.centers for p in parts]), np.concatenate([p.u for p in parts]),
         np.concatenate([p.v for p in parts]), np.concatenate([p.layers for p in parts]),
-        np.concatenate([p.label_pos for p in parts]), sum((p.label_letters for p in parts), ()), nonpos,
+        np.concatenate([p.label_pos for p in parts]),
+        tuple(itertools.chain.from_iterable(p.label_letters for p in parts)), nonpos,
         np.concatenate([p.handles for p in parts]),
     )
 
@@ -112,7 +122,10 @@ def _label_letter(e: Any, dxftype: str) -> str | None:
     if dxftype == "MTEXT":
         raw = e.plain_text()
     text = _TEXT_CODES.sub("", raw).strip().upper()
-    return text if text in _LABEL_LETTERS else None
+    if text in _LABEL_LETTERS:
+        return text
+    ref = _REFERENCE_LABEL.fullmatch(text)
+    return f"M{ref.group(1)}" if ref else None
 
 
 def _label_position(e: Any, dxftype: str) -> tuple[float, float, float]:
@@ -129,7 +142,7 @@ def _label_position(e: Any, dxftype: str) -> tuple[float, float, float]:
 #: INSERT parameters of the common case (extrusion +Z, no MINSERT), one row per reference:
 #: (x, y, z, xscale, yscale, zscale, rotation_deg, layer, handle)
 _SimpleInsert = tuple
-#: any other INSERT reference: (transform (4, 4), layer, handle)
+#: any other INSERT reference, or the cells of a MINSERT: (transforms (k, 4, 4), layer, handle)
 _GeneralInsert = tuple
 
 
@@ -150,6 +163,12 @@ class _ScanBuffer:
     # pass; the rest through ezdxf's Insert.matrix44().
     simple: dict[str, list[_SimpleInsert]] = field(default_factory=dict)
     general: dict[str, list[_GeneralInsert]] = field(default_factory=dict)
+    #: the container scanned (a block's name, or None for modelspace) and its nesting level (0: modelspace)
+    container: str | None = None
+    level: int = 0
+
+    def where(self) -> str:
+        return "modelspace" if self.container is None else f"block {self.container!r} (nesting level {self.level})"
 
     def add_label(self, e: Any, dxftype: str) -> None:
         letter = _label_letter(e, dxftype)
@@ -173,8 +192,14 @@ class _Collector:
     One handler per DXF entity type (:attr:`handlers`, as ezdxf's drawing add-on dispatches);
     whether an entity is shown at all is decided before, in one place (:class:`Visibility`)."""
 
-    def __init__(self, doc: Any, include_hidden_layers: bool = False) -> None:
+    def __init__(self, doc: Any, include_hidden_layers: bool = False, limits: DrawingLimits | None = None,
+                 source: str = "<document>") -> None:
         self.doc = doc
+        self.limits = limits or DrawingLimits()
+        self.source = source  # the file, for the limit errors
+        #: the work done so far, against :attr:`limits`: entities block references produced, MINSERT cells
+        self.expanded = 0
+        self.minsert_cells = 0
         self.cache: dict[str, _Content] = {}
         self.skipped_inserts: Counter = Counter()
         self.layer_entities: Counter = Counter()
@@ -187,18 +212,24 @@ class _Collector:
         self.skipped_inserts[(name, reason)] += count
 
     def block_content(self, name: str, stack: tuple[str, ...]) -> tuple[_Content | None, str]:
-        """Flattened content of block ``name`` (cached), or (None, why not)."""
+        """Flattened content of block ``name`` (cached), or (None, why not). ``stack``: the blocks
+        being expanded, from modelspace's down (their names as spelled)."""
         key = name.casefold()
         if key in self.cache:
             return self.cache[key], ""
-        if key in stack:
+        if any(key == outer.casefold() for outer in stack):
             return None, "recursive block reference"
-        if len(stack) >= _MAX_NESTING:
-            return None, f"nesting deeper than {_MAX_NESTING}"
+        level = len(stack) + 1
+        if level > self.limits.max_block_depth:
+            chain = [*stack, name]
+            shown = " > ".join(chain if len(chain) <= 6 else [*chain[:3], "...", *chain[-2:]])
+            raise DrawingLimitError(
+                f"{self.source}: block {name!r} is nested {level} levels deep (modelspace > {shown}), beyond "
+                f"the limit max_block_depth = {self.limits.max_block_depth}", "max_block_depth", level)
         block = self.doc.blocks.get(name)
         if block is None:
             return None, "block definition missing"
-        content = self.scan(block, stack + (key,), in_block=True)
+        content = self.scan(block, stack + (name,), in_block=True)
         self.cache[key] = content
         return content, ""
 
@@ -236,7 +267,7 @@ class _Collector:
         """Circles and labels of ``entities`` (INSERTs expanded). ``plain``: the modelspace's CIRCLE
         entities, read by :mod:`~stud_planner.drawing.plain_circles` (``entities`` then holds no CIRCLE); they go
         through the same rules as the circles read here."""
-        buf = _ScanBuffer()
+        buf = _ScanBuffer(container=stack[-1] if stack else None, level=len(stack))
         for e in entities:
             t = e.dxftype()
             try:
@@ -281,12 +312,24 @@ class _Collector:
         buf.layers.append(layer)
         buf.handles.append(dxf.handle)
 
-    @staticmethod
-    def _label(e: Any, dxftype: str, layer: str | None, buf: _ScanBuffer) -> None:
+    def _label(self, e: Any, dxftype: str, layer: str | None, buf: _ScanBuffer) -> None:
+        self._check_text(e, dxftype, buf)
         buf.add_label(e, dxftype)
+
+    def _check_text(self, e: Any, dxftype: str, buf: _ScanBuffer) -> None:
+        """The text size limit, before a label is looked at."""
+        try:
+            n = len(e.dxf.text if dxftype in ("TEXT", "ATTRIB") else e.text)
+        except Exception:
+            return  # no text: no label (as _label_letter decides)
+        if n > self.limits.max_text_chars:
+            raise DrawingLimitError(
+                f"{self.source}: {dxftype} (handle {e.dxf.get('handle', '?')}) in {buf.where()} has {n:,} "
+                f"characters, beyond the limit max_text_chars = {self.limits.max_text_chars:,}", "max_text_chars", n)
 
     def _insert(self, e: Any, dxftype: str, layer: str | None, buf: _ScanBuffer) -> None:
         for attrib in getattr(e, "attribs", ()):
+            self._check_text(attrib, "ATTRIB", buf)
             buf.add_label(attrib, "ATTRIB")
         dxf = e.dxf
         name = dxf.get("name", "")
@@ -297,11 +340,43 @@ class _Collector:
                 buf.simple.setdefault(name, []).append((
                     p.x, p.y, p.z, dxf.xscale, dxf.yscale, dxf.zscale, dxf.rotation, layer, dxf.handle))
             else:
-                refs = list(e.multi_insert()) if e.mcount > 1 else [e]
-                for ref in refs:
-                    buf.general.setdefault(name, []).append((_matrix(ref.matrix44()), layer, dxf.handle))
+                mats = self._minsert_cells(e, name, buf) if e.mcount > 1 else _matrix(e.matrix44())[None]
+                buf.general.setdefault(name, []).append((mats, layer, dxf.handle))
+        except DrawingLimitError:
+            raise
         except Exception as exc:  # e.g. ZeroDivisionError on a zero extrusion vector
             self.skip_insert(name, f"transform failed ({type(exc).__name__})")
+
+    def _minsert_cells(self, e: Any, name: str, buf: _ScanBuffer) -> np.ndarray:
+        """(k, 4, 4) transforms of a MINSERT's grid cells, counted against ``max_minsert_cells``
+        before any is made. The cells of ezdxf's ``Insert.multi_insert`` in its order (row by row),
+        computed as arrays: the grid offset (column x column_spacing, row x row_spacing) is in the
+        OCS, rotated with the INSERT and not scaled; a zero spacing collapses its direction to one
+        cell, as ezdxf yields each location once."""
+        dxf = e.dxf
+        row_count, col_count = int(dxf.row_count), int(dxf.column_count)
+        dx, dy = float(dxf.column_spacing), float(dxf.row_spacing)
+        rows = (row_count if dy else 1) if row_count > 0 else 0
+        cols = (col_count if dx else 1) if col_count > 0 else 0
+        cells = rows * cols
+        if self.minsert_cells + cells > self.limits.max_minsert_cells:
+            raise DrawingLimitError(
+                f"{self.source}: MINSERT (handle {dxf.get('handle', '?')}) of block {name!r} in {buf.where()} has "
+                f"{rows:,} x {cols:,} = {cells:,} cells ({self.minsert_cells:,} in MINSERTs before), beyond the "
+                f"limit max_minsert_cells = {self.limits.max_minsert_cells:,}", "max_minsert_cells",
+                self.minsert_cells + cells)
+        self.minsert_cells += cells
+        base = _matrix(e.matrix44())
+        r, c = np.divmod(np.arange(cells, dtype=np.int64), max(cols, 1))
+        ox, oy = c * dx, r * dy
+        a = math.radians(float(dxf.rotation))
+        if a:
+            ca, sa = math.cos(a), math.sin(a)
+            ox, oy = ox * ca - oy * sa, ox * sa + oy * ca
+        ocs = e.ocs()
+        mats = np.repeat(base[None], cells, axis=0)
+        mats[:, 3, :3] += ox[:, None] * np.array(tuple(ocs.ux)) + oy[:, None] * np.array(tuple(ocs.uy))
+        return mats
 
     # -- block expansion ----------------------------------------------------------------------------
     def _place_block(self, name: str, simple: list[_SimpleInsert], general: list[_GeneralInsert],
@@ -313,9 +388,9 @@ class _Collector:
             ins_layers += [r[7] for r in simple]
             ins_handles += [r[8] for r in simple]
         if general:
-            mats.append(np.stack([m for m, _, _ in general]))
-            ins_layers += [lay for _, lay, _ in general]
-            ins_handles += [h for _, _, h in general]
+            mats.append(np.concatenate([m for m, _, _ in general]))
+            ins_layers += [lay for m, lay, _ in general for _ in range(len(m))]
+            ins_handles += [h for m, _, h in general for _ in range(len(m))]
         M = np.concatenate(mats)
         # rows 0, 1 = images of the block's x and y axes; a zero z scale is harmless in 2D
         ok = np.all(np.isfinite(M), axis=(1, 2)) & (np.min(np.linalg.norm(M[:, :2, :3], axis=2), axis=1) > 1e-12)
@@ -328,12 +403,28 @@ class _Collector:
             if content is None:
                 self.skip_insert(name, why, int(np.count_nonzero(ok)))
                 return None
+            self._count_expansion(name, int(np.count_nonzero(ok)), content, stack)
             return _apply(content, M[ok], [lay for lay, good in zip(ins_layers, ok) if good],
                           [h for h, good in zip(ins_handles, ok) if good])
+        except DrawingLimitError:
+            raise
         except Exception as exc:
             self.skip_insert(name, f"expansion failed ({type(exc).__name__}: {_one_line(exc)})",
                              int(np.count_nonzero(ok)))
             return None
+
+
+    def _count_expansion(self, name: str, k: int, content: _Content, stack: tuple[str, ...]) -> None:
+        """Counts ``k`` placements of ``content`` against ``max_expanded_entities`` before they are made."""
+        n = content.centers.shape[0] + content.label_pos.shape[0]
+        if self.expanded + k * n > self.limits.max_expanded_entities:
+            where = f"block {stack[-1]!r}" if stack else "modelspace"
+            raise DrawingLimitError(
+                f"{self.source}: block {name!r} (nesting level {len(stack) + 1}) placed {k:,} time{'s' if k != 1 else ''} in {where} "
+                f"would expand {k * n:,} entities ({k:,} x {n:,}; {self.expanded:,} expanded before), beyond the "
+                f"limit max_expanded_entities = {self.limits.max_expanded_entities:,}", "max_expanded_entities",
+                self.expanded + k * n)
+        self.expanded += k * n
 
 
 def _insert_matrices(params: np.ndarray, base: np.ndarray) -> np.ndarray:
@@ -456,18 +547,21 @@ def collect_circles(
     include_hidden_layers: bool = False,
     warnings: Sequence[str] = (),
     plain: PlainCircles | None = None,
+    limits: DrawingLimits | None = None,
 ) -> CircleSet:
     """All circles of ``doc``'s modelspace with INSERTs expanded, in WCS (drawing units).
 
-    Also reads the units and the O/A/B labels; see the module docstring for what is skipped.
+    Also reads the units and the O/A/B (and M1, M2, ...) labels; see the module docstring for what is skipped.
     ``plain``: the modelspace CIRCLE entities read by :mod:`~stud_planner.drawing.plain_circles` and cut out of
-    ``doc`` (what :func:`read_circles` does for a large file); the result is the same.
+    ``doc`` (what :func:`read_circles` does for a large file); the result is the same. ``limits``: the work
+    budget of the block expansion (:class:`~stud_planner.drawing.limits.DrawingLimits`; crossing one raises
+    :class:`~stud_planner.drawing.limits.DrawingLimitError`, a :class:`DrawingError`).
     """
     path = Path(path)
     warns = list(warnings)
     insunits, unit_name, scale, assumed = _drawing_units(doc, path, units_if_unitless, warns)
 
-    collector = _Collector(doc, include_hidden_layers)
+    collector = _Collector(doc, include_hidden_layers, limits, str(path))
     content = collector.scan(doc.modelspace(), (), in_block=False, plain=plain)
     visibility = collector.visibility
 
@@ -501,7 +595,7 @@ def collect_circles(
 
 
 def read_circles(path: str | Path, *, units_if_unitless: str = "mm", include_hidden_layers: bool = False,
-                 plain_circles: bool = True) -> CircleSet:
+                 plain_circles: bool = True, limits: DrawingLimits | None = None) -> CircleSet:
     """Open ``path`` and return every usable circle (INSERTs expanded); no stud/mark logic.
 
     ``plain_circles``: read the modelspace's plain CIRCLE entities of an ASCII file with
@@ -518,7 +612,8 @@ def read_circles(path: str | Path, *, units_if_unitless: str = "mm", include_hid
         doc, mode, warns = _load_document(path, data, file_warns)
     try:
         return collect_circles(doc, path, read_mode=mode, units_if_unitless=units_if_unitless,
-                               include_hidden_layers=include_hidden_layers, warnings=warns, plain=plain)
+                               include_hidden_layers=include_hidden_layers, warnings=warns, plain=plain,
+                               limits=limits)
     except DrawingError:
         raise
     except Exception as exc:  # a file ezdxf loads but cannot walk: never a traceback for the user

@@ -5,7 +5,9 @@ reliable + transient local, so a late subscriber such as the HMI or a matcher st
 later still gets it) and ``/drawing/poses`` (PoseArray in the ``drawing`` frame, for
 visualisation). ``/drawing/load`` (LoadDrawing) reloads the file or loads another one. A
 bad file is reported in the log and on /diagnostics; the node keeps running and keeps
-publishing the last good layout.
+publishing the last good layout (none, if no file was good yet). That includes a drawing that asks
+for more block expansion than ``drawing_limits.*`` allow (:class:`DrawingLimits`: the reason names
+the block, its nesting level and the count, and the parameter that raises the limit).
 """
 from __future__ import annotations
 
@@ -16,7 +18,7 @@ from stud_welding_msgs.srv import LoadDrawing
 
 from stud_common import ros_io
 from stud_common.ros_io import Param
-from stud_planner.drawing import DrawingError, read_layout
+from stud_planner.drawing import DrawingError, DrawingLimitError, DrawingLimits, read_layout
 from stud_planner.msg_convert import layout_poses, layout_to_msg
 from stud_common import names
 
@@ -35,6 +37,17 @@ PARAMS = [
           min=0.0, max=0.5),
     Param("include_hidden_layers", False, "also read frozen or off layers (skipped by default, as CAD hides them)"),
 ]
+LIMITS_NS = "drawing_limits"
+#: ``drawing_limits.<name>``: the work budget of block expansion (:class:`DrawingLimits`, its defaults)
+LIMIT_PARAMS = [Param(f"{LIMITS_NS}.{name}", default, f"drawing limit: {text}; a drawing beyond it is refused "
+                      "(a change applies to the next /drawing/load)", min=1)
+                for name, (default, text) in DrawingLimits.describe().items()]
+PARAMS += LIMIT_PARAMS
+
+
+def limits_from(p: dict) -> DrawingLimits:
+    """DrawingLimits from the declared parameter values (:data:`LIMIT_PARAMS`)."""
+    return DrawingLimits(**{name: p[f"{LIMITS_NS}.{name}"] for name in DrawingLimits.describe()})
 
 
 class DrawingNode(Node):
@@ -60,12 +73,16 @@ class DrawingNode(Node):
                 units_if_unitless=p["units_if_unitless"],
                 min_diameter_m=p["min_diameter_m"] or None, max_diameter_m=p["max_diameter_m"] or None,
                 min_spacing_m=None if p["min_spacing_m"] < 0 else p["min_spacing_m"],
-                include_hidden_layers=p["include_hidden_layers"], gun_spacing_m=p["gun_spacing_m"])
+                include_hidden_layers=p["include_hidden_layers"], gun_spacing_m=p["gun_spacing_m"],
+                limits=limits_from(p))
         except DrawingError as exc:
-            self.get_logger().error(str(exc))
-            self.diag.set(self.diag.ERROR, str(exc), file=path)
+            why = str(exc)
+            if isinstance(exc, DrawingLimitError):
+                why += f" (a genuine drawing? raise the parameter {LIMITS_NS}.{exc.limit})"
+            self.get_logger().error(why)
+            self.diag.set(self.diag.ERROR, why, file=path)
             self.diag.publish()
-            return False, str(exc), 0
+            return False, why, 0
         msg = layout_to_msg(layout, self.get_clock().now().to_msg())
         self.pub_layout.publish(msg)
         self.pub_poses.publish(layout_poses(msg))

@@ -57,11 +57,12 @@ def write_layout_dxf(
     mirror_frame: bool = False,
     binary: bool = False,
 ) -> Path:
-    """Write a DXF with stud circles and the three marks O, A, B; return the path.
+    """Write a DXF with stud circles, the three marks O, A, B and any reference marks; return the path.
 
     Args:
         studs_xy_m: (N, 2) stud centres, drawing frame, metres.
-        marks_xy_m: {"O": (x, y), "A": ..., "B": ...}, drawing frame, metres.
+        marks_xy_m: {"O": (x, y), "A": ..., "B": ...}, drawing frame, metres; further entries
+            (``"M1": (x, y)``, ...) are reference marks, drawn on the mark layer like O, A, B.
         stud_diameter_m: one diameter for all studs or one per stud (m).
         dxfversion: "R12", "R2000", "R2004", "R2007", "R2010", "R2013", "R2018" (R12 files
             carry no units: coordinates are written in ``units`` all the same).
@@ -69,7 +70,7 @@ def write_layout_dxf(
             ``unitless_as``).
         stud_layer: one layer for all studs or one per stud.
         labels: write TEXT (``label_kind="text"``) or MTEXT (``"mtext"``, R2000+) labels O/A/B
-            next to the marks.
+            (M1, ...) next to the marks.
         as_blocks: studs as INSERTs of block ``STUD`` (a circle of diameter ``1 / block_scale``
             on layer 0, off the block origin, with a non-zero base point) with
             ``block_rotation_deg``, scale ``block_scale x stud diameter`` and ``mirror_blocks``
@@ -101,7 +102,10 @@ def write_layout_dxf(
         _add_stud_inserts(msp, block, stud_wcs, diam * k, layers, block_rotation_deg, block_scale, mirror_blocks,
                           ocs_flip)
     mark_r = mark_diameter_m * k / 2.0
-    for name in ("O", "A", "B"):
+    missing = [name for name in ("O", "A", "B") if name not in marks_xy_m]
+    if missing:
+        raise ValueError(f"marks_xy_m lacks {', '.join(missing)}")
+    for name in ("O", "A", "B", *(m for m in marks_xy_m if m not in ("O", "A", "B"))):
         p = to_wcs(marks_xy_m[name])[0]
         _add_circle(msp, p, mark_r, mark_layer, ocs_flip)
         if labels:

@@ -5,8 +5,10 @@ the rule that identified the marks and every warning. ``--json`` writes the layo
 (:meth:`DrawingLayout.to_dict`), ``--png`` a preview (OpenCV): studs with ids, marks, and the
 drawing frame's x (red) and y (green) axes.
 
-Any failure -- a bad argument, a drawing the parser refuses, a file ezdxf chokes on -- is one
-line ``drawing_inspect: error: <message>`` on stderr and exit code 2; never a traceback.
+Any failure -- a bad argument, a drawing the parser refuses, a file ezdxf chokes on, a drawing
+that asks for more block expansion than its work budget allows (``--max-expanded-entities`` and
+the other limits of :class:`~stud_planner.drawing.limits.DrawingLimits`) -- is one line
+``drawing_inspect: error: <message>`` on stderr and exit code 2; never a traceback.
 """
 from __future__ import annotations
 
@@ -22,6 +24,7 @@ import numpy as np
 from stud_common.strict_json import write_json
 
 from stud_planner.drawing import DrawingError, DrawingLayout, read_layout, units_to_metres
+from stud_planner.drawing.limits import add_limit_arguments, cli_hint, limits_from_args
 
 PROG = "drawing_inspect"
 
@@ -70,6 +73,7 @@ def _build_parser() -> argparse.ArgumentParser:
                    help="warn about studs closer than this (default: 2.5 x the median stud diameter)")
     p.add_argument("--max-ids", type=int, default=400,
                    help="label stud ids in the preview only up to this many studs (default: 400)")
+    add_limit_arguments(p)
     return p
 
 
@@ -112,6 +116,11 @@ def summary(layout: DrawingLayout) -> str:
     lines.append(f"frame:        origin O, x toward A (|OA| {_fmt_len(A.x_m)}, heading {heading:.2f} deg in WCS), "
                  f"y toward B (|OB| {_fmt_len(math.hypot(L.mark_b.x_m, L.mark_b.y_m))}), "
                  f"angle AOB {L.angle_aob_deg:.3f} deg, " + ("MIRRORED w.r.t. the DXF" if L.mirrored else "right-handed"))
+    if L.reference_marks:
+        lines.append(f"reference marks: {len(L.reference_marks)} ({L.reference_marks[0].name} .. "
+                     f"{L.reference_marks[-1].name}), drawing frame")
+        lines += [f"  {m.name}  ({_z(m.x_m):.4f}, {_z(m.y_m):.4f}) m, diameter {m.diameter_m * 1e3:.2f} mm"
+                  for m in L.reference_marks]
     if L.warnings:
         lines.append(f"warnings:     {len(L.warnings)}")
         lines += [f"  - {w}" for w in L.warnings]
@@ -121,13 +130,14 @@ def summary(layout: DrawingLayout) -> str:
 
 
 def render_preview(layout: DrawingLayout, path: Path, size_px: int = 1600, max_ids: int = 400) -> None:
-    """Write a PNG preview: studs (blue) with ids, marks (red) with names, frame axes from O."""
+    """Write a PNG preview: studs (blue) with ids, marks and reference marks (red) with names, frame axes from O."""
     try:
         import cv2
     except ImportError as exc:
         raise DrawingError(f"{path}: --png needs OpenCV (cv2): {exc}") from exc
     studs = layout.studs_xy_m()
-    marks = np.array([(m.x_m, m.y_m) for m in layout.marks.values()])
+    all_marks = (*layout.marks.values(), *layout.reference_marks)
+    marks = np.array([(m.x_m, m.y_m) for m in all_marks])
     pts = np.vstack([studs, marks, [[0.0, 0.0]]])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     pad = 0.08 * max(float(np.max(hi - lo)), 1e-6)
@@ -154,7 +164,7 @@ def render_preview(layout: DrawingLayout, path: Path, size_px: int = 1600, max_i
         cv2.circle(img, c, r, (200, 90, 0), 1 if r > 3 else -1, cv2.LINE_AA)
         if label_ids:
             cv2.putText(img, s.id, (c[0] + r + 2, c[1] - r - 2), font, fs, (80, 40, 0), 1, cv2.LINE_AA)
-    for m in layout.marks.values():
+    for m in all_marks:
         c = px((m.x_m, m.y_m))
         r = max(4, int(round(m.diameter_m / 2 * scale)))
         cv2.circle(img, c, r, (0, 0, 220), 2, cv2.LINE_AA)
@@ -173,11 +183,16 @@ def _run(argv: Sequence[str] | None) -> int:
     def mm(v):
         return None if v is None else v * 1e-3
 
+    try:
+        limits = limits_from_args(args)
+    except ValueError as exc:
+        raise _UsageError(str(exc)) from None
+
     layout = read_layout(
         args.file, stud_layers=args.stud_layers or ["STUDS"], mark_layer=args.mark_layer or ["MARKS"],
         units_if_unitless=args.units_if_unitless, min_diameter_m=mm(args.min_diameter_mm),
         max_diameter_m=mm(args.max_diameter_mm), min_spacing_m=mm(args.min_spacing_mm),
-        include_hidden_layers=args.include_hidden_layers,
+        include_hidden_layers=args.include_hidden_layers, limits=limits,
     )
     print(summary(layout))
     if args.json:
@@ -206,7 +221,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         return 130
     except (_UsageError, DrawingError) as exc:
-        message = str(exc)
+        message = str(exc) + (cli_hint(exc) if isinstance(exc, DrawingError) else "")
     except Exception as exc:  # anything ezdxf or the file system throws at the boundary
         message = f"unexpected {type(exc).__name__}: {exc}"
     print(f"{PROG}: error: {' '.join(message.split())}", file=sys.stderr)

@@ -15,6 +15,7 @@ from stud_common.rotations import float3
 from stud_planner.drawing.circles import _LABEL_LETTERS, read_circles
 from stud_planner.drawing.dxf_file import _one_line
 from stud_planner.drawing.layout_types import CircleSet, DrawingError, DrawingLayout, Mark, Stud
+from stud_planner.drawing.limits import DrawingLimits
 from stud_planner.drawing.marks import _fmt_pats, _identify_marks, _layer_matcher
 from stud_planner.drawing.neighbours import _TooDense, close_pairs
 
@@ -38,6 +39,7 @@ def read_layout(
     right_angle_ambiguity_deg: float = 2.0,
     include_hidden_layers: bool = False,
     gun_spacing_m: float = 0.0,
+    limits: DrawingLimits | None = None,
 ) -> DrawingLayout:
     """Read the stud layout of a DXF drawing (see the module docstring for every rule).
 
@@ -61,13 +63,16 @@ def read_layout(
         gun_spacing_m: warn about stud pairs closer than the weld gun's foot needs beside a
             welded stud (the arm driver's ``min_stud_spacing_m``): of each such pair the driver
             welds one and refuses the other. 0 = off.
+        limits: the work budget of the block expansion (default: :class:`DrawingLimits`' defaults,
+            far beyond any real drawing); crossing one raises :class:`DrawingLimitError`.
 
     Raises:
         DrawingError: one line naming the file and the problem.
     """
     path = Path(path)
     with _bulk_allocation():
-        cs = read_circles(path, units_if_unitless=units_if_unitless, include_hidden_layers=include_hidden_layers)
+        cs = read_circles(path, units_if_unitless=units_if_unitless, include_hidden_layers=include_hidden_layers,
+                          limits=limits)
         try:
             return _build_layout(path, cs, _Rules(
                 stud_layers, mark_layer, min_diameter_m, max_diameter_m, min_spacing_m,
@@ -180,12 +185,13 @@ def _drawing_frame(path: Path, cs: CircleSet, marks_idx: dict[str, int], rules: 
 
 
 def _marks(cs: CircleSet, marks_idx: dict[str, int], frame: _Frame) -> dict[str, Mark]:
+    """O, A, B and the reference marks (in ``marks_idx``'s order) in the drawing frame."""
     marks = {}
-    for k in _LABEL_LETTERS:
-        i = marks_idx[k]
+    for k, i in marks_idx.items():
         dx, dy = frame.to_drawing(cs.centers_wcs[i][None, :])[0]
+        diameter = frame.mark_d[k] if k in frame.mark_d else 2.0 * float(cs.radii[i]) * cs.metres_per_unit
         marks[k] = Mark(k, float(dx), float(dy), float(cs.centers_wcs[i][0]), float(cs.centers_wcs[i][1]),
-                        frame.mark_d[k], cs.layers[i])
+                        diameter, cs.layers[i])
     return marks
 
 
@@ -304,7 +310,7 @@ def _build_layout(path: Path, cs: CircleSet, rules: _Rules) -> DrawingLayout:
 
     marks_idx, rule, mark_warns, mark_members = _identify_marks(
         path, cs, rules.mark_layer, rules.duplicate_tol_m / s, rules.label_distance_factor, rules.collinear_tol_deg,
-        rules.right_angle_ambiguity_deg,
+        rules.right_angle_ambiguity_deg, stud_match,
     )
     warns += mark_warns
     frame = _drawing_frame(path, cs, marks_idx, rules, warns)
@@ -337,4 +343,5 @@ def _build_layout(path: Path, cs: CircleSet, rules: _Rules) -> DrawingLayout:
         wcs_to_drawing=tuple(float3(row) for row in frame.T), bbox_m=bbox,
         stud_layers=tuple(sorted(set(layer_arr.tolist()), key=str.casefold)), warnings=warns,
         invalid_entities=cs.invalid_entities,
+        reference_marks=tuple(m for k, m in marks.items() if k not in _LABEL_LETTERS),
     )

@@ -34,7 +34,8 @@ class Stud:
 
 @dataclass(frozen=True)
 class Mark:
-    """Mark ``name`` (O, A or B): centre in the ``drawing`` frame (m) and in DXF WCS (drawing units)."""
+    """Mark ``name`` (O, A, B, or a reference mark M1, M2, ...): centre in the ``drawing`` frame (m) and
+    in DXF WCS (drawing units)."""
 
     name: str
     x_m: float
@@ -53,6 +54,8 @@ class DrawingLayout:
     DXF WCS (drawing units) to the drawing frame (metres): unit scale times a rigid motion
     (a reflection too when ``mirrored``). ``bbox_m`` is (xmin, ymin, xmax, ymax) of the stud
     centres in the drawing frame. ``studs`` are in id order (module docstring).
+    ``reference_marks``: the marks M1, M2, ... painted along a long part beside O, A, B (circles
+    on the mark layer labelled like O, A, B), in label order (M1, M2, ..., M10).
     """
 
     source_file: str
@@ -77,6 +80,7 @@ class DrawingLayout:
     warnings: list[str] = field(default_factory=list)
     #: circles left out for non-finite or out-of-range values, one line each (handle, layer, values)
     invalid_entities: tuple[str, ...] = ()
+    reference_marks: tuple[Mark, ...] = ()
 
     @property
     def marks(self) -> dict[str, Mark]:
@@ -85,6 +89,10 @@ class DrawingLayout:
     def marks_xy_m(self) -> np.ndarray:
         """(3, 2) float64 marks O, A, B, drawing frame, metres."""
         return np.array([(m.x_m, m.y_m) for m in (self.mark_o, self.mark_a, self.mark_b)], dtype=np.float64)
+
+    def reference_marks_xy_m(self) -> dict[str, tuple[float, float]]:
+        """The reference marks: label -> drawing (x, y), metres, in label order ({} without any)."""
+        return {m.name: (m.x_m, m.y_m) for m in self.reference_marks}
 
     def studs_xy_m(self) -> np.ndarray:
         """(N, 2) float64 stud centres, drawing frame, metres, id order."""
@@ -126,6 +134,7 @@ class DrawingLayout:
             ],
             "warnings": list(self.warnings),
             "invalid_entities": list(self.invalid_entities),
+            "reference_marks": [_mark_dict(m) for m in self.reference_marks],
         }
 
     @classmethod
@@ -143,6 +152,7 @@ class DrawingLayout:
             wcs_to_drawing=tuple(float3(r) for r in d["wcs_to_drawing"]),
             bbox_m=_float4(d["bbox_m"]), stud_layers=tuple(d["stud_layers"]),
             warnings=list(d["warnings"]), invalid_entities=tuple(d.get("invalid_entities", ())),
+            reference_marks=tuple(Mark(**m) for m in d.get("reference_marks", ())),
         )
 
 
@@ -172,7 +182,7 @@ class CircleSet:
     centers_wcs: np.ndarray
     radii: np.ndarray
     layers: tuple[str, ...]
-    labels: tuple[tuple[str, float, float], ...]  # (letter O/A/B, x, y) in WCS
+    labels: tuple[tuple[str, float, float], ...]  # (label O/A/B or M1, M2, ..., x, y) in WCS
     layer_entities: dict[str, int]
     skipped: dict[str, int]
     warnings: list[str]

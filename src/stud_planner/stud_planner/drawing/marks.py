@@ -4,7 +4,7 @@ from __future__ import annotations
 import fnmatch
 import math
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 from stud_planner.drawing.circles import _LABEL_LETTERS
@@ -56,11 +56,15 @@ def _angle_deg(p: np.ndarray, q: np.ndarray, s: np.ndarray) -> float:
 def _identify_marks(
     path: Path, cs: CircleSet, mark_layer: str | Sequence[str], dup_tol_units: float,
     label_distance_factor: float, collinear_tol_deg: float, right_angle_ambiguity_deg: float,
+    is_stud_layer: Callable[[str], bool] | None = None,
 ) -> tuple[dict[str, int], str, list[str], np.ndarray]:
-    """Pick the O, A, B circles (indices into ``cs``).
+    """Pick the O, A, B circles and the reference marks M1, M2, ... (indices into ``cs``).
 
-    Returns (marks, rule, warnings, members): ``members`` are all mark-layer circles concentric
-    with a chosen mark (the rings of a target symbol), which are never studs.
+    Returns (marks, rule, warnings, members): ``marks`` maps O, A, B and each reference mark's
+    label to its circle (reference marks after O, A, B, in label order: M1, M2, ..., M10);
+    ``members`` are all mark-layer circles concentric with a chosen mark (the rings of a target
+    symbol), which are never studs. ``is_stud_layer``: whether a layer holds studs (an unlabelled
+    circle on a layer that is both is a stud, not a mark missing its label).
     """
     match, _ = _layer_matcher(mark_layer)
     xy, r = cs.centers_wcs, cs.radii
@@ -80,6 +84,53 @@ def _identify_marks(
     if multi:
         lt, ks = next(iter(multi.items()))
         raise DrawingError(f"{path}: marks ambiguous: label {lt!r} is nearest to {len(ks)} mark circles {where}")
+    refs = _reference_marks(path, cs, cand, labelled, where, warns)
+    if refs:
+        cand = cand[~np.isin(cand, list(refs.values()))]
+        labelled = {lt: ks for lt, ks in labelled.items() if lt in _LABEL_LETTERS}
+        marks, rule, board_warns, _ = _identify_marks_of(path, cs, cand, labelled, where, collinear_tol_deg,
+                                                         right_angle_ambiguity_deg, on_layer, dup_tol_units)
+        extra = [int(k) for k in cand if k not in marks.values()
+                 and not (is_stud_layer is not None and is_stud_layer(cs.layers[k]))]
+        if extra:
+            at = ", ".join(f"({xy[k, 0]:g}, {xy[k, 1]:g})" for k in extra[:5]) + (", ..." if len(extra) > 5 else "")
+            raise DrawingError(
+                f"{path}: marks ambiguous: {len(extra)} unlabelled circle(s) {where} at {at} (drawing units) in a drawing "
+                f"with reference marks {', '.join(refs)}: label each mark circle (O, A, B or M1, M2, ...) or move "
+                "other circles off the mark layer"
+            )
+        marks.update(refs)
+        return marks, rule, warns + board_warns, _members(marks, on_layer, xy, dup_tol_units)
+    return _identify_marks_of(path, cs, cand, labelled, where, collinear_tol_deg, right_angle_ambiguity_deg, on_layer,
+                              dup_tol_units, warns)
+
+
+def _reference_marks(path: Path, cs: CircleSet, cand: np.ndarray, labelled: dict[str, list[int]], where: str,
+                     warns: list[str]) -> dict[str, int]:
+    """The reference marks among the labelled circles: label -> circle, in label order (M1, M2, ...,
+    M10). An M label next to no mark circle is warned about (a thread size such as M16 on another
+    layer is text like any other)."""
+    refs = {lt: ks[0] for lt, ks in labelled.items() if lt not in _LABEL_LETTERS}
+    refs = dict(sorted(refs.items(), key=lambda kv: int(kv[0][1:])))
+    unused = sorted({lt for lt, _, _ in cs.labels if lt not in _LABEL_LETTERS} - set(refs), key=lambda t: int(t[1:]))
+    if refs and unused:
+        warns.append(f"{path.name}: label(s) {', '.join(unused)} name no mark circle {where} (no reference mark "
+                     "read for them)")
+    return refs
+
+
+def _identify_marks_of(path: Path, cs: CircleSet, cand: np.ndarray, labelled: dict[str, list[int]], where: str,
+                       collinear_tol_deg: float, right_angle_ambiguity_deg: float, on_layer: np.ndarray,
+                       dup_tol_units: float, warns: list[str] | None = None) -> tuple[dict[str, int], str, list[str],
+                                                                                       np.ndarray]:
+    """O, A, B among the board's candidate circles ``cand``, by labels or by geometry."""
+    xy, r = cs.centers_wcs, cs.radii
+    warns = [] if warns is None else warns
+    if cand.size < 3:
+        raise DrawingError(
+            f"{path}: marks missing: found {cand.size} mark circle{'s' if cand.size != 1 else ''} {where} besides "
+            f"the reference marks, need 3 (O, A, B)"
+        )
     if len(labelled) == 3:
         marks = {lt: ks[0] for lt, ks in labelled.items()}
         if cand.size > 3:
@@ -111,10 +162,11 @@ def _members(marks: dict[str, int], on_layer: np.ndarray, xy: np.ndarray, tol: f
 
 
 def _labelled(cs: CircleSet, cand: np.ndarray, label_distance_factor: float) -> dict[str, list[int]]:
-    """Labels: each candidate circle takes the letter of its nearest O/A/B label within reach.
-    Returns letter -> the circles it names (letters naming none left out)."""
+    """Labels: each candidate circle takes the letter of its nearest O/A/B (or M1, M2, ...) label within
+    reach. Returns letter -> the circles it names (letters naming none left out), O, A, B first."""
     xy, r = cs.centers_wcs, cs.radii
     by_letter: dict[str, list[int]] = {k: [] for k in _LABEL_LETTERS}
+    by_letter.update({lt: [] for lt, _, _ in cs.labels if lt not in by_letter})
     if cs.labels:
         lab_xy = np.array([(x, y) for _, x, y in cs.labels])
         letters = [lt for lt, _, _ in cs.labels]
