@@ -13,7 +13,7 @@ import os
 import numpy as np
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from rm65_driver.driver_params import PARAMS, safety_checker
+from rm65_driver.driver.params import PARAMS, safety_checker
 from rm65_driver.weld.reach import ReachConfig
 from stud_common.hand_eye_in_use import resolve_hand_eye
 from stud_cell.cell_reach import CellReach

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from rm65_driver.arm_client import ArmClient
+from rm65_driver.protocol.arm_client import ArmClient
 from rm65_driver.journal.writer import Journal
 from rm65_driver.kinematics.rm65 import RM65Kinematics, pose6_to_matrix
 from rm65_driver.weld.reach import Reach, ReachConfig, ReachConfigError
