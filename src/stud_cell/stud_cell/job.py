@@ -123,7 +123,8 @@ class CellPorts(Protocol):
     def move_camera(self, xyz_w, yaw_rad: float) -> None: ...             # MoveRefused: unreachable
     def register(self) -> Registration: ...                              # one registration shot
     def shoot_view(self, what: str, camera_xyz_w, yaw_rad: float) -> View | None: ...  # None: no targets came
-    def shoot(self) -> int: ...                                          # a shot; its ROS time (ns)
+    def shoot(self, inspection: bool = False) -> int: ...                # a shot (inspection: the
+                                                                         # inspector's alone); its ROS time (ns)
     def weld(self, targets: list[Target]) -> WeldOutcome: ...            # DriverLost: the driver lost the job
     def inspect(self, station: int, view: View, targets: list[Target], welded_ids: list[str],
                 after_ns: int) -> InspectionOutcome: ...                # InspectionUnavailable
@@ -400,7 +401,7 @@ class CellJob:
                 self.ports.checkpoint()
                 if self._camera_at != (tuple(view.camera_xyz_w), float(view.yaw_rad)):
                     self._move(view.camera_xyz_w, view.yaw_rad)  # back to where the targets were seen
-                after_ns = self.ports.shoot()
+                after_ns = self.ports.shoot(inspection=True)  # not a view to match: the inspector's alone
                 outcome = self.ports.inspect(self._station, view, targets, ids, after_ns)
             except (InspectionUnavailable, MoveRefused) as exc:
                 self.ports.warn(f"station {self._station}: {len(ids)} welded stud(s) not inspected: {exc}")

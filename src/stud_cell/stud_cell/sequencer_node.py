@@ -11,7 +11,8 @@ leftovers, re-shoots, the reports); this node is its adapter to the cell:
   is welded). Should the driver crash mid-job and come back (``--respawn-driver``), its
   ``/arm/state`` pauses and returns without a job: the job sends the targets again
   (``weld_resends``), and the journal skips what is welded and holds back what the crash left uncertain;
-- inspection: a shot of the same pose after the welds and ``/inspection/inspect``.
+- inspection: a shot of the same pose after the welds (``/camera/trigger_inspection``: published on
+  topics of its own, so the matcher never takes it for a view) and ``/inspection/inspect``.
 
 Progress goes to ``/cell/status`` (CellStatus); ``/cell/start|pause|resume|stop`` (Trigger)
 drive it (``auto_start`` starts at once). With ``report_file`` a JSON report of every stud
@@ -124,6 +125,7 @@ class CellSequencer(Node):
         self.create_subscription(ArmState, names.ARM_STATE, self._on_arm_state, ros_io.RESULT_QOS, callback_group=cb)
         self.cli_move = self.create_client(MoveTo, names.ARM_MOVE_TO, callback_group=cb)
         self.cli_shot = self.create_client(Trigger, names.CAMERA_TRIGGER, callback_group=cb)
+        self.cli_inspection_shot = self.create_client(Trigger, names.CAMERA_TRIGGER_INSPECTION, callback_group=cb)
         self.cli_register = self.create_client(Trigger, names.REGISTRATION_TRIGGER, callback_group=cb)
         self.cli_inspect = self.create_client(Inspect, names.INSPECTION_INSPECT, callback_group=cb)
         self.cli_arm = {name: self.create_client(Trigger, f"/arm/{name}", callback_group=cb)
@@ -264,12 +266,21 @@ class CellSequencer(Node):
 
         self._wait_for(settled, self.p["step_timeout_s"], "/arm/state after the move")
 
-    def shoot(self) -> int:
-        """One triggered shot; returns the ROS time (ns) taken just before it."""
+    def shoot(self, inspection: bool = False) -> int:
+        """One triggered shot; returns the ROS time (ns) taken just before it. With ``inspection``, a
+        post-weld inspection shot (``/camera/trigger_inspection``); a camera without that service
+        takes it on ``/camera/trigger``, and the matcher then matches it as one more view (said once)."""
+        client = self.cli_shot
+        if inspection:
+            if self.cli_inspection_shot.wait_for_service(timeout_sec=2.0):
+                client = self.cli_inspection_shot
+            else:
+                self.get_logger().warn(f"no {names.CAMERA_TRIGGER_INSPECTION}: the inspection shot is taken on "
+                                       f"{names.CAMERA_TRIGGER}, and the matcher will match it as a view", once=True)
         deadline = time.monotonic() + self.p["step_timeout_s"]
         while True:  # a camera that has no (fresh) pose yet says so: ask again shortly
             t0 = self.get_clock().now().nanoseconds
-            reply = self._call(self.cli_shot, Trigger.Request(), self.p["step_timeout_s"])
+            reply = self._call(client, Trigger.Request(), self.p["step_timeout_s"])
             if reply.success:
                 return t0
             if time.monotonic() > deadline:

@@ -121,13 +121,15 @@ class InspectorNode(Node):
         self._cond = threading.Condition()
         cb = ReentrantCallbackGroup()
         self.pub_result = self.create_publisher(InspectionResult, names.INSPECTION_RESULT, ros_io.LATCHED_QOS)
-        self.sync = ros_io.StampSync(["depth", "info", "pose", "color"], self._on_view,
-                                     slop_ns=int(self.p["sync_slop_s"] * 1e9), on_drop=ros_io.warn_dropped(self, "view"))
-        for name, topic, typ in (("depth", names.DEPTH_IMAGE, Image), ("color", names.COLOR_IMAGE, Image),
-                                 ("info", names.CAMERA_INFO, CameraInfo),
-                                 ("pose", names.CAMERA_POSE, PoseStamped)):
-            self.create_subscription(typ, topic, functools.partial(self._on_input, name), ros_io.sensor_qos(self.p["sensor_qos"]),
-                                     callback_group=cb)
+        # Both kinds of shot are kept: the views the targets were matched on (before the welds) and the
+        # post-weld inspection shots, on topics of their own (names.shot_topics).
+        types = {"depth": Image, "color": Image, "info": CameraInfo, "pose": PoseStamped}
+        for inspection in (False, True):
+            sync = ros_io.StampSync(["depth", "info", "pose", "color"], self._on_view,
+                                    slop_ns=int(self.p["sync_slop_s"] * 1e9), on_drop=ros_io.warn_dropped(self, "view"))
+            for name, topic in names.shot_topics(inspection).items():
+                self.create_subscription(types[name], topic, functools.partial(self._on_input, sync, name),
+                                         ros_io.sensor_qos(self.p["sensor_qos"]), callback_group=cb)
         self.create_service(Inspect, names.INSPECTION_INSPECT, self._on_inspect, callback_group=cb)
         self._verdicts: dict[str, str] = {}  # stud id -> its newest verdict (this session's inspections)
         self.rework_file = rework_path(self.p)
@@ -140,9 +142,9 @@ class InspectorNode(Node):
                                f"position +- {self.limits.position_tol_mm:g} mm, height "
                                f"{self.limits.nominal_length_mm:g} +- {self.limits.height_tol_mm:g} mm)")
 
-    def _on_input(self, name: str, msg) -> None:
+    def _on_input(self, sync: ros_io.StampSync, name: str, msg) -> None:
         with self._cond:
-            self.sync.add(name, msg)
+            sync.add(name, msg)
 
     def _on_view(self, view: dict) -> None:
         try:

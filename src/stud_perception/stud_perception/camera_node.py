@@ -4,7 +4,9 @@ Publishes one triggered, synchronised RGB-D shot, as the paper takes one overhea
 after the arm has moved: ``/camera/color/image_raw`` (bgr8), ``/camera/depth/image_raw``
 (16UC1 mm, registered to colour), ``/camera/color/camera_info`` and ``/camera/pose`` (the
 optical frame in ``world``), all with one stamp. Shots come on ``/camera/trigger``
-(std_srvs/Trigger) or at ``rate_hz``.
+(std_srvs/Trigger) or at ``rate_hz``. A post-weld inspection shot, on
+``/camera/trigger_inspection``, goes out on the same four topics under ``/camera/inspection/``
+(stud_common.names.shot_topics): the inspector takes it, the matcher never plans welds on it.
 
 The camera pose comes from parameters, or from the arm (``pose_source:=arm``): the tool
 pose in ``/arm/state`` times the hand-eye transform (tool -> optical frame). Like a real cell,
@@ -143,11 +145,13 @@ class CameraNode(Node):
             self.get_logger().fatal(f"cannot load scene_file '{self.p['scene_file']}': {exc}")
             raise SystemExit(2) from None
         q = ros_io.CAMERA_PUB_QOS
-        self.pub_color = self.create_publisher(Image, names.COLOR_IMAGE, q)
-        self.pub_depth = self.create_publisher(Image, names.DEPTH_IMAGE, q)
-        self.pub_info = self.create_publisher(CameraInfo, names.CAMERA_INFO, q)
-        self.pub_pose = self.create_publisher(PoseStamped, names.CAMERA_POSE, q)
+        types = {"color": Image, "depth": Image, "info": CameraInfo, "pose": PoseStamped}
+        # per kind of shot (False: a view to match, True: a post-weld inspection shot), its four publishers
+        self.pubs = {inspection: {k: self.create_publisher(types[k], topic, q)
+                                  for k, topic in names.shot_topics(inspection).items()}
+                     for inspection in (False, True)}
         self.create_service(Trigger, names.CAMERA_TRIGGER, self._on_trigger)
+        self.create_service(Trigger, names.CAMERA_TRIGGER_INSPECTION, self._on_trigger_inspection)
         self.diag = ros_io.Diagnostics(self, hardware_id="sim_rgbd_camera")
         self.hand_eye = hand_eye_ros.hand_eye_in_use(self, self.p)  # believed: poses /camera/pose
         self.true_hand_eye = (tuple(v if math.isfinite(v) else b for v, b in
@@ -217,7 +221,8 @@ class CameraNode(Node):
         return template.with_pose(*camera_pose_from_tool(*self._arm_tool_pose, xyz, rpy))
 
     # -- shots ------------------------------------------------------------------------------------
-    def shoot(self) -> tuple[bool, str]:
+    def shoot(self, inspection: bool = False) -> tuple[bool, str]:
+        """One shot on the matching view's topics, or with ``inspection`` on the inspection shot's."""
         with self._lock:
             camera, believed = self.camera_model(true_pose=True), self.camera_model()
             if camera is None or believed is None:
@@ -233,15 +238,17 @@ class CameraNode(Node):
             stamp = self.get_clock().now().to_msg()
             shot = shot_messages(view, self.p["depth_encoding"], stamp, self.p["depth_noise_m"],
                                  self.p["seed"] + self._shots - 1, pose_camera=believed)
-            self.pub_color.publish(shot["color"])
-            self.pub_depth.publish(shot["depth"])
-            self.pub_info.publish(shot["info"])
-            self.pub_pose.publish(shot["pose"])
+            for key, pub in self.pubs[inspection].items():
+                pub.publish(shot[key])
             self.diag.set(self.diag.OK, "publishing", shots=self._shots, visible_studs=int(view.stud_visible.sum()))
-            return True, f"shot {self._shots} at {stamp.sec}.{stamp.nanosec:09d}"
+            return True, f"{'inspection ' if inspection else ''}shot {self._shots} at {stamp.sec}.{stamp.nanosec:09d}"
 
     def _on_trigger(self, _request, response):
         response.success, response.message = self.shoot()
+        return response
+
+    def _on_trigger_inspection(self, _request, response):
+        response.success, response.message = self.shoot(inspection=True)
         return response
 
     def _on_timer(self) -> None:
