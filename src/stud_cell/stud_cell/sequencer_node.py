@@ -32,9 +32,10 @@ from rclpy.action import ActionClient
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
-from stud_welding_msgs.msg import ArmState, CellStatus, Registration, StudLayout, WeldTargetArray
+from stud_welding_msgs.msg import ArmState, CellStatus, Registration, StudLayout, WeldRecord, WeldTargetArray
 from stud_welding_msgs.srv import Inspect, MoveTo
 
 from stud_common import ros_io
@@ -44,6 +45,7 @@ from stud_common.ros_io import Param, three_numbers
 from stud_common.vocabulary import CellState
 from stud_cell import job as cell_job
 from stud_cell.job import DriverLost, InspectionUnavailable, JobAborted, MoveRefused
+from stud_inspection.qa_params import QA_CODE_PARAM, SAMPLING_PARAMS, overrides
 from stud_planner.msg_convert import (inspection_extras, inspection_rows, layout_from_msg, registration_from_msg,
                                       target_report_entry)
 from stud_common import names
@@ -89,8 +91,16 @@ PARAMS = [
     Param("part_name", "", "the part's name, for the QA record"),
     Param("rework_file", "", "the inspector's rework decisions file (JSON lines): decisions taken during the job "
           "go into the QA record's rework column (empty: none)"),
+    Param("bend_file", "", "the inspector's bend-test results file (JSON lines): results entered during the job go "
+          "into the QA record (empty: none)"),
+    QA_CODE_PARAM,
+    *SAMPLING_PARAMS,
+    Param("sample_seed", 0, "the seed of the lot's bend-test sample, stored in the QA record (0: a random one)",
+          min=0, max=2**31 - 1),
 ]
 
+#: /arm/welds: every weld of the session, also for a sequencer started late.
+WELDS_QOS = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 STATE_TEXT = {int(s): s.text for s in CellState}  # CellStatus.STATE_* (tests: the same constants)
 STATE_OF_TEXT = {text: state for state, text in STATE_TEXT.items()}
 
@@ -123,6 +133,10 @@ class CellSequencer(Node):
         self.create_subscription(WeldTargetArray, names.WELD_TARGETS, self._on_targets, ros_io.RESULT_QOS,
                                  callback_group=cb)
         self.create_subscription(ArmState, names.ARM_STATE, self._on_arm_state, ros_io.RESULT_QOS, callback_group=cb)
+        # when each stud's weld was confirmed: the weld order of the QA record (the job's result lists
+        # the studs in the order they were sent)
+        self._weld_confirmed_ns: dict[str, int] = {}
+        self.create_subscription(WeldRecord, names.ARM_WELDS, self._on_weld_record, WELDS_QOS, callback_group=cb)
         self.cli_move = self.create_client(MoveTo, names.ARM_MOVE_TO, callback_group=cb)
         self.cli_shot = self.create_client(Trigger, names.CAMERA_TRIGGER, callback_group=cb)
         self.cli_inspection_shot = self.create_client(Trigger, names.CAMERA_TRIGGER_INSPECTION, callback_group=cb)
@@ -156,6 +170,10 @@ class CellSequencer(Node):
             self.targets.append(msg)
             del self.targets[:-5]
             self._cond.notify_all()
+
+    def _on_weld_record(self, msg: WeldRecord) -> None:
+        with self._cond:
+            self._weld_confirmed_ns.setdefault(msg.stud_id, ros_io.stamp_to_ns(msg.header.stamp))
 
     def _on_arm_state(self, msg: ArmState) -> None:
         with self._cond:
@@ -209,6 +227,7 @@ class CellSequencer(Node):
         config = cell_job.JobConfig.from_params(p)
         config.job_id = time.strftime("%Y%m%d-%H%M%S")
         config.part = p["part_name"]
+        config.qa_overrides = overrides(p, SAMPLING_PARAMS)
         self.job = cell_job.CellJob(self, config)
         _state, self.exit_code = self.job.run()
 
@@ -375,10 +394,13 @@ class CellSequencer(Node):
             time.sleep(1.0)
             raise
 
-    @staticmethod
-    def _outcome(result: WeldJob.Result) -> cell_job.WeldOutcome:
-        return cell_job.WeldOutcome(welded=tuple(result.welded), failed=tuple(result.failed),
-                                    messages=tuple(result.messages))
+    def _outcome(self, result: WeldJob.Result) -> cell_job.WeldOutcome:
+        """The job's result, its welded studs in the order their welds were confirmed (/arm/welds; one
+        not seen there yet keeps its place after them)."""
+        with self._cond:
+            confirmed = dict(self._weld_confirmed_ns)
+        welded = sorted(result.welded, key=lambda sid: confirmed.get(sid, 1 << 62))
+        return cell_job.WeldOutcome(welded=tuple(welded), failed=tuple(result.failed), messages=tuple(result.messages))
 
     def inspect(self, station: int, view: cell_job.View, targets: list[cell_job.Target], welded_ids: list[str],
                 after_ns: int) -> cell_job.InspectionOutcome:

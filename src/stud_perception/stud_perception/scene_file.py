@@ -10,8 +10,8 @@ import numpy as np
 
 from stud_perception.scene import MarkingBoard, SceneSpec
 from stud_perception.scene_solids import Component, Cylinder, Dome, Plate, Pose2D, SceneError, Trough
-from stud_perception.welded_studs import (DEFAULT_STUD_DIAMETER_M, DEFAULT_STUD_LENGTH_M, WeldDefectError,
-                                         parse_weld_defects)
+from stud_perception.welded_studs import (DEFAULT_COLLAR_HEIGHT_M, DEFAULT_COLLAR_WIDTH_M, DEFAULT_STUD_DIAMETER_M,
+                                         DEFAULT_STUD_LENGTH_M, WeldDefectError, parse_weld_defects)
 
 # -- plain-dict / file form -----------------------------------------------------------------------
 def _take(d: dict, name: str, allowed: set[str]) -> dict:
@@ -98,10 +98,12 @@ def scene_from_dict(d: dict[str, Any]) -> SceneSpec:
     radius_m, axis_yaw_deg, length_m, height_m), ``trough`` (centre_xy_m, radius_m, axis_yaw_deg,
     length_m, width_m, rim_height_m), ``tilted_plane`` / ``plane`` (centre_xy_m, size_m, yaw_deg,
     height_m, tilt_deg). ``obstacles`` are flat boxes (stiffeners); ``specular_lobe_deg`` makes the
-    component shiny (see :class:`~stud_perception.scene.SceneSpec`).
+    component shiny (see :class:`~stud_perception.scene.SceneSpec`). The welded studs:
+    ``stud_length_mm``, ``stud_diameter_mm``, their collars' ``collar_height_mm`` and
+    ``collar_width_mm`` (default 4 and 3), ``weld_defects`` (stud_perception.welded_studs).
     """
     _take(d, "", {"component", "board", "drawing_to_world", "studs", "obstacles", "specular_lobe_deg",
-                  "stud_length_mm", "stud_diameter_mm", "weld_defects"})
+                  "stud_length_mm", "stud_diameter_mm", "weld_defects", "collar_height_mm", "collar_width_mm"})
     board_keys = {"marks_drawing_m", "mark_diameter_m", "thickness_m", "margin_m"}
     board = MarkingBoard(**_take(d.get("board", {}), "board", board_keys))
     pose_d = _take(d.get("drawing_to_world", {}), "drawing_to_world", {"x_m", "y_m", "yaw_deg"})
@@ -133,6 +135,8 @@ def scene_from_dict(d: dict[str, Any]) -> SceneSpec:
         stud_length_m=1e-3 * _mm(d, "stud_length_mm", DEFAULT_STUD_LENGTH_M * 1e3),
         stud_diameter_m=1e-3 * _mm(d, "stud_diameter_mm", DEFAULT_STUD_DIAMETER_M * 1e3),
         weld_defects=_weld_defects(d.get("weld_defects"), studs.get("ids", ()), len(studs.get("xy_m", []))),
+        collar_height_m=1e-3 * _mm(d, "collar_height_mm", DEFAULT_COLLAR_HEIGHT_M * 1e3),
+        collar_width_m=1e-3 * _mm(d, "collar_width_mm", DEFAULT_COLLAR_WIDTH_M * 1e3),
     )
 
 
@@ -166,6 +170,7 @@ def scene_to_dict(scene: SceneSpec) -> dict[str, Any]:
                        "yaw_deg": math.degrees(ob.yaw_rad), "height_m": ob.height_m} for ob in scene.obstacles],
         "specular_lobe_deg": scene.specular_lobe_deg,
         "stud_length_mm": scene.stud_length_m * 1e3, "stud_diameter_mm": scene.stud_diameter_m * 1e3,
+        "collar_height_mm": scene.collar_height_m * 1e3, "collar_width_mm": scene.collar_width_m * 1e3,
         "weld_defects": {sid: defect.to_dict() for sid, defect in scene.weld_defects.items()},
     }
 
