@@ -70,6 +70,14 @@ class CollarMeasurement:
         return self.seen_deg - self.covered_deg
 
 
+def _sector_height(h_mm: np.ndarray) -> float:
+    """One sector's collar height from its points' heights: a trimmed mean (a fifth off each end) --
+    robust to a stray point, and finer than the depth's millimetre steps, which a median is not."""
+    h = np.sort(h_mm)
+    cut = h.size // 5
+    return float(np.mean(h[cut:h.size - cut]))
+
+
 def _largest_run(mask: np.ndarray) -> tuple[int, int]:
     """(start, length) of the longest circular run of True in ``mask`` (length 0: none)."""
     n = len(mask)
@@ -136,7 +144,7 @@ def measure_collar(before_m: np.ndarray, after_m: np.ndarray, camera: CameraMode
     for i in range(k):
         h_i = heights_mm[sector == i]
         if h_i.size >= settings.min_points:
-            med[i] = float(np.median(h_i))
+            med[i] = _sector_height(h_i)
     seen = np.isfinite(med)
     covered = seen & (med >= min_height_mm)
     step = 360.0 / k
