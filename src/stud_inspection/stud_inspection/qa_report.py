@@ -186,7 +186,8 @@ def _map_svg(rows: list[dict]) -> str:
         if labels:
             out.append(f"<text x='{cx + 9:.1f}' y='{cy + 3:.1f}' font-size='9'>{html.escape(r['stud_id'])}</text>")
     out.append("</svg>")
-    return "".join(out)
+    legend = " ".join(f"<span style='color:{c}'>&#9679;</span> {v.replace('_', ' ')}" for v, c in _VERDICT_FILL.items())
+    return "".join(out) + f"<p class='note'>The studs on the drawing: {legend} &middot; &#9711; to bend-test</p>"
 
 
 _LIMIT_TEXT = {"max_lean_deg": ("lean from the surface normal", "&le; {v:g}&deg;"),
@@ -254,6 +255,13 @@ def _stud_rows_html(doc: dict) -> tuple[str, str]:
     note = ("" if shown is rows else
             f"<p class='note'>{len(shown)} of {len(rows)} studs shown: those that did not pass, are listed for a bend "
             f"test or were decided on. Every stud is in {CSV_NAME} and {JSON_NAME}.</p>")
+    seen = [m.get("collar_seen_deg") for r in rows if (m := r.get("measured") or {}).get("collar_seen_deg") is not None]
+    hidden = [360.0 - v for v in seen if v < 360.0]
+    if seen:
+        note += ("<p class='note'>Collar: the degrees of the circle a collar covers / the degrees the camera saw. "
+                 + (f"On {len(hidden)} of {len(seen)} studs up to {max(hidden):.0f}&deg; of it was hidden behind the "
+                    "stud from the camera: check that side by eye." if hidden else "Every collar was seen all round.")
+                 + "</p>")
     return "".join(out), note
 
 
