@@ -46,6 +46,7 @@ class StudTable:
         self._active = ""  # the stud the arm is on now
         self._inspection: dict[str, tuple[str, tuple[str, ...]]] = {}  # stud -> (verdict, reasons)
         self._rework: dict[str, str] = {}  # stud -> the operator's decision ("rework" / "accept")
+        self._bend: dict[str, str] = {}    # stud -> its bend test: "to do", "pass" or "fail"
         self._has_layout = False
         self.view = -1
         self.algorithm = ""
@@ -67,6 +68,7 @@ class StudTable:
             self._phase.clear()
             self._inspection.clear()
             self._rework.clear()
+            self._bend.clear()
             self._active = ""
             self.view = -1
             self._order = ids
@@ -131,6 +133,12 @@ class StudTable:
         self._known(stud_id)
         self._rework[stud_id] = decision
 
+    def bend_results(self, results: dict[str, str]) -> None:
+        """The QA record's bend-test list: stud -> "to do", "pass" or "fail" (the whole list, newest)."""
+        for sid in results:
+            self._known(sid)
+        self._bend = dict(results)
+
     def awaiting_rework(self) -> list[dict]:
         """Inspected studs that did not pass and have no decision yet, in table order."""
         out = []
@@ -164,7 +172,7 @@ class StudTable:
                    "weld": weld, "phase": self._phase.get(sid, ""), "welded": weld == WELD_WELDED,
                    "inspection": self._inspection.get(sid, ("", ()))[0],
                    "inspection_reasons": list(self._inspection.get(sid, ("", ()))[1]),
-                   "rework": self._rework.get(sid, "")}
+                   "rework": self._rework.get(sid, ""), "bend": self._bend.get(sid, "")}
             out.append(row)
         return out
 
