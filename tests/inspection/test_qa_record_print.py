@@ -4,10 +4,7 @@ signature block -- fits on two pages. A 400-stud job's page lists the studs that
 says where the rest are. Skipped without Chromium (set CHROMIUM=/path), failed under CI=true."""
 from __future__ import annotations
 
-import os
 import re
-import shutil
-import subprocess
 from pathlib import Path
 
 import cv2
@@ -21,11 +18,8 @@ from stud_perception.scene_render import render
 from stud_perception.welded_studs import WeldDefect
 from welded_views import bundled, over, weld_and_shoot, with_defects
 
-
-def find_chromium() -> str | None:
-    candidates = [os.environ.get("CHROMIUM")] + [shutil.which(n) for n in (
-        "chromium", "chromium-browser", "google-chrome", "google-chrome-stable", "chrome")]
-    return next((c for c in candidates if c and os.access(c, os.X_OK)), None)
+import chromium_pdf
+from chromium_pdf import find_chromium
 
 
 CHROMIUM = find_chromium()
@@ -37,19 +31,8 @@ def _chromium(prerequisite):
 
 
 def print_to_pdf(page: Path, tmp_path: Path) -> tuple[int, bytes]:
-    """(pages, PDF bytes) of ``page`` printed by headless Chromium (A4: the page's own @page rule)."""
-    pdf = tmp_path / (page.stem + ".pdf")
-    subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
-                    "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                    "--disable-dev-shm-usage", f"--user-data-dir={tmp_path / 'chromium-profile'}",
-                    "--no-pdf-header-footer", f"--print-to-pdf={pdf}", page.as_uri()],
-                   check=True, capture_output=True, timeout=120)
-    data = pdf.read_bytes()
-    assert data.startswith(b"%PDF")
-    pages = len(re.findall(rb"/Type\s*/Page(?![s\w])", data))
-    count = re.search(rb"/Type\s*/Pages\b.*?/Count\s+(\d+)", data, re.S)
-    assert count is None or int(count.group(1)) == pages  # the page tree agrees
-    return pages, data
+    assert CHROMIUM is not None
+    return chromium_pdf.print_to_pdf(CHROMIUM, page, tmp_path)
 
 
 def _demo_record(out: Path) -> dict:
