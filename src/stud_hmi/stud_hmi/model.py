@@ -374,7 +374,8 @@ class CellView:
             if not isinstance(msg.get("note", ""), str):
                 return "note must be a string"
             try:
-                operator_name(msg.get("operator") if isinstance(msg.get("operator"), str) else "")
+                signer = msg.get("operator")
+                operator_name(signer if isinstance(signer, str) else "")
             except OperatorError as exc:
                 return f"{exc} (the page asks for it once per session)"
             if cmd == "record_bend_test":

@@ -160,7 +160,11 @@ class CodeProfile:
     def limits(self, **design) -> InspectionLimits:
         """The inspection limits of this profile; ``design``: the stud's own InspectionLimits fields
         (``nominal_length_mm``, ``stud_diameter_mm``, ...), not the code's."""
-        return InspectionLimits(**{n: self.value(n) for n in LIMIT_NAMES}, **design)
+        v = self.value
+        return InspectionLimits(max_lean_deg=v("max_lean_deg"), position_tol_mm=v("position_tol_mm"),
+                                height_tol_mm=v("height_tol_mm"), height_tol_below_mm=v("height_tol_below_mm"),
+                                min_collar_coverage_deg=v("min_collar_coverage_deg"),
+                                min_collar_height_mm=v("min_collar_height_mm"), **design)
 
     def sampling(self) -> SamplingRules:
         v = self.value

@@ -255,7 +255,8 @@ def _stud_rows_html(doc: dict) -> tuple[str, str]:
     note = ("" if shown is rows else
             f"<p class='note'>{len(shown)} of {len(rows)} studs shown: those that did not pass, are listed for a bend "
             f"test or were decided on. Every stud is in {CSV_NAME} and {JSON_NAME}.</p>")
-    seen = [m.get("collar_seen_deg") for r in rows if (m := r.get("measured") or {}).get("collar_seen_deg") is not None]
+    seen = [float(m["collar_seen_deg"]) for r in rows
+            if (m := r.get("measured") or {}).get("collar_seen_deg") is not None]
     hidden = [360.0 - v for v in seen if v < 360.0]
     if seen:
         note += ("<p class='note'>Collar: the degrees of the circle a collar covers / the degrees the camera saw. "
