@@ -40,6 +40,7 @@ class FakeCell:
         self._stop = False
         self._view = 0
         self._clock = 1_000
+        self.last_shot_was_inspection = False
         c = JobConfig()
         self.fov = footprint_m(c.fov_width_m, c.fov_distance_m, c.image_aspect, c.camera_height_m, c.part_height_m)
 
@@ -56,8 +57,9 @@ class FakeCell:
     def register(self, attempts=0):
         return cell_job.Registration(True, "3 marks", np.eye(3), 0.0)   # drawing frame = world
 
-    def shoot(self):
+    def shoot(self, inspection=False):
         self._clock += 1_000
+        self.last_shot_was_inspection = inspection
         return self._clock
 
     def shoot_view(self, what, xyz, yaw):
@@ -96,6 +98,7 @@ class FakeCell:
         assert self.camera is not None and self.camera[0] == tuple(view.camera_xyz_w), \
             "inspected from another pose than the targets' view"
         assert after_ns > view.stamp_ns
+        assert self.last_shot_was_inspection, "the shot after the welds must be an inspection shot, not a view to match"
         self.inspections.append({"station": station, "ids": list(welded_ids)})
         rows = []
         for t in targets:

@@ -48,6 +48,7 @@ class StudTable:
         self._inspection: dict[str, tuple[str, tuple[str, ...]]] = {}  # stud -> (verdict, reasons)
         self._rework: dict[str, str] = {}  # stud -> the operator's decision ("rework" / "accept")
         self._unreachable: dict[str, str] = {}  # stud -> why the cell cannot weld it (/cell/status)
+        self._bend: dict[str, str] = {}    # stud -> its bend test: "to do", "pass" or "fail"
         self._has_layout = False
         self.view = -1
         self.algorithm = ""
@@ -69,6 +70,7 @@ class StudTable:
             self._phase.clear()
             self._inspection.clear()
             self._rework.clear()
+            self._bend.clear()
             self._active = ""
             self.view = -1
             self._order = ids
@@ -142,6 +144,12 @@ class StudTable:
         self._unreachable = dict(reasons)
         return True
 
+    def bend_results(self, results: dict[str, str]) -> None:
+        """The QA record's bend-test list: stud -> "to do", "pass" or "fail" (the whole list, newest)."""
+        for sid in results:
+            self._known(sid)
+        self._bend = dict(results)
+
     def awaiting_rework(self) -> list[dict]:
         """Inspected studs that did not pass and have no decision yet, in table order."""
         out = []
@@ -176,8 +184,8 @@ class StudTable:
                    "weld": weld, "phase": self._phase.get(sid, ""), "welded": weld == WELD_WELDED,
                    "inspection": self._inspection.get(sid, ("", ()))[0],
                    "inspection_reasons": list(self._inspection.get(sid, ("", ()))[1]),
-                   "rework": self._rework.get(sid, ""),
-                   "reason": self._unreachable.get(sid, "") if named else ""}
+                    "rework": self._rework.get(sid, ""), "bend": self._bend.get(sid, ""),
+                    "reason": self._unreachable.get(sid, "") if named else ""}
             out.append(row)
         return out
 

@@ -103,6 +103,11 @@ def weld_target_table(msg: WeldTargetArray, image: tuple[float, float, int, int]
                        reasons=np.array([t.reason for t in targets], dtype=object).reshape(n), centre_offset=offset)
 
 
+def _finite_or_none(x: float, scale: float = 1.0) -> float | None:
+    x = float(x)
+    return x * scale if np.isfinite(x) else None
+
+
 def _xyz(v) -> list[float]:
     return [float(v.x), float(v.y), float(v.z)]
 
@@ -116,6 +121,11 @@ def inspection_rows(result) -> list[dict]:
         if s.measured:
             measured = {"position_m": _xyz(s.base), "axis": _xyz(s.axis), "lean_deg": float(s.lean_deg),
                         "offset_mm": [float(s.offset_x_mm), float(s.offset_y_mm)], "height_mm": float(s.height_mm)}
+            collar = (s.collar_seen_deg, s.collar_coverage_deg, s.collar_height_mm, s.collar_gap_deg,
+                      s.collar_gap_azimuth_deg) if s.collar_measured else (None,) * 5
+            measured.update(zip(("collar_seen_deg", "collar_coverage_deg", "collar_height_mm", "collar_gap_deg",
+                                 "collar_gap_azimuth_deg"), (_finite_or_none(v) if v is not None else None
+                                                             for v in collar)))
         rows.append({"verdict": s.verdict_text, "reasons": list(s.reasons), "measured": measured})
     return rows
 
@@ -126,5 +136,8 @@ def inspection_extras(result) -> tuple[list[dict], dict]:
                   for p, h in zip(result.unexpected_objects, result.unexpected_heights_mm)]
     limits = {"max_lean_deg": result.max_lean_deg, "position_tol_mm": result.position_tol_mm,
               "nominal_length_mm": result.nominal_length_mm, "height_tol_mm": result.height_tol_mm,
-              "stud_diameter_mm": result.stud_diameter_mm}
+              "height_tol_below_mm": result.height_tol_below_mm, "stud_diameter_mm": result.stud_diameter_mm,
+              "min_collar_coverage_deg": result.min_collar_coverage_deg,
+              "min_collar_height_mm": result.min_collar_height_mm, "min_collar_seen_deg": result.min_collar_seen_deg,
+              "qa_code": result.qa_code}
     return unexpected, limits
