@@ -108,7 +108,7 @@ def test_block_references_are_expanded_with_their_full_transform(tmp_path, flavo
 
 
 def test_insert_matrices_match_ezdxf_for_random_references():
-    from stud_planner.drawing.circles import _insert_matrices, _matrix
+    from stud_planner.drawing.entities import insert_matrices, matrix_of
 
     rng = np.random.default_rng(3)
     doc = ezdxf.new("R2010")
@@ -121,8 +121,8 @@ def test_insert_matrices_match_ezdxf_for_random_references():
             "xscale": sx, "yscale": sy, "zscale": sz, "rotation": rng.uniform(-360, 360)})
         d = ref.dxf
         params = np.array([[*d.insert, d.xscale, d.yscale, d.zscale, d.rotation]])
-        np.testing.assert_allclose(_insert_matrices(params, np.array([3.0, -4.0, 0.5]))[0],
-                                   _matrix(ref.matrix44()), atol=1e-9)
+        np.testing.assert_allclose(insert_matrices(params, np.array([3.0, -4.0, 0.5]))[0],
+                                   matrix_of(ref.matrix44()), atol=1e-9)
 
 
 def test_minsert_arrays_are_expanded(tmp_path):
@@ -654,14 +654,14 @@ def test_error_collinear_and_coincident_marks(tmp_path):
 
 
 def test_unexpected_ezdxf_failures_become_drawing_errors(tmp_path, monkeypatch):
-    import stud_planner.drawing.circles as dl
+    from stud_planner.drawing.entities import EntityCollector
 
     path = write_layout_dxf(tmp_path / "ok.dxf", STUDS, MARKS)
 
     def boom(*args, **kwargs):
         raise KeyError("weird entity")
 
-    monkeypatch.setattr(dl._Collector, "scan", boom)
+    monkeypatch.setattr(EntityCollector, "scan", boom)
     assert "cannot interpret the drawing (KeyError" in _error(path)
 
 
