@@ -6,6 +6,7 @@ shared/data/dxf (CAD programs' and libraries' files: each parses or fails with D
 """
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import json
 import math
@@ -22,6 +23,7 @@ from hypothesis import strategies as st
 from stud_planner.drawing import (
     DrawingError,
     DrawingLayout,
+    LayoutOptions,
     close_pairs,
     read_circles,
     read_layout,
@@ -447,6 +449,22 @@ def test_stud_layers_are_case_insensitive_glob_patterns(tmp_path):
     everything = read_layout(tmp_path / "layers.dxf", stud_layers="*")
     assert len(everything.studs) == 15  # the three mark circles are never studs
     assert set(everything.stud_layers) == set(layers)
+
+
+def test_the_options_object_and_the_keywords_read_the_same(tmp_path):
+    layers = ["Studs-M16", "STUDS-M19", "other", "studs"] * 3 + ["x", "y", "z"]
+    _plain_doc(STUDS * 1e3, layers).saveas(tmp_path / "layers.dxf")
+    options = LayoutOptions(stud_layers=["studs-*"], min_spacing_m=0.0)
+    by_options = read_layout(tmp_path / "layers.dxf", options)
+    assert len(by_options.studs) == 6
+    assert by_options == read_layout(tmp_path / "layers.dxf", stud_layers=["studs-*"], min_spacing_m=0.0)
+    wider = options.with_changes(stud_layers="*")   # a copy: the options are frozen
+    assert options.stud_layers == ("studs-*",) and len(read_layout(tmp_path / "layers.dxf", wider).studs) == 15
+    assert len(read_layout(tmp_path / "layers.dxf", options, stud_layers="*").studs) == 15   # keywords change it
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        options.min_spacing_m = 1.0  # type: ignore[misc]
+    with pytest.raises(TypeError):
+        read_layout(tmp_path / "layers.dxf", stud_layer="*")   # a misspelt option is not silently ignored
 
 
 def test_diameter_filter_keeps_only_studs_in_range(tmp_path):
