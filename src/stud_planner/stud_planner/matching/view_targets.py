@@ -26,7 +26,7 @@ import numpy as np
 
 from stud_perception.camera_model import CameraModel
 from stud_perception.registration import local_to_world
-from stud_common.vocabulary import VIEW_DEPENDENT, TargetStatus
+from stud_common.vocabulary import VIEW_DEPENDENT, MatchAlgorithm, TargetStatus, choices
 from stud_planner.matching.gun_clearance import Clearance, GunModel, gun_clearance
 from stud_planner.matching.match_common import observed_heights, z_range_of
 from stud_planner.matching.matchers import MatchResults, MatchStatus, match_batch, match_bfs, match_fpm
@@ -42,7 +42,7 @@ from stud_planner.matching.surface_pose import (SurfaceFitConfig, SurfacePoses, 
  STATUS_NO_NORMAL, STATUS_DEPTH_DISCONTINUITY, STATUS_GUN_BLOCKED) = (int(s) for s in TargetStatus)
 STATUS_TEXT = {int(s): s.text for s in TargetStatus}
 VIEW_DEPENDENT_STATUSES = frozenset(int(s) for s in VIEW_DEPENDENT)
-ALGORITHMS = ("batch", "fpm", "bfs")
+ALGORITHMS = choices(MatchAlgorithm)  # the matcher node's and plan's choices
 _FIT = SurfaceFitConfig()  # the surface fit's defaults are its own; the planner's fields take them
 
 
@@ -66,7 +66,7 @@ class PlannerConfig:
     point; the paper's M16x150 stud top is 13 mm -> use the arm driver's tool offset instead).
     """
 
-    algorithm: str = "batch"
+    algorithm: str = MatchAlgorithm.BATCH.value  # a MatchAlgorithm's text
     tol_m: float = 0.001
     fpm_window_px: int = 25
     hole_window_px: int = 7
@@ -156,12 +156,12 @@ def _reasons(status: np.ndarray, poses: SurfacePoses, clearance: Clearance, lean
 def match(algorithm: str, targets_xy_w: np.ndarray, depth_m: np.ndarray, camera: CameraModel,
           config: PlannerConfig, heights: tuple | None | str = "observe") -> MatchResults:
     """Match with ``algorithm``; ``heights``: the view's :func:`observed_heights` if known (batch only)."""
-    if algorithm == "batch":
+    if algorithm == MatchAlgorithm.BATCH:
         z_range = None if isinstance(heights, str) else z_range_of(heights, camera)
         return match_batch(targets_xy_w, depth_m, camera, tol_m=config.tol_m, hole_window_px=config.hole_window_px,
                            z_range_m=None if z_range is None else z_range[:2],
                            z_init_m=None if z_range is None else z_range[2])
-    if algorithm == "fpm":
+    if algorithm == MatchAlgorithm.FPM:
         return match_fpm(targets_xy_w, depth_m, camera, tol_m=config.tol_m, window_px=config.fpm_window_px,
                          hole_window_px=config.hole_window_px)
     return match_bfs(targets_xy_w, depth_m, camera, tol_m=config.tol_m, hole_window_px=config.hole_window_px,
