@@ -1,6 +1,6 @@
 """A loopback simulator of the RM-65 controller's JSON-over-TCP interface.
 
-Speaks the protocol of RM65_PROTOCOL.md well enough for our driver *and* the official SDK
+Speaks the protocol of docs/RM65_PROTOCOL.md (``§`` cites its sections) well enough for our driver *and* the official SDK
 (robotic-arm 1.1.6) to connect: ``\\r\\n`` framing (pretty-printed requests tolerated), the
 eleven connect-time queries of §1.11, ``movej`` / ``movej_p`` / ``movel`` with the
 acknowledgement followed by the ``current_trajectory_state`` arrival message, stop / slow stop
@@ -14,7 +14,7 @@ as the path needs at ``v`` % of the line and angular limits (:class:`.motion.Mot
 starting and ending at rest; ``time_scale`` multiplies every duration (0.02 makes tests 50x faster). Targets outside
 the joint limits are refused with ``receive_state:false`` and error 0x1002 in the state,
 unreachable poses with 0x1003 (the exact channel is [UNCERTAIN] in the docs; this is the one
-the official SDK reports as "refused", §3). Numbers no arm can reach -- non-finite, too large for
+the official SDK reports as "refused", §2). Numbers no arm can reach -- non-finite, too large for
 a float, a flange beyond the working sphere -- are refused the same way at once, before any IK.
 
 For tests: every received command is recorded with its arrival time (``commands``), every
