@@ -505,9 +505,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         _log.warning("binding the simulator to a non-loopback address %s", args.host)
     # SIGINT and SIGTERM are blocked in every thread (the simulator's threads, started below, inherit
     # the mask) and taken synchronously by sigwait: no handler runs at an arbitrary point of this thread.
-    # The handler that was here set a threading.Event, whose lock this thread held for a few bytecodes
-    # of every Event.wait turn: a signal landing then blocked the handler on that lock for ever, and the
-    # simulator outlived its SIGTERM (a cell killed mid-job; its launch test waited 60 s in vain).
+    # Not a Python handler setting a threading.Event: this thread holds that Event's lock for a few
+    # bytecodes of every Event.wait turn, and a signal landing then would block the handler on that lock
+    # for ever, the simulator outliving its SIGTERM.
     stop_signals = {signal.SIGINT, signal.SIGTERM}
     for sig in stop_signals:  # not Python's KeyboardInterrupt either (never ignored: an ignored signal is lost)
         signal.signal(sig, signal.SIG_DFL)
