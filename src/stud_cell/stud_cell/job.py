@@ -193,6 +193,8 @@ class JobConfig:
     rail_mount_xyz_m: tuple = (0.0, 0.0, 0.0)
     rail_coarse_step_m: float = 0.05     # carriage positions a station is reached from: sampled this far apart,
     rail_tolerance_m: float = 0.005      # the ends found to within this
+    rail_stud_height_m: float = math.nan  # the studs' height above the plane the stops are planned for (NaN: half
+                                          # part_height_m); their weld reach, normal up, is the plan's prior
 
     @classmethod
     def from_params(cls, p: dict) -> "JobConfig":

@@ -62,8 +62,13 @@ class RailJob(CellJob):
         self.rail_plan: RailPlan | None = None
         self.carriage_m: float | None = None       # where the carriage is (the controller's, m)
         self.rail_moves = 0
-        self.stops: list[dict] = []                # per carriage position: its record in the reports
+        self._visit: list[CarriageStop] = []       # the stops in the order visited (planned, and extra ones)
+        self._records: dict[int, dict] = {}        # stop index -> its record in the reports
+        self._direction = 1                        # the way the carriage goes along the rail (+1: increasing x)
         self._stop: CarriageStop | None = None     # the stop being worked
+        self._studs_w = np.zeros((0, 2))
+        self._ids: list[str] = []
+        self._index: dict[str, int] = {}
         self._stud_stop: dict[str, int] = {}       # stud id -> the stop it is welded at (planned, or deferred to)
         self._registration: Registration | None = None
         self._reg_carriage: float | None = None    # the carriage position of the last valid registration
@@ -140,35 +145,50 @@ class RailJob(CellJob):
     # -- the stops ---------------------------------------------------------------------------------
     def _work(self, plan: StationPlan, studs_w: np.ndarray, ids: list[str], plane_z: float) -> None:
         assert self.rail is not None and self.carriage_m is not None
-        self._plane_z = plane_z
-        rp = plan_rail(plan.stations, studs_w, self.rail, plane_z + self.c.part_height_m, start_m=self.carriage_m)
+        c = self.c
+        self._plane_z, self._studs_w, self._ids = plane_z, studs_w, ids
+        self._index = {sid: i for i, sid in enumerate(ids)}
+        height = c.rail_stud_height_m if math.isfinite(c.rail_stud_height_m) else c.part_height_m / 2
+        rp = plan_rail(plan.stations, studs_w, self.rail, plane_z + height, start_m=self.carriage_m)
         self.rail_plan = rp
         for i, why in rp.unreachable_studs.items():
             self.named.name(ids[i], why)
         self.stations_total = len(rp.stations)
+        self._visit = list(rp.stops)
+        if len(rp.stops) >= 2:
+            self._direction = 1 if rp.stops[-1].position_m >= rp.stops[0].position_m else -1
         for stop in rp.stops:
             for i in stop.stud_indices:
                 self._stud_stop[ids[i]] = stop.index
-        self.stops = [{"index": s.index, "position_m": s.position_m, "window_m": list(s.window_m), "reached_m": None,
-                       "stations": [st.index for st in s.stations], "studs": [ids[i] for i in s.stud_indices],
-                       "deferred_in": [], "registration": None, "welded": 0, "error": ""} for s in rp.stops]
+            self._records[stop.index] = self._new_record(stop)
         self.ports.status(self.state, self.message, stations_total=self.stations_total)
         self.ports.info(f"{len(rp.stops)} carriage position(s) along the rail for {len(rp.stations)} station(s): "
                         + ", ".join(f"{s.position_m:.3f}" for s in rp.stops) + f" m; planned in {rp.planning_s:.1f} s "
                         f"({rp.reach_checks} reach checks)"
                         + (f"; stations {list(rp.prior_ignored)} placed by the camera's reach alone (their studs' "
                            "prior left no carriage position)" if rp.prior_ignored else ""))
-        for stop in rp.stops:
-            self._run_stop(stop, studs_w, ids, plane_z)
+        k = 0
+        while k < len(self._visit):   # extra stops may join ahead while the job goes
+            self._run_stop(self._visit[k], studs_w, ids, plane_z)
+            k += 1
         self._reshoot_reasons()
 
+    def _new_record(self, stop: CarriageStop, extra: bool = False) -> dict:
+        return {"index": stop.index, "position_m": stop.position_m, "window_m": list(stop.window_m), "reached_m": None,
+                "stations": [st.index for st in stop.stations],
+                "studs": [self._ids[i] for i in stop.stud_indices], "deferred_in": [], "extra": extra,
+                "registration": None, "welded": 0, "error": ""}
+
+    def _rank(self, stop_index: int) -> int:
+        """Where a stop comes in the visiting order (0-based)."""
+        return next(k for k, s in enumerate(self._visit) if s.index == stop_index)
+
     def _where(self, stop: CarriageStop) -> str:
-        n = len(self.rail_plan.stops) if self.rail_plan is not None else 0
-        return f"carriage position {stop.index}/{n} at {stop.position_m:.3f} m"
+        return f"carriage position {self._rank(stop.index) + 1}/{len(self._visit)} at {stop.position_m:.3f} m"
 
     def _run_stop(self, stop: CarriageStop, studs_w: np.ndarray, ids: list[str], plane_z: float) -> None:
         self._stop = stop
-        record = self.stops[stop.index - 1]
+        record = self._records[stop.index]
         try:
             self._move_rail(stop.position_m, self._where(stop))
         except MoveRefused as exc:
@@ -186,7 +206,7 @@ class RailJob(CellJob):
         self._weld_leftovers()
         self._reshoot(studs_w, ids, plane_z)
         self._catch_up(stop, studs_w, ids, plane_z)
-        record["welded"] = sum(1 for sid, r in self.stud_report.items() if r.get("carriage_stop") == stop.index
+        record["welded"] = sum(1 for r in self.stud_report.values() if r.get("carriage_stop") == stop.index
                                and r["welded"])
 
     def _lose_stop(self, stop: CarriageStop, record: dict, why: str) -> None:
@@ -237,9 +257,8 @@ class RailJob(CellJob):
         c = self.c
         refs = np.array(list(self.layout.reference_marks_m.values()), dtype=np.float64).reshape(-1, 2)
         marks_w = local_to_world(self._registration.m_local2world, refs).reshape(-1, 2)
-        plane_z = self._plane_z
         geom = StationGeometry(c.fov_width_m, c.fov_distance_m, c.image_aspect, c.part_height_m, c.camera_height_m,
-                               plane_z, c.overlap, tuple(c.station_height_steps_m))
+                               self._plane_z, c.overlap, tuple(c.station_height_steps_m))
         first = (stop.stations[0].camera_xyz_w, stop.stations[0].yaw_rad)
         views = [v for v in registration_views(marks_w, stop.stations, geom, self.layout.mark_diameter_m / 2 + 0.005)
                  if v[1] >= 2]
@@ -263,29 +282,65 @@ class RailJob(CellJob):
         k = self._stud_stop.get(stud_id)
         if k is None or self._stop is None:
             return False
-        return k == self._stop.index if here else k <= self._stop.index
+        rank, now = self._rank(k), self._rank(self._stop.index)
+        return rank == now if here else rank <= now
 
-    def _later_stop(self, t: Target, from_index: int) -> CarriageStop | None:
-        """The first stop from ``from_index`` on whose carriage position the reach test welds ``t`` from."""
-        assert self.rail is not None and self.rail_plan is not None
-        for stop in self.rail_plan.stops[from_index - 1:]:
-            if not self.named.verdict(t.entry.get("position_m"), t.entry.get("normal"), self.rail.at(stop.position_m)):
-                return stop
-        return None
+    def _verdict_at(self, t_or_entry, stop: CarriageStop) -> str:
+        entry = t_or_entry.entry if isinstance(t_or_entry, Target) else t_or_entry
+        assert self.rail is not None
+        return self.named.verdict(entry.get("position_m"), entry.get("normal"), self.rail.at(stop.position_m))
 
-    def _defer_or_name(self, t: Target, why: str, from_index: int) -> None:
-        """A stud ``why`` its stop cannot weld: deferred to the first later stop that can, else named."""
-        later = self._later_stop(t, from_index)
+    def _defer_or_name(self, t: Target, why: str, after: CarriageStop) -> None:
+        """A stud ``why`` the stop ``after`` cannot weld: deferred to the first stop visited after it that
+        can, else to an extra carriage position ahead, else named."""
         sid = t.stud_id
+        later = next((s for s in self._visit[self._rank(after.index) + 1:] if not self._verdict_at(t, s)), None)
         if later is None:
-            self.named.name(sid, f"{why} (with the carriage at {self.carriage_m:.3f} m; no later carriage position "
-                                 "reaches it either)")
+            later = self._extra_stop(t, after)
+        if later is None:
+            self.named.name(sid, f"{why} (with the carriage at {after.position_m:.3f} m; no carriage position further "
+                                 "along the rail reaches it either)")
             return
         self.named.withdraw(sid)
         if self._stud_stop.get(sid) != later.index:
             self._stud_stop[sid] = later.index
-            self.stops[later.index - 1]["deferred_in"].append(sid)
-            self.ports.info(f"{sid}: deferred to {self._where(later)} ({why.removeprefix('unreachable: ')} from here)")
+            self._records[later.index]["deferred_in"].append(sid)
+            self.ports.info(f"{sid}: deferred to {self._where(later)} ({why.removeprefix('unreachable: ')} from "
+                            f"{after.position_m:.3f} m)")
+
+    def _extra_stop(self, t: Target, after: CarriageStop) -> CarriageStop | None:
+        """A carriage position further along the rail than ``after`` -- not planned -- from which the arm
+        welds ``t`` and holds the camera over it: a new stop, visited in its place along the travel."""
+        assert self.rail is not None
+        sid = t.stud_id
+        i = self._index[sid]
+        rail, step = self.rail.rail, self.rail.config.coarse_step_m
+        x = float(self._studs_w[i][0]) - rail.mount_xyz_m[0]
+        d = self._direction
+        reach_span = 0.7
+        cs = [c for c in np.arange(0.0, rail.length_m + 1e-9, step)
+              if d * (c - after.position_m) > 0.5 * step and abs(x - c) <= reach_span]
+        poses = self._poses_seeing(sid, self._studs_w[i], i, self._plane_z)
+        for c in sorted(cs, key=lambda v: abs(v - after.position_m)):
+            c = float(c)
+            if self.named.verdict(t.entry.get("position_m"), t.entry.get("normal"), self.rail.at(c)):
+                continue
+            ok = [p for p, v in zip(poses, self.rail.at(c).cameras(poses)) if v.ok]
+            if not ok:
+                continue
+            self.stations_total += 1
+            station = Station(self.stations_total, tuple(ok[0][0]), float(ok[0][1]), (i,))
+            index = max(s.index for s in self._visit) + 1
+            stop = CarriageStop(index, c, (c, c), (station,))
+            rank = self._rank(after.index) + 1
+            while rank < len(self._visit) and d * (self._visit[rank].position_m - c) < 0:
+                rank += 1
+            self._visit.insert(rank, stop)
+            self._records[index] = self._new_record(stop, extra=True)
+            self.ports.info(f"{sid}: no planned carriage position welds it: an extra one at {c:.3f} m")
+            self.ports.status(self.state, self.message, stations_total=self.stations_total)
+            return stop
+        return None
 
     def _weldable(self, t: Target) -> bool:
         """The reach test at THIS carriage position accepts the target; else the stud is deferred to a
@@ -296,18 +351,18 @@ class RailJob(CellJob):
                 self.named.withdraw(t.stud_id)
             return True
         assert self._stop is not None
-        self._defer_or_name(t, why, self._stop.index + 1)
+        self._defer_or_name(t, why, self._stop)
         return False
 
     def _check_seen(self, t: Target) -> None:
         """A stud of a later stop, seen from here: checked at its own stop (then the later ones)."""
         k = self._stud_stop.get(t.stud_id)
-        if k is None or self._stop is None or k <= self._stop.index or self.rail is None:
+        if k is None or self._stop is None or self._rank(k) <= self._rank(self._stop.index):
             return   # this stop's own and earlier ones' are checked on the target they are sent with
-        why = self.named.verdict(t.entry.get("position_m"), t.entry.get("normal"),
-                                 self.rail.at(self.stops[k - 1]["position_m"]))
+        own = self._visit[self._rank(k)]
+        why = self._verdict_at(t, own)
         if why:
-            self._defer_or_name(t, why, k + 1)
+            self._defer_or_name(t, why, own)
 
     def _shoot_view(self, what: str, xyz, yaw: float, own: frozenset = frozenset()) -> View | None:
         view = super()._shoot_view(what, xyz, yaw, own)
@@ -324,22 +379,19 @@ class RailJob(CellJob):
     # -- studs deferred here that no view of this stop saw -----------------------------------------
     def _poses_seeing(self, sid: str, stud_xy, stud_index: int, plane_z: float) -> list[tuple]:
         """Camera poses that hold the stud: its planned station's, then the re-shoot poses round it."""
-        assert self.rail_plan is not None
         c = self.c
-        poses = [(st.camera_xyz_w, st.yaw_rad) for st in self.rail_plan.stations if stud_index in st.stud_indices]
+        poses = [(st.camera_xyz_w, st.yaw_rad) for stop in self._visit for st in stop.stations
+                 if stud_index in st.stud_indices]
         for dh in c.station_height_steps_m:
             for turn in range(4):
-                st = self._reshoot_pose(stud_xy, turn, c.camera_height_m + dh, plane_z, stud_index)
+                st = reshoot_station(stud_xy, turn, c.reshoot_offset_m, c.camera_height_m + dh, plane_z,
+                                     math.radians(c.camera_yaw_deg), stud_index=stud_index)
                 poses.append((st.camera_xyz_w, st.yaw_rad))
         return poses
 
-    def _reshoot_pose(self, stud_xy, turn: int, height: float, plane_z: float, stud_index: int) -> Station:
-        return reshoot_station(stud_xy, turn, self.c.reshoot_offset_m, height, plane_z,
-                               math.radians(self.c.camera_yaw_deg), stud_index=stud_index)
-
     def _catch_up(self, stop: CarriageStop, studs_w: np.ndarray, ids: list[str], plane_z: float) -> None:
         """Studs deferred to this stop that none of its views saw: a view from here that holds them."""
-        assert self.rail is not None and self.rail_plan is not None and self.reach is not None
+        assert self.rail is not None and self.reach is not None
         index = {sid: i for i, sid in enumerate(ids)}
         for sid in [s for s, k in self._stud_stop.items() if k == stop.index]:
             r = self.stud_report[sid]
@@ -348,15 +400,15 @@ class RailJob(CellJob):
             poses = self._poses_seeing(sid, studs_w[index[sid]], index[sid], plane_z)
             ok = [p for p, v in zip(poses, self.reach.cameras(poses)) if v.ok]
             if not ok:   # a later stop whose arm holds a view of it and welds its last target
-                later = next((s for s in self.rail_plan.stops[stop.index:]
-                              if not self.named.verdict(r.get("position_m"), r.get("normal"), self.rail.at(s.position_m))
-                              and any(v.ok for v in self.rail.at(s.position_m).cameras(poses))), None)
+                later = next((s for s in self._visit[self._rank(stop.index) + 1:]
+                              if not self._verdict_at(r, s) and any(v.ok for v in self.rail.at(s.position_m).cameras(poses))),
+                             None)
                 if later is None:
                     self.named.name(sid, f"no camera pose the arm reaches from {self._where(stop)} or a later one "
                                          "sees it")
                 else:
                     self._stud_stop[sid] = later.index
-                    self.stops[later.index - 1]["deferred_in"].append(sid)
+                    self._records[later.index]["deferred_in"].append(sid)
                     self.ports.info(f"{sid}: deferred to {self._where(later)} (no view of it from here)")
                 continue
             xyz, yaw = ok[0]
@@ -383,8 +435,13 @@ class RailJob(CellJob):
                 self._weld_and_inspect(batch)
 
     # -- the reports -------------------------------------------------------------------------------
+    @property
+    def stops(self) -> list[dict]:
+        """Per carriage position, in the order visited: its record in the reports."""
+        return [self._records[s.index] for s in self._visit]
+
     def _done_note(self) -> str:
-        return f"; {len(self.stops)} carriage position(s), {self.rail_moves} rail move(s)"
+        return f"; {len(self._visit)} carriage position(s), {self.rail_moves} rail move(s)"
 
     def _report_extras(self, qa: bool = False) -> dict:
         rp = self.rail_plan

@@ -20,11 +20,12 @@ station, the fewest carriage positions ("stops") that cover every station, and t
    of offsets, searched the same way once per band of y (``prior_y_step_m``). A station's interval is
    its camera interval cut to where each of its studs is weldable by that prior (the camera interval
    alone when nothing is left).
-3. **Fewest stops.** Interval stabbing: the earliest end among the intervals of the stations not yet
-   covered is the next stop, and every station reached from there is its -- the fewest stops (a
-   station reached from disjoint intervals takes the first the sweep meets). Each stop then moves to
-   the middle of the range all its stations are reached from: the count and the order stay, the
-   stations come nearer the middle of the arm's reach.
+3. **Few stops.** Interval stabbing, sweeping one way: the next stop covers the most stations not yet
+   covered without passing the last carriage position any of them is reached from (with one interval
+   per station: the earliest interval end, the classic greedy, whose count is the fewest; a camera
+   reached on either side of the arm has two). Each stop then moves to the middle of the range all its
+   stations are reached from: the count and the order stay, the stations come nearer the middle of
+   the arm's reach.
 4. **Checked.** Each stop's stations are put to the exact reach test at the stop's carriage
    position; a station refused there (a hole between samples) loses that position and the stops are
    placed again. A stop's stations are ones the driver accepts there.
@@ -348,25 +349,37 @@ class RailPlan:
 
 
 def _stab(intervals: dict[int, Intervals]) -> list[tuple[float, float, list[int]]]:
-    """Fewest points stabbing every station (module docstring, 3): (window lo, window hi, stations) per
-    point, in increasing order; a window is the range every station of it is reached from."""
+    """Few points stabbing every station, in increasing order (module docstring, 3): (window lo, window
+    hi, stations) per point; a window is the range every station of it is reached from.
+
+    A sweep that never goes back: the next point lies at most at the deadline -- the earliest of the
+    pending stations' last interval ends, so no station is left behind -- and covers the most pending
+    stations (the furthest such point among equals). With one interval per station the deadline itself
+    covers the most: this is then the classic greedy, whose count is the fewest."""
     pending = {i for i, iv in intervals.items() if iv}
     out = []
     s = -math.inf
     while pending:
-        ends = {i: next((hi for lo, hi in intervals[i] if hi >= s), math.inf) for i in pending}
-        p = min(ends.values())
-        if not math.isfinite(p):  # cannot happen (every pending station keeps an interval ahead): guard
-            break
-        members, lo_w = [], -math.inf
+        deadline = min(max(hi for _lo, hi in intervals[i]) for i in pending)
+        candidates = sorted({v for i in pending for lo, hi in intervals[i] for v in (lo, hi) if s <= v <= deadline}
+                            | {deadline})
+        best: tuple[int, float] = (-1, -math.inf)
+        for p in candidates:
+            n = sum(1 for i in pending if any(lo <= p <= hi for lo, hi in intervals[i]))
+            if n >= best[0]:
+                best = (n, p)
+        p = best[1]
+        members, lo_w, hi_w = [], -math.inf, math.inf
         for i in sorted(pending):
             hit = next(((lo, hi) for lo, hi in intervals[i] if lo <= p <= hi), None)
             if hit is not None:
                 members.append(i)
-                lo_w = max(lo_w, hit[0])
-        out.append((lo_w, p, members))
+                lo_w, hi_w = max(lo_w, hit[0]), min(hi_w, hit[1])
+        if not members:  # cannot happen (the deadline lies in some station's last interval): guard
+            break
+        out.append((lo_w, hi_w, members))
         pending -= set(members)
-        s = p + 1e-12
+        s = hi_w + 1e-12
     return out
 
 

@@ -127,6 +127,11 @@ PARAMS = [
     Param("rail_coarse_step_m", _JOB.rail_coarse_step_m, "the carriage positions a camera station is reached from "
           "are sampled this far apart, then bisected [m]", min=0.005, max=0.5),
     Param("rail_tolerance_m", _JOB.rail_tolerance_m, "... to within this [m]", min=0.0005, max=0.5),
+    Param("rail_stud_height_m", _JOB.rail_stud_height_m, "the studs' height above the working plane the carriage "
+          "positions are planned for: where the arm welds a stud there, normal up, is the plan's prior [m]; NaN: "
+          "half part_height_m", nan_means="half part_height_m",
+          validate=lambda v: None if math.isnan(v) or 0.0 <= v <= 2.0
+          else f"rail_stud_height_m={v}: expected 0.0 .. 2.0 m, or NaN (half part_height_m)"),
     Param("rail_move_timeout_s", 300.0, "longest wait for the carriage to arrive at a carriage position [s]",
           min=1.0, max=3600.0),
 ]
