@@ -289,6 +289,48 @@ def test_a_stud_its_carriage_position_cannot_weld_is_deferred_to_a_later_one_and
     assert cell.weld_errors[sid] < 1e-6 and max(cell.weld_errors.values()) < 1e-6
 
 
+def test_the_board_is_searched_for_along_the_rail_the_carriage_moving_to_reach_each_view(tmp_path):
+    """No registration station; the board lies beside a girder that starts 1.3 m along the rail, out of the
+    arm's reach from where the carriage stands: the search's area is given there, the carriage brought to
+    where the arm reaches each view, and the job goes on from there."""
+    scene = dataclasses.replace(paired_marks_girder(1.0), drawing_to_world=girder_scene(
+        length_m=1.0, start_xy_m=(1.6, 0.0)).drawing_to_world)
+    cell = RailCell(scene, rail_length_m=2.5)
+    board = np.array(list(cell.board_w.values()))
+    assert board[:, 0].min() > 1.2 and not cell.here().camera_ok((*board.mean(axis=0), 0.35), 0.0)
+    job, state, report, qa = run(cell, tmp_path, registration_station_xyz_m=(),
+                                 board_search_area_xy_m=(1.2, -0.6, 1.9, -0.1))
+    assert state == "done", cell.log
+    assert any("marking board found from the camera at" in line for line in cell.log)
+    first = next(k for k, e in enumerate(cell.events) if e[0] == "register" and e[2])
+    assert cell.events[0][0] == "rail" and cell.events[first][1] > 0.8   # moved before the board was seen
+    rail = [e[1] for e in cell.events if e[0] == "rail"]
+    assert rail[1:] == sorted(rail[1:]) or rail[1:] == sorted(rail[1:], reverse=True)
+    assert sorted(cell.journal) == sorted(cell.studs) and max(cell.weld_errors.values()) < 1e-6
+    assert not cell.unplanned_moves
+
+
+def test_without_reference_marks_a_carriage_position_out_of_the_boards_reach_says_how_far_it_extrapolates(tmp_path):
+    """A drawing without reference marks: the board registers the first carriage position; where the arm
+    no longer reaches the board the registration carries over, and the report says by how far -- the rail's
+    error there is not corrected (the welds land that much off: the cell cannot know better)."""
+    cell = RailCell(paired_marks_girder(1.8), rail_length_m=2.5, marks=False)
+    job, state, report, qa = run(cell, tmp_path)
+    assert state == "done", cell.log
+    regs = [s["registration"] for s in report["rail"]["stops"]]
+    carried = [r for r in regs if r["source"] == "carried over"]
+    assert carried and all(r["extrapolated_m"] > 0.3 for r in carried)
+    assert any("carries over" in line and "uncorrected" in line for line in cell.log)
+    assert all(r["source"] in ("marking board", "carried over", "made at this carriage position") for r in regs)
+    for stop in report["rail"]["stops"]:   # on the true studs where registered, off by the rail's error where not
+        errors = [cell.weld_errors[sid] for sid, c in cell.welded_at.items() if c == stop["reached_m"]]
+        if stop["registration"]["source"] == "carried over":
+            # the encoder's scale error alone over the distance carried
+            assert errors and min(errors) > 0.5 * DEVIATION.scale_ppm * 1e-6 * stop["registration"]["extrapolated_m"]
+        else:
+            assert max(errors, default=0.0) < 1e-6, stop
+
+
 def test_without_a_rail_setting_the_job_refuses_to_be_a_rail_job():
     with pytest.raises(ValueError, match="RailJob needs a rail"):
         RailJob(FakeCell({}), JobConfig(rail_length_m=0.0))
