@@ -122,15 +122,15 @@ class RailJob(CellJob):
         """The views the arm reaches from where the carriage stands first (the search's order), then the
         others by the carriage position nearest that reaches them, moving one way."""
         assert self.rail is not None and self.reach is not None and self.carriage_m is not None
+        now = self.carriage_m
         here = [p for p, v in zip(poses, self.reach.cameras(list(poses))) if v.ok]
         rest = [p for p in poses if p not in here]
         at = {}
         for pose, intervals in zip(rest, self.rail.camera_intervals(list(rest))):
-            at[pose] = min((min(max(self.carriage_m, lo), hi) for lo, hi in intervals),
-                           key=lambda v: abs(v - self.carriage_m), default=self.carriage_m)
-        ahead = sorted((p for p in rest if at[p] >= self.carriage_m), key=lambda p: at[p])
-        behind = sorted((p for p in rest if at[p] < self.carriage_m), key=lambda p: -at[p])
-        if behind and (not ahead or abs(at[behind[-1]] - self.carriage_m) < abs(at[ahead[-1]] - self.carriage_m)):
+            at[pose] = min((min(max(now, lo), hi) for lo, hi in intervals), key=lambda v: abs(v - now), default=now)
+        ahead = sorted((p for p in rest if at[p] >= now), key=lambda p: at[p])
+        behind = sorted((p for p in rest if at[p] < now), key=lambda p: -at[p])
+        if behind and (not ahead or abs(at[behind[-1]] - now) < abs(at[ahead[-1]] - now)):
             ahead, behind = behind, ahead   # the shorter way first
         return here + ahead + behind
 

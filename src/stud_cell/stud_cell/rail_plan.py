@@ -40,7 +40,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, replace
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -156,8 +156,8 @@ def _runs(ok: np.ndarray) -> list[tuple[int, int]]:
     return runs
 
 
-def offset_bands(keys: list, test: Callable[[list[tuple[object, float]]], np.ndarray], span_m: float,
-                 step_m: float, tolerance_m: float) -> dict[object, Intervals]:
+def offset_bands(keys: list, test: Callable[[list[tuple[Any, float]]], np.ndarray], span_m: float,
+                 step_m: float, tolerance_m: float) -> dict[Any, Intervals]:
     """Per key, the offsets ``o`` in ``[-reach_span_m, reach_span_m]`` where ``test`` holds:
     ``test([(key, o), ...]) -> bool array`` is asked for all keys' samples ``step_m`` apart in one call,
     then once per bisection round for every end of every run (module docstring). Each interval's ends
@@ -202,8 +202,8 @@ class RailReach:
 
     def __init__(self, reach: Reach, rail: Rail, config: RailPlanConfig = RailPlanConfig()) -> None:
         self.reach, self.rail, self.config = reach, rail, config
-        big = (_FREE_BOX_M,) * 3
-        self._free = Reach(replace(reach.config, workspace_min_m=tuple(-v for v in big), workspace_max_m=big))
+        big = _FREE_BOX_M
+        self._free = Reach(replace(reach.config, workspace_min_m=(-big, -big, -big), workspace_max_m=(big, big, big)))
         self._base0 = rail.world_T_base(0.0)
         self._at: dict[float, CellReach] = {}
         self._camera_bands: dict[tuple, Intervals] = {}
@@ -231,9 +231,9 @@ class RailReach:
             out.append(not np.any((pts < lo - 1e-9) | (pts > hi + 1e-9)))
         return np.array(out, dtype=bool)
 
-    def _camera_test(self, pairs: list[tuple[object, float]]) -> np.ndarray:
+    def _camera_test(self, pairs: list[tuple[Any, float]]) -> np.ndarray:
         mx = self.rail.mount_xyz_m[0]
-        T = np.array([camera_pose_as_sent((mx + o, key[0], key[1]), key[2]) for key, o in pairs])  # type: ignore[index]
+        T = np.array([camera_pose_as_sent((mx + o, key[0], key[1]), key[2]) for key, o in pairs])
         self.checks += len(T)
         return np.array([v.ok for v in self._free.cameras(T, self._base0)], dtype=bool)
 
@@ -265,10 +265,10 @@ class RailReach:
         return None
 
     # -- studs (the prior) ----------------------------------------------------------------------
-    def _stud_test(self, pairs: list[tuple[object, float]]) -> np.ndarray:
+    def _stud_test(self, pairs: list[tuple[Any, float]]) -> np.ndarray:
         mx = self.rail.mount_xyz_m[0]
         self.checks += len(pairs)
-        return np.array([self._free.stud((mx + o, key[0], key[1]), (0.0, 0.0, 1.0), self._base0).ok  # type: ignore[index]
+        return np.array([self._free.stud((mx + o, key[0], key[1]), (0.0, 0.0, 1.0), self._base0).ok
                          for key, o in pairs], dtype=bool)
 
     def stud_prior_intervals(self, xy_w, prior_z_m: float) -> list[Intervals]:
@@ -479,7 +479,7 @@ def registration_views(marks_xy_w, stations: Sequence[Station], geom: StationGeo
     first = np.asarray(stations[0].camera_xyz_w[:2])
     reach = float(np.max([np.linalg.norm(np.asarray(s.camera_xyz_w[:2]) - first) for s in stations])) + 0.5
     near = marks[np.linalg.norm(marks - first, axis=1) <= reach]
-    poses: list[tuple[tuple[float, float, float], float]] = [(tuple(s.camera_xyz_w), s.yaw_rad) for s in stations]
+    poses: list[tuple[tuple[float, float, float], float]] = [(s.camera_xyz_w, s.yaw_rad) for s in stations]
     yaw0 = stations[0].yaw_rad
     for i in range(len(near)):
         for j in range(i + 1, len(near)):
