@@ -316,10 +316,9 @@ class RailJob(CellJob):
         i = self._index[sid]
         rail, step = self.rail.rail, self.rail.config.coarse_step_m
         x = float(self._studs_w[i][0]) - rail.mount_xyz_m[0]
-        d = self._direction
-        reach_span = 0.7
+        d, span = self._direction, self.rail.config.reach_span_m
         cs = [c for c in np.arange(0.0, rail.length_m + 1e-9, step)
-              if d * (c - after.position_m) > 0.5 * step and abs(x - c) <= reach_span]
+              if d * (c - after.position_m) > 0.5 * step and abs(x - c) <= span]
         poses = self._poses_seeing(sid, self._studs_w[i], i, self._plane_z)
         for c in sorted(cs, key=lambda v: abs(v - after.position_m)):
             c = float(c)

@@ -92,7 +92,9 @@ class RailPlanConfig:
     """How finely the carriage intervals are searched (m). ``reach_span_m``: how far along the rail
     from the arm's base a camera pose or a stud can lie and be reached at all (the RM-65: 0.61 m flange
     reach + gun + hand-eye); ``prior_y_step_m``: studs this close across the rail share one prior;
-    ``column_gap_m``: stations closer than this along the rail are one column of a stop."""
+    ``prior_margin_m``: a stud's weldable range by the prior is kept this far inside its ends (the stud's
+    true height and normal differ from the prior's); ``column_gap_m``: stations closer than this along
+    the rail are one column of a stop."""
 
     coarse_step_m: float = 0.05
     tolerance_m: float = 0.005
@@ -101,13 +103,14 @@ class RailPlanConfig:
     prior_max_bands: int = 8
     prior_coarse_step_m: float = 0.1
     prior_tolerance_m: float = 0.025
+    prior_margin_m: float = 0.03
     column_gap_m: float = 0.05
 
     def __post_init__(self) -> None:
         if self.prior_max_bands < 1:
             raise RailPlanError(f"rail plan prior_max_bands={self.prior_max_bands}: expected at least 1")
         for name in ("coarse_step_m", "tolerance_m", "reach_span_m", "prior_y_step_m", "prior_coarse_step_m",
-                     "prior_tolerance_m", "column_gap_m"):
+                     "prior_tolerance_m", "prior_margin_m", "column_gap_m"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise RailPlanError(f"rail plan {name}={value}: expected a positive length [m]")
@@ -287,7 +290,9 @@ class RailReach:
         if new:
             self._stud_bands.update(offset_bands(new, self._stud_test, c.reach_span_m, c.prior_coarse_step_m,
                                                  c.prior_tolerance_m))
-        return [self._to_carriage(float(x), self._stud_bands[k]) for (x, _y), k in zip(xy, keys)]
+        m = c.prior_margin_m   # the prior is a prior: its band's ends are kept clear of
+        return [self._to_carriage(float(x), tuple((lo + m, hi - m) for lo, hi in self._stud_bands[k] if hi - lo > 2 * m))
+                for (x, _y), k in zip(xy, keys)]
 
     def surely_unreachable(self, xy_w, z_range_m: tuple[float, float]) -> list[str]:
         """:meth:`CellReach.surely_unreachable` from every carriage position along the rail: why no
