@@ -15,9 +15,9 @@ from sensor_msgs.msg import Image
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
-from stud_welding_msgs.msg import (ArmState, CellStatus, InspectionResult, ReworkDecision, Stud, StudInspection,
-                                   StudLayout, WeldTarget, WeldTargetArray)
-from stud_welding_msgs.srv import RecordRework, ResolveStud
+from stud_welding_msgs.msg import (ArmState, BendTest, BendTestPlan, CellStatus, InspectionResult, ReworkDecision, Stud,
+                                   StudInspection, StudLayout, WeldTarget, WeldTargetArray)
+from stud_welding_msgs.srv import RecordBendTest, RecordRework, ResolveStud
 
 from rosproc import wait_for
 from stud_common import ros_io
@@ -46,9 +46,14 @@ class FakeCell:
         self._srvs = [node.create_service(Trigger, s, self._handler(s)) for s in services]
         self.resolved: list[tuple[str, int]] = []     # /arm/resolve_stud requests (stud id, decision)
         self.reworked: list[tuple[str, str, str]] = []  # /inspection/record_rework requests (stud, decision, note)
+        self.operators: list[str] = []                 # who signed each of them
+        self.bent: list[tuple[str, str, float, str, str]] = []  # /inspection/record_bend_test (stud, result, angle,
+                                                                 # note, operator)
         if decisions:
             self._srvs.append(node.create_service(ResolveStud, "/arm/resolve_stud", self._on_resolve))
             self._srvs.append(node.create_service(RecordRework, "/inspection/record_rework", self._on_rework))
+            self._srvs.append(node.create_service(RecordBendTest, "/inspection/record_bend_test", self._on_bend))
+        self.pub_bend_tests = node.create_publisher(BendTestPlan, "/inspection/bend_tests", ros_io.LATCHED_QOS)
         self.pub_inspection = node.create_publisher(InspectionResult, "/inspection/result", ros_io.LATCHED_QOS)
         self.pub_rework = node.create_publisher(ReworkDecision, "/inspection/rework", ros_io.LATCHED_QOS)
         self.pub_hand_eye = node.create_publisher(String, "/calibration/hand_eye", ros_io.LATCHED_QOS)
@@ -74,7 +79,13 @@ class FakeCell:
 
     def _on_rework(self, req, resp):
         self.reworked.append((req.stud_id, req.decision, req.note))
+        self.operators.append(req.operator_name)
         resp.success, resp.message = True, f"{req.stud_id}: {req.decision} recorded (fake)"
+        return resp
+
+    def _on_bend(self, req, resp):
+        self.bent.append((req.stud_id, req.result, req.angle_deg, req.note, req.operator_name))
+        resp.success, resp.message = True, f"{req.stud_id}: bend test {req.result} recorded (fake)"
         return resp
 
     def wait_for_hmi(self, port: int, proc, timeout_s: float = 30.0) -> None:
@@ -130,6 +141,13 @@ class FakeCell:
 
     def rework_recorded(self, stud_id: str, decision: str, verdict: str = "fail") -> None:
         self.pub_rework.publish(ReworkDecision(stud_id=stud_id, decision=decision, verdict=verdict))
+
+    def bend_tests(self, tests: list[tuple[str, str, str]], qa_code: str = "gb50205") -> None:
+        """A latched /inspection/bend_tests: (stud id, reason, result "" / "pass" / "fail") per stud, bent 30 deg."""
+        self.pub_bend_tests.publish(BendTestPlan(qa_code=qa_code, seed=7, lot_welded=len(tests), studs=[
+            BendTest(stud_id=sid, reasons=[why], angle_deg=30.0, result=result, bent_deg=30.0 if result else NAN,
+                     operator_name="B. Welder" if result else "", time="2025-05-01T10:30:00+00:00" if result else "")
+            for sid, why, result in tests]))
 
     def hand_eye(self, node: str, summary: dict) -> None:
         self.pub_hand_eye.publish(String(data=json.dumps({**summary, "node": node})))

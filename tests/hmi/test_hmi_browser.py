@@ -332,14 +332,36 @@ def test_page_shows_the_banner_alarms_valid_buttons_progress_and_decisions_as_th
     assert js(row.format(sid="S0001")) == "pass" and js(row.format(sid="S0009")) == ""
     until("document.querySelector('#rework li[data-stud=\"S0002\"]')", "the rework decision for S0002")
     assert "lean 8.0 deg" in js("document.querySelector('#rework li[data-stud=\"S0002\"]').textContent")
+    rework_button = ("Array.from(document.querySelectorAll('#rework li[data-stud=\"S0002\"] button'))"
+                     ".find(x => x.textContent === 'Rework')")
+    # a decision is signed: until the operator gives a name (once per session) its buttons wait for it
+    assert js(rework_button + ".disabled") is True
+    assert "enter your name" in js("document.getElementById('operator-why').textContent")
+    js("(() => { const i = document.getElementById('operator-name'); i.value = 'A. Inspector';"
+       " i.dispatchEvent(new Event('input')); })()")
+    until("!" + rework_button + ".disabled", "the decision buttons enabled once signed")
+    assert js("sessionStorage.getItem('operator')") == "A. Inspector"
     js("(() => { const li = document.querySelector('#rework li[data-stud=\"S0002\"]');"
        " li.querySelector('input.note').value = 'lean checked with a gauge';"
        " const b = Array.from(li.querySelectorAll('button')).find(x => x.textContent === 'Rework'); b.click(); b.click(); })()")
     wait_for(lambda: cell.reworked, 10, spin=ros_node.spin, what="/inspection/record_rework called" + fail())
-    assert cell.reworked == [("S0002", "rework", "lean checked with a gauge")]
+    assert cell.reworked == [("S0002", "rework", "lean checked with a gauge")] and cell.operators == ["A. Inspector"]
     cell.rework_recorded("S0002", "rework")
     until(row.format(sid="S0002") + " === 'fail → rework'", "the decision in the table")
     until("document.getElementById('decisions').hidden", "no decision pending")
+
+    # (7b) the QA record's bend tests: entered on the page, signed, they reach the inspector
+    cell.bend_tests([("S0003", "lot sample (2 of 6 welded)", ""), ("S0001", "pre-production test stud", "pass")])
+    until("!document.getElementById('bend-box').hidden && document.querySelector('#bend-tests li[data-stud=\"S0003\"]')",
+          "the bend-test list")
+    assert "gb50205" in js("document.getElementById('bend-code').textContent")
+    assert "B. Welder" in js("document.querySelector('#bend-tests li[data-stud=\"S0001\"]').textContent")
+    js("(() => { const li = document.querySelector('#bend-tests li[data-stud=\"S0003\"]');"
+       " li.querySelector('input.angle').value = '32'; li.querySelector('input.note').value = 'no crack';"
+       " const b = Array.from(li.querySelectorAll('button')).find(x => x.textContent === 'Pass'); b.click(); b.click(); })()")
+    wait_for(lambda: cell.bent, 10, spin=ros_node.spin, what="/inspection/record_bend_test called" + fail())
+    assert cell.bent == [("S0003", "pass", 32.0, "no crack", "A. Inspector")]
+    until(row.format(sid="S0001") + " === 'pass · bend pass'", "the bend result in the table")
 
     # (8) a warning a node repeats every second is one alarm, with no count
     for _ in range(20):

@@ -63,7 +63,7 @@ def test_hmi_streams_the_cell_to_a_websocket_client_and_stop_calls_both_services
     ws = WsClient("127.0.0.1", port)
     inbox = Inbox(ws)
     assert inbox.wait(lambda m: m["type"] == "hello", ros_node, "hello")["commands"] == [
-        "start", "pause", "resume", "stop", "estop", "ack", "resolve_stud", "record_rework"]
+        "start", "pause", "resume", "stop", "estop", "ack", "resolve_stud", "record_rework", "record_bend_test"]
 
     # -- targets: the table's rows, NaN as null -------------------------------------------------------
     view = [target("S0001", OK, (0.1, 0.2, 0.05), incl_deg=2.5, xy_error_m=0.0004),

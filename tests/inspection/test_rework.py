@@ -10,12 +10,30 @@ from stud_inspection.rework import ReworkError, append_record, latest_decisions,
 
 def test_a_decision_on_a_failed_stud_is_appended_as_one_json_line_with_its_time(tmp_path):
     path = tmp_path / "out" / "rework_decisions.jsonl"
-    append_record(path, make_record("S0004", "Rework", "  lean 8 deg ", "fail", stamp=1746094323.12))
-    append_record(path, make_record("S0004", "accept", "", "fail", stamp=1746094400.0))
+    append_record(path, make_record("S0004", "Rework", "  lean 8 deg ", "fail", stamp=1746094323.12,
+                                    operator="  A.  Inspector "))
+    append_record(path, make_record("S0004", "accept", "", "fail", stamp=1746094400.0, operator="B. Welder"))
     lines = [json.loads(line) for line in path.read_text().splitlines()]
     assert lines[0] == {"time": "2025-05-01T10:12:03.120+00:00", "stud_id": "S0004", "decision": "rework",
-                        "verdict": "fail", "note": "lean 8 deg", "stamp": 1746094323.12}
-    assert lines[1]["decision"] == "accept"
+                        "verdict": "fail", "note": "lean 8 deg", "stamp": 1746094323.12, "operator": "A. Inspector"}
+    assert (lines[1]["decision"], lines[1]["operator"]) == ("accept", "B. Welder")
+    assert latest_decisions(path)["S0004"].for_qa_record() == {"decision": "accept", "note": "",
+                                                               "time": "2025-05-01T10:13:20.000+00:00",
+                                                               "operator": "B. Welder"}
+
+
+@pytest.mark.parametrize("operator, why", [("", "no operator name"), ("   ", "no operator name"),
+                                           ("x" * 101, "at most 100"), ("A.\x07B", "control characters")])
+def test_a_decision_is_signed_by_a_named_operator(operator, why):
+    with pytest.raises(ReworkError, match=why):
+        make_record("S0004", "rework", "", "fail", stamp=0.0, operator=operator)
+
+
+def test_decisions_written_before_operators_signed_them_still_read(tmp_path):
+    path = tmp_path / "rework_decisions.jsonl"
+    path.write_text('{"time": "x", "stud_id": "S0001", "decision": "accept", "verdict": "fail", "note": "", '
+                    '"stamp": 5.0}\n')
+    assert latest_decisions(path)["S0001"].operator == ""
 
 
 @pytest.mark.parametrize("stud, decision, verdict, why", [

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import subprocess
 
+from chromium_pdf import find_chromium, print_to_pdf
 from rosproc import REPO
 
 from stud_planner.drawing import read_layout
@@ -35,3 +36,16 @@ def test_demo_welds_every_stud_once_and_leaves_its_outputs(tmp_path):
               if json.loads(line).get("event") == "welded"]
     assert len(welded) == len(set(welded))
     assert sorted(welded) == sorted({t["stud_id"] for t in json.loads((out / "weld_report.json").read_text())["targets"]})
+    # the post-weld inspection shots were the inspector's alone: the last /weld_targets is what the matcher
+    # saw before the welds, no welded stud gun_blocked (issue 37)
+    last = summary["last_weld_targets"]
+    assert last["inspection_shots_matched"] == 0 and last["gun_blocked"] == [], why
+    assert last["counts"] == {"ok": summary["studs_total"]}, why
+    # the QA record: its code, every stud's collar measured, its bend tests; its page prints on <= 2 A4 pages
+    qa = json.loads((out / "qa_report.json").read_text())
+    assert summary["qa_code"] == qa["code"]["profile"] == "gb50205" and qa["sampling"]["counts"]["listed"] >= 1, why
+    assert all(r["measured"]["collar_seen_deg"] >= 180.0 for r in qa["studs"]), why
+    chromium = find_chromium()
+    if chromium is not None:
+        pages, _pdf = print_to_pdf(chromium, out / "qa_report.html", tmp_path)
+        assert pages <= 2, pages

@@ -14,7 +14,8 @@ the camera and judged: lean, offset, standing height). Left in the output folder
 ``qa_report.json``/``.csv``/``.html`` (with ``qa/*.png``, each station's inspection overlay),
 ``summary.json``, ``overlays/*.png`` (the matcher's overlays), ``cell_bag/`` (rosbag2 MCAP, opens in
 Foxglove), ``weld_journal.jsonl`` and every node's log. Exit code 0 only if every stud was welded
-within the accuracy limits and passed its inspection.
+within the accuracy limits and passed its inspection, and the matcher matched no post-weld inspection
+shot (the last ``/weld_targets`` is what it saw before the welds: no welded stud ``gun_blocked``).
 
 The simulated camera is not mounted exactly where the cell believes: it renders through the cell's
 hand-eye moved by :data:`CALIBRATION_RESIDUAL`, the error a good calibration leaves, so the weld
@@ -158,6 +159,33 @@ def export_overlays(bag_dir: Path, out_dir: Path) -> int:
     return n
 
 
+def last_weld_targets(bag_dir: Path) -> dict | None:
+    """What the recorded bag says of the matcher's views: the last ``/weld_targets`` (its view index and
+    the count per status) and how many ``/weld_targets`` carry the stamp of an ``/inspection/result``'s
+    shot (a post-weld shot matched as a view: none, as the inspection shots have topics of their own)."""
+    from stud_bag import open_bag
+
+    if not bag_dir.exists():
+        return None
+    last, target_stamps, inspection_stamps = None, set(), set()
+    with open_bag(bag_dir) as bag:
+        for item in bag.messages([names.WELD_TARGETS, names.INSPECTION_RESULT]):
+            msg = item.message()
+            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            if item.topic == names.INSPECTION_RESULT:
+                inspection_stamps.add(stamp)
+                continue
+            target_stamps.add(stamp)
+            counts: dict[str, int] = {}
+            for t in msg.targets:
+                counts[t.status_text] = counts.get(t.status_text, 0) + 1
+            last = {"view": int(msg.view_index), "counts": counts,
+                    "gun_blocked": sorted(t.stud_id for t in msg.targets if t.status_text == "gun_blocked")}
+    if last is None:
+        return None
+    return {**last, "inspection_shots_matched": len(target_stamps & inspection_stamps)}
+
+
 def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog="demo", description="Run the simulated weld cell on a bundled curved part.")
     ap.add_argument("--part", choices=sorted(PARTS), default="dome",
@@ -217,7 +245,11 @@ def _evaluate(args: argparse.Namespace, out: Path, report: dict, code: int, elap
     qa_file = out / "qa_report.json"
     qa = json.loads(qa_file.read_text()) if qa_file.exists() else None
     qa_counts = qa["summary"] if qa else {}
-    ok = (code == 0 and welded == total and qa_counts.get("pass") == welded
+    last = last_weld_targets(out / "cell_bag")
+    welded_ids = {t["stud_id"] for t in report["targets"] if t.get("welded")}
+    matched_clean = (last is not None and last["inspection_shots_matched"] == 0
+                     and not welded_ids & set(last["gun_blocked"]))
+    ok = (code == 0 and welded == total and qa_counts.get("pass") == welded and matched_clean
           and acc["max_xy_error_mm"] <= args.max_xy_error_mm
           and acc["max_normal_error_deg"] <= args.max_normal_error_deg and acc["gun_axes_checked"] == welded
           and acc["max_gun_axis_error_deg"] <= args.max_gun_axis_error_deg)
@@ -225,7 +257,9 @@ def _evaluate(args: argparse.Namespace, out: Path, report: dict, code: int, elap
                "stations": report.get("stations"), "unreachable": report.get("unreachable", []),
                "unreachable_reasons": report.get("unreachable_reasons", {}),
                "time_s": round(elapsed, 1), "accuracy": {k: v for k, v in acc.items() if k != "studs"},
-               "overlays": overlays, "qa_summary": qa_counts}
+               "overlays": overlays, "qa_summary": qa_counts, "last_weld_targets": last,
+               "qa_code": (qa.get("code") or {}).get("profile") if qa else None,
+               "bend_tests": ((qa.get("sampling") or {}).get("counts") if qa else None)}
     return {"summary": summary, "acc": acc, "qa": qa, "qa_file": qa_file, "elapsed_s": elapsed}
 
 
@@ -262,8 +296,20 @@ def _print_summary(args: argparse.Namespace, out: Path, report: dict, result: di
         for r in qa["studs"]:
             if r["verdict"] != "pass":
                 print(f"     {r['stud_id']:>8}  {r['verdict']}: {'; '.join(r['reasons'])}")
+        bends = summary.get("bend_tests")
+        if qa.get("code"):
+            print(f"   QA code             {qa['code']['title']}: collar {lim.get('min_collar_coverage_deg', 0):g} deg "
+                  f">= {lim.get('min_collar_height_mm', 0):g} mm; {bends['listed'] if bends else 0} stud(s) to "
+                  f"bend-test (seed {qa['sampling']['seed']}): qa_report.html")
     else:
         print(f"   QA (post-weld)      no QA record ({result['qa_file']} missing)")
+    last = summary.get("last_weld_targets")
+    if last is None:
+        print("   last /weld_targets  none recorded")
+    else:
+        print(f"   last /weld_targets  view {last['view']}: " + ", ".join(f"{k} {v}" for k, v in sorted(last['counts'].items()))
+              + f"; inspection shots matched as views: {last['inspection_shots_matched']}"
+              + (f"; gun_blocked: {', '.join(last['gun_blocked'])}" if last["gun_blocked"] else ""))
     print(f"   time                {result['elapsed_s']:.0f} s (arm simulator at {args.time_scale:g}x real motion time)")
     print(f"   output              {out}/  (weld_report.json, qa_report.json/.csv/.html, summary.json, "
           f"overlays/ [{overlays}], qa/, cell_bag/, logs)")

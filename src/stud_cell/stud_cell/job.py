@@ -19,8 +19,9 @@
 
 At the end -- also when the job stops early -- the job writes the weld report (``report_file``) and
 the QA record (``qa_dir``: qa_report.json/.csv/.html, stud_inspection.qa_report): every drawing stud with
-its verdict. A stud that fails inspection is listed for the operator and never welded again: rework
-is a person's decision.
+its verdict and place in the weld order, the code profile (``qa_code``, stud_inspection.qa_codes) and
+the bend tests it asks for, drawn with the job's ``sample_seed`` (stud_inspection.sampling). A stud
+that fails inspection is listed for the operator and never welded again: rework is a person's decision.
 
 Everything the job needs of the cell comes through a :class:`CellPorts` object: the sequencer node
 implements it over topics, services and the weld action; tests implement it in plain Python.
@@ -28,6 +29,7 @@ implements it over topics, services and the weld action; tests implement it in p
 from __future__ import annotations
 
 import math
+import secrets
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,16 +37,17 @@ from typing import Protocol
 
 import numpy as np
 
-from stud_common.vocabulary import VIEW_DEPENDENT, CellState
+from stud_common.vocabulary import VIEW_DEPENDENT, CellState, TargetStatus
 from stud_perception.registration import local_to_world
 from stud_common.strict_json import write_json
-from stud_inspection import qa_report, rework
+from stud_inspection import bend, qa_codes, qa_report, rework
 from stud_inspection.inspection import InspectionLimits
 from stud_cell.board_search import BoardSearchError, board_radius_m, search_plan
 from stud_cell.cell_reach import CellReach
 from stud_cell.station_reach import StationGeometry, reachable_stations
 from stud_cell.stations import Station, StationPlan, footprint_m, plan_stations, reshoot_station
 from stud_cell.unreachable import UnreachableStuds
+from stud_planner.matching.target_table import BestViewKey, TargetTable, choose_best
 
 #: Job states (CellStatus state_text): stud_common.vocabulary's, by name.
 IDLE, REGISTERING, MOVING, SHOOTING, MATCHING, WELDING, INSPECTING, PAUSED, DONE, FAILED = (
@@ -77,8 +80,21 @@ class Target:
     ok: bool                  # usable: weld it
     status_text: str          # "ok", "normal_uncertain", "no_depth", ...
     lean_bound_deg: float     # how far the welded stud could lean from the normal, from its uncertainty
-    entry: dict               # its weld-report fields (msg_convert.target_report_entry)
+    entry: dict               # its weld-report fields (TargetTable.report_entries)
     payload: object = None    # what the arm driver welds (a WeldTarget message in the node)
+    centre_offset: float = math.nan  # the match's distance from the image centre (target_table.centre_offset)
+
+
+def table_targets(table: TargetTable, payloads=None) -> tuple[Target, ...]:
+    """The job's targets of one view's :class:`TargetTable`; ``payloads`` (one per target): what the
+    arm driver welds of each (None: nothing)."""
+    entries = table.report_entries(with_stud=False)
+    payloads = [None] * len(table.ids) if payloads is None else payloads
+    return tuple(Target(stud_id=sid, ok=ok, status_text=entry["status"], lean_bound_deg=lean, entry=entry,
+                        payload=payload, centre_offset=offset)
+                 for sid, ok, lean, offset, entry, payload in zip(table.ids, table.ok.tolist(),
+                                                                  table.lean_bound_deg.tolist(),
+                                                                  table.centre_offset.tolist(), entries, payloads))
 
 
 @dataclass(frozen=True)
@@ -128,7 +144,7 @@ class InspectionOutcome:
 
 @dataclass(frozen=True)
 class WeldOutcome:
-    welded: tuple[str, ...]     # studs the journal holds as welded, of those sent
+    welded: tuple[str, ...]     # studs the journal holds as welded, of those sent, in the order welded
     failed: tuple[str, ...]
     messages: tuple[str, ...]   # "<stud id>: why"
 
@@ -140,7 +156,8 @@ class CellPorts(Protocol):
     def move_camera(self, xyz_w, yaw_rad: float) -> None: ...             # MoveRefused: unreachable
     def register(self, attempts: int = 0) -> Registration: ...           # a registration shot (0: the cell's retries)
     def shoot_view(self, what: str, camera_xyz_w, yaw_rad: float) -> View | None: ...  # None: no targets came
-    def shoot(self) -> int: ...                                          # a shot; its ROS time (ns)
+    def shoot(self, inspection: bool = False) -> int: ...                # a shot (inspection: the
+                                                                         # inspector's alone); its ROS time (ns)
     def weld(self, targets: list[Target]) -> WeldOutcome: ...            # DriverLost: the driver lost the job
     def inspect(self, station: int, view: View, targets: list[Target], welded_ids: list[str],
                 after_ns: int) -> InspectionOutcome: ...                # InspectionUnavailable
@@ -184,6 +201,10 @@ class JobConfig:
     report_file: str = ""
     qa_dir: str = ""
     rework_file: str = ""   # the operator's rework decisions (cell.rework), merged into the QA record
+    bend_file: str = ""     # the bend-test results entered (stud_inspection.bend), merged into it too
+    qa_code: str = qa_codes.DEFAULT_CODE   # the code profile the record's bend tests follow
+    qa_overrides: dict = field(default_factory=dict)   # its values overridden for this job (qa_codes.profile)
+    sample_seed: int = 0    # the lot sample's seed (0: a random one), stored in the record
     qa_limits: dict = field(default_factory=lambda: InspectionLimits().to_dict())  # the QA record's header
                                                     # (an inspection's own limits replace these)
     job_id: str = ""
@@ -211,7 +232,7 @@ class CellJob:
         self.named = UnreachableStuds(reach, self._publish_unreachable)
         self.stud_report: dict[str, dict] = {}     # stud id -> weld-report entry
         self.qa: dict[str, dict] = {}              # stud id -> QA row (qa_report)
-        self.best: dict[str, tuple[float, Target, View]] = {}   # surest usable target per stud, over all views
+        self.best: dict[str, tuple[BestViewKey, Target, View]] = {}  # best usable target per stud, over all views
         self.views: dict[int, View] = {}
         self.stations_total = 0
         self.overlays: list[str] = []
@@ -223,6 +244,9 @@ class CellJob:
         self._station = 0                          # the station being worked (re-shoots count on after the plan)
         self._view_station: dict[int, int] = {}
         self._seen: set[str] = set()               # studs checked for reach on a view before their station
+        self.weld_seq: dict[str, int] = {}         # stud id -> 1, 2, ... in the order the arm welded them
+        self.sample_seed = int(config.sample_seed) or secrets.randbits(31)
+        self._judged = False                       # an inspection reported the limits it judged with
 
     # -- the job ----------------------------------------------------------------------------------
     def run(self) -> tuple[str, int]:
@@ -434,14 +458,15 @@ class CellJob:
         self._weldable(t)
 
     def _remember_best(self, view: View) -> None:
-        """Keep, per stud, the usable target with the surest normal (smallest lean bound) over all
-        views (targets are in `world`: one matched from any station can be welded from anywhere)."""
+        """Keep, per stud, its best usable target over all views by the rule ``plan`` keeps its views by
+        (target_table.choose_best: the smallest lean bound; targets are in `world`: one matched from any
+        station can be welded from anywhere)."""
         for t in view.targets:
             if not t.ok or t.stud_id not in self.stud_report:
                 continue
-            score = t.lean_bound_deg if math.isfinite(t.lean_bound_deg) else math.inf
-            if t.stud_id not in self.best or score < self.best[t.stud_id][0]:
-                self.best[t.stud_id] = (score, t, view)
+            key = BestViewKey(TargetStatus.OK, t.lean_bound_deg, t.centre_offset, view.index)
+            if t.stud_id not in self.best or choose_best(self.best[t.stud_id][0], key):
+                self.best[t.stud_id] = (key, t, view)
 
     def _take_entry(self, t: Target, view: View) -> None:
         report = self.stud_report[t.stud_id]
@@ -567,6 +592,9 @@ class CellJob:
                                 f"skips what is welded; resend {attempt + 1}/{c.weld_resends})")
         sent = {t.stud_id for t in targets}
         welded = {sid for sid in outcome.welded if sid in sent}
+        for sid in outcome.welded:  # in the order welded (the neighbours of a failure are the weld order's)
+            if sid in sent:
+                self.weld_seq.setdefault(sid, len(self.weld_seq) + 1)
         for sid in welded:
             self.stud_report[sid]["welded"] = True
         for line in outcome.messages:
@@ -594,7 +622,7 @@ class CellJob:
                 self.ports.checkpoint()
                 if self._camera_at != (tuple(view.camera_xyz_w), float(view.yaw_rad)):
                     self._move(view.camera_xyz_w, view.yaw_rad)  # back to where the targets were seen
-                after_ns = self.ports.shoot()
+                after_ns = self.ports.shoot(inspection=True)  # not a view to match: the inspector's alone
                 outcome = self.ports.inspect(self._station, view, targets, ids, after_ns)
             except (InspectionUnavailable, MoveRefused) as exc:
                 self.ports.warn(f"station {self._station}: {len(ids)} welded stud(s) not inspected: {exc}")
@@ -607,6 +635,7 @@ class CellJob:
             self.unexpected += outcome.unexpected
             if outcome.limits:
                 self.c.qa_limits = dict(outcome.limits)
+                self._judged = True
             if outcome.overlay_file:
                 self.overlays.append(outcome.overlay_file)
             self.inspection_s.append(time.monotonic() - t0)
@@ -632,7 +661,7 @@ class CellJob:
         the job went through its stations (else a stud no station reached says so)."""
         rows = []
         for sid, row in self.qa.items():
-            row = dict(row)
+            row = dict(row, weld_seq=self.weld_seq.get(sid))
             if self.stud_report[sid]["welded"] and row["verdict"] == "not_welded":
                 why = ("inspection is off (inspect:=false)" if not self.c.inspect
                        else "the job ended before its inspection")
@@ -658,6 +687,32 @@ class CellJob:
             self.ports.warn(f"QA record written without the rework decisions: {exc}")
             return {}
 
+    def _bend_results(self) -> dict[str, dict]:
+        """Bend-test results entered during the job, for the QA record."""
+        if not self.c.bend_file:
+            return {}
+        try:
+            return {sid: r.for_qa_record() for sid, r in bend.latest_results(self.c.bend_file).items()}
+        except bend.BendError as exc:
+            self.ports.warn(f"QA record written without the bend-test results: {exc}")
+            return {}
+
+    def _code(self) -> dict | None:
+        """The record's code profile: the job's, with the limits the inspector judged with where they
+        differ from it (its own overrides) marked as overridden."""
+        c = self.c
+        try:
+            code = qa_codes.profile(c.qa_code, c.qa_overrides)
+            judged = {n: float(c.qa_limits[n]) for n in qa_codes.LIMIT_NAMES
+                      if self._judged and isinstance(c.qa_limits.get(n), (int, float)) and c.qa_limits[n] != code.value(n)}
+            if self._judged and c.qa_limits.get("qa_code") not in (None, "", c.qa_code):
+                self.ports.warn(f"the inspector judged by qa_code {c.qa_limits['qa_code']!r}, the cell samples by "
+                                f"{c.qa_code!r}: the record lists the inspector's limits as overrides")
+            return (qa_codes.profile(c.qa_code, {**c.qa_overrides, **judged}) if judged else code).describe()
+        except qa_codes.CodeError as exc:
+            self.ports.warn(f"QA record written without its code profile and bend tests: {exc}")
+            return None
+
     def finish(self, state: str, message: str) -> int:
         """Write the weld report and the QA record (also after an early stop); the exit code: 0 only
         when the job is done and every stud welded."""
@@ -679,9 +734,12 @@ class CellJob:
             with qa_report.locked(Path(c.qa_dir)):
                 doc = qa_report.write_qa_report(Path(c.qa_dir), job, c.qa_limits, self.qa_rows(state == DONE),
                                                 self.unexpected, [Path(f) for f in self.overlays],
-                                                self._rework_decisions())
+                                                self._rework_decisions(), code=self._code(), seed=self.sample_seed,
+                                                bends=self._bend_results())
             counts = ", ".join(f"{k} {v}" for k, v in doc["summary"].items() if v)
-            self.ports.info(f"QA record: {c.qa_dir}/qa_report.{{json,csv,html}} ({counts})")
+            bends = (doc.get("sampling") or {}).get("counts", {}).get("listed", 0)
+            self.ports.info(f"QA record: {c.qa_dir}/qa_report.{{json,csv,html}} ({counts}; {bends} stud(s) to "
+                            f"bend-test, {c.qa_code})")
         all_welded = bool(self.stud_report) and welded == len(self.stud_report)
         return 0 if state == DONE and all_welded else 1
 

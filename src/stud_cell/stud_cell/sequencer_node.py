@@ -11,7 +11,8 @@ leftovers, re-shoots, the reports); this node is its adapter to the cell:
   is welded). Should the driver crash mid-job and come back (``--respawn-driver``), its
   ``/arm/state`` pauses and returns without a job: the job sends the targets again
   (``weld_resends``), and the journal skips what is welded and holds back what the crash left uncertain;
-- inspection: a shot of the same pose after the welds and ``/inspection/inspect``;
+- inspection: a shot of the same pose after the welds (``/camera/trigger_inspection``: published on
+  topics of its own, so the matcher never takes it for a view) and ``/inspection/inspect``.
 - with a rail (``rail_length_m`` > 0, the arm driver's): the carriage through ``/arm/rail_move`` (the arm
   still; returns on arrival), then two ``/arm/state`` from after it at the new position; the job is
   stud_cell.rail_job's (carriage positions planned, a registration at each).
@@ -37,10 +38,12 @@ from rclpy.action import ActionClient
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo
 from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
 from std_msgs.msg import String
-from stud_welding_msgs.msg import ArmState, CellStatus, Registration, StudLayout, WeldTargetArray
+from stud_welding_msgs.msg import ArmState, CellStatus, Registration, StudLayout, WeldRecord, WeldTargetArray
 from stud_welding_msgs.srv import Inspect, MoveTo, RailMove
 
 from stud_common import ros_io
@@ -54,8 +57,9 @@ from stud_cell.cell_reach import CellReach
 from stud_cell.job import DriverLost, InspectionUnavailable, JobAborted, MoveRefused
 from stud_cell.rail_job import RailJob
 from stud_cell.stations import StationPlanningError, footprint_m
+from stud_inspection.qa_params import QA_CODE_PARAM, SAMPLING_PARAMS, overrides
 from stud_planner.msg_convert import (inspection_extras, inspection_rows, layout_from_msg, registration_from_msg,
-                                      target_report_entry)
+                                      weld_target_table)
 from stud_common import names
 
 
@@ -118,6 +122,12 @@ PARAMS = [
     Param("part_name", "", "the part's name, for the QA record"),
     Param("rework_file", "", "the inspector's rework decisions file (JSON lines): decisions taken during the job "
           "go into the QA record's rework column (empty: none)"),
+    Param("bend_file", "", "the inspector's bend-test results file (JSON lines): results entered during the job go "
+          "into the QA record (empty: none)"),
+    QA_CODE_PARAM,
+    *SAMPLING_PARAMS,
+    Param("sample_seed", 0, "the seed of the lot's bend-test sample, stored in the QA record (0: a random one)",
+          min=0, max=2**31 - 1),
     # The rail (stud_cell.rail_job, rail_plan): pass the arm driver's values (cell.yaml does)
     Param("rail_length_m", _JOB.rail_length_m, "the rail's travel, as the arm driver's rail_length_m [m]: > 0, the "
           "job plans the fewest carriage positions along it and registers at each; 0: no rail, the arm fixed",
@@ -136,6 +146,8 @@ PARAMS = [
           min=1.0, max=3600.0),
 ]
 
+#: /arm/welds: every weld of the session, also for a sequencer started late.
+WELDS_QOS = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 STATE_TEXT = {int(s): s.text for s in CellState}  # CellStatus.STATE_* (tests: the same constants)
 STATE_OF_TEXT = {text: state for state, text in STATE_TEXT.items()}
 
@@ -171,9 +183,19 @@ class CellSequencer(Node):
         self.create_subscription(ArmState, names.ARM_STATE, self._on_arm_state, ros_io.RESULT_QOS, callback_group=cb)
         self.create_subscription(String, names.ARM_REACH_CONFIG, self._on_reach_config, ros_io.LATCHED_QOS,
                                  callback_group=cb)
+        # when each stud's weld was confirmed: the weld order of the QA record (the job's result lists
+        # the studs in the order they were sent)
+        self._weld_confirmed_ns: dict[str, int] = {}
+        self.create_subscription(WeldRecord, names.ARM_WELDS, self._on_weld_record, WELDS_QOS, callback_group=cb)
+        # The camera's principal point and size: how central each target's match is, the tie-break of the
+        # best-view rule (target_table.choose_best). K: the raw images' camera, as the matcher models them.
+        self._image: tuple[float, float, int, int] | None = None
+        self.create_subscription(CameraInfo, names.CAMERA_INFO, self._on_camera_info, ros_io.SENSOR_QOS,
+                                 callback_group=cb)
         self.cli_move = self.create_client(MoveTo, names.ARM_MOVE_TO, callback_group=cb)
         self.cli_rail = self.create_client(RailMove, names.ARM_RAIL_MOVE, callback_group=cb)
         self.cli_shot = self.create_client(Trigger, names.CAMERA_TRIGGER, callback_group=cb)
+        self.cli_inspection_shot = self.create_client(Trigger, names.CAMERA_TRIGGER_INSPECTION, callback_group=cb)
         self.cli_register = self.create_client(Trigger, names.REGISTRATION_TRIGGER, callback_group=cb)
         self.cli_inspect = self.create_client(Inspect, names.INSPECTION_INSPECT, callback_group=cb)
         self.cli_arm = {name: self.create_client(Trigger, f"/arm/{name}", callback_group=cb)
@@ -204,6 +226,14 @@ class CellSequencer(Node):
             self.targets.append(msg)
             del self.targets[:-5]
             self._cond.notify_all()
+
+    def _on_weld_record(self, msg: WeldRecord) -> None:
+        with self._cond:
+            self._weld_confirmed_ns.setdefault(msg.stud_id, ros_io.stamp_to_ns(msg.header.stamp))
+
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        if msg.width > 0 and msg.height > 0:
+            self._image = (float(msg.k[2]), float(msg.k[5]), int(msg.width), int(msg.height))
 
     def _on_arm_state(self, msg: ArmState) -> None:
         with self._cond:
@@ -274,6 +304,7 @@ class CellSequencer(Node):
         config = cell_job.JobConfig.from_params(p)
         config.job_id = time.strftime("%Y%m%d-%H%M%S")
         config.part = p["part_name"]
+        config.qa_overrides = overrides(p, SAMPLING_PARAMS)
         job_class = RailJob if config.rail_length_m > 0 else cell_job.CellJob
         self.job = job_class(self, config, reach=self.cell_reach())
         _state, self.exit_code = self.job.run()
@@ -384,12 +415,21 @@ class CellSequencer(Node):
             fp = []
         st.camera_xyz_m, st.camera_yaw_rad, st.camera_footprint_m = [float(v) for v in xyz], float(yaw_rad), fp
 
-    def shoot(self) -> int:
-        """One triggered shot; returns the ROS time (ns) taken just before it."""
+    def shoot(self, inspection: bool = False) -> int:
+        """One triggered shot; returns the ROS time (ns) taken just before it. With ``inspection``, a
+        post-weld inspection shot (``/camera/trigger_inspection``); a camera without that service
+        takes it on ``/camera/trigger``, and the matcher then matches it as one more view (said once)."""
+        client = self.cli_shot
+        if inspection:
+            if self.cli_inspection_shot.wait_for_service(timeout_sec=2.0):
+                client = self.cli_inspection_shot
+            else:
+                self.get_logger().warn(f"no {names.CAMERA_TRIGGER_INSPECTION}: the inspection shot is taken on "
+                                       f"{names.CAMERA_TRIGGER}, and the matcher will match it as a view", once=True)
         deadline = time.monotonic() + self.p["step_timeout_s"]
         while True:  # a camera that has no (fresh) pose yet says so: ask again shortly
             t0 = self.get_clock().now().nanoseconds
-            reply = self._call(self.cli_shot, Trigger.Request(), self.p["step_timeout_s"])
+            reply = self._call(client, Trigger.Request(), self.p["step_timeout_s"])
             if reply.success:
                 return t0
             if time.monotonic() > deadline:
@@ -444,10 +484,7 @@ class CellSequencer(Node):
                 if self._stop.is_set():
                     raise
                 continue
-            targets = tuple(cell_job.Target(stud_id=t.stud_id, ok=t.status == t.STATUS_OK, status_text=t.status_text,
-                                            lean_bound_deg=float(t.lean_bound),
-                                            entry=target_report_entry(t, msg.view_index), payload=t)
-                            for t in msg.targets)
+            targets = cell_job.table_targets(weld_target_table(msg, self._image), payloads=msg.targets)
             return cell_job.View(index=int(msg.view_index), stamp_ns=ros_io.stamp_to_ns(msg.header.stamp),
                                  camera_xyz_w=tuple(float(v) for v in camera_xyz_w), yaw_rad=float(yaw_rad),
                                  targets=targets)
@@ -488,10 +525,13 @@ class CellSequencer(Node):
             time.sleep(1.0)
             raise
 
-    @staticmethod
-    def _outcome(result: WeldJob.Result) -> cell_job.WeldOutcome:
-        return cell_job.WeldOutcome(welded=tuple(result.welded), failed=tuple(result.failed),
-                                    messages=tuple(result.messages))
+    def _outcome(self, result: WeldJob.Result) -> cell_job.WeldOutcome:
+        """The job's result, its welded studs in the order their welds were confirmed (/arm/welds; one
+        not seen there yet keeps its place after them)."""
+        with self._cond:
+            confirmed = dict(self._weld_confirmed_ns)
+        welded = sorted(result.welded, key=lambda sid: confirmed.get(sid, 1 << 62))
+        return cell_job.WeldOutcome(welded=tuple(welded), failed=tuple(result.failed), messages=tuple(result.messages))
 
     def inspect(self, station: int, view: cell_job.View, targets: list[cell_job.Target], welded_ids: list[str],
                 after_ns: int) -> cell_job.InspectionOutcome:

@@ -14,6 +14,14 @@ CAMERA_POSE = "/camera/pose"                       # optical frame in `world` at
 CAMERA_POSE_RECORDED = "/camera/pose_recorded"     # replay: the bag's pose, re-posed by pose_rebase
 CAMERA_TRIGGER = "/camera/trigger"                 # std_srvs/Trigger: one shot
 
+# -- the post-weld inspection's shots: the same camera and the same four messages on topics of their own
+#    (the matcher never takes a shot of welded studs for a view to plan welds on; docs/INTERFACES.md)
+CAMERA_TRIGGER_INSPECTION = "/camera/trigger_inspection"   # std_srvs/Trigger: one inspection shot
+INSPECTION_COLOR_IMAGE = "/camera/inspection/color/image_raw"
+INSPECTION_DEPTH_IMAGE = "/camera/inspection/depth/image_raw"
+INSPECTION_CAMERA_INFO = "/camera/inspection/color/camera_info"
+INSPECTION_CAMERA_POSE = "/camera/inspection/pose"
+
 # -- drawing, registration, matching ---------------------------------------------------------------
 DRAWING_LAYOUT = "/drawing/layout"
 DRAWING_POSES = "/drawing/poses"
@@ -53,7 +61,18 @@ INSPECTION_INSPECT = "/inspection/inspect"
 INSPECTION_RESULT = "/inspection/result"
 INSPECTION_RECORD_REWORK = "/inspection/record_rework"
 INSPECTION_REWORK = "/inspection/rework"
+INSPECTION_RECORD_BEND_TEST = "/inspection/record_bend_test"
+INSPECTION_BEND_TESTS = "/inspection/bend_tests"
 CALIBRATION_HAND_EYE = "/calibration/hand_eye"
+
+#: The four topics of one shot, by stream name ("color", "depth", "info", "pose"): a matching view's,
+#: or with ``inspection`` a post-weld inspection shot's.
+def shot_topics(inspection: bool = False) -> dict[str, str]:
+    if inspection:
+        return {"color": INSPECTION_COLOR_IMAGE, "depth": INSPECTION_DEPTH_IMAGE, "info": INSPECTION_CAMERA_INFO,
+                "pose": INSPECTION_CAMERA_POSE}
+    return {"color": COLOR_IMAGE, "depth": DEPTH_IMAGE, "info": CAMERA_INFO, "pose": CAMERA_POSE}
+
 
 # -- ROS-wide --------------------------------------------------------------------------------------
 DIAGNOSTICS = "/diagnostics"

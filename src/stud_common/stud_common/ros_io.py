@@ -186,7 +186,8 @@ def declare_params(node: Node, params: list[Param], on_change: Callable[[dict], 
     problems = []
     for p in params:
         desc = ParameterDescriptor(description=p.description, read_only=p.read_only)
-        if p.min is not None and p.max is not None and isinstance(p.default, float):
+        # (rclpy's range refuses NaN: a parameter whose NaN means "not set" is range-checked by Param.check alone)
+        if p.min is not None and p.max is not None and isinstance(p.default, float) and p.nan_means is None:
             desc.floating_point_range = [FloatingPointRange(from_value=float(p.min), to_value=float(p.max))]
         elif p.min is not None and p.max is not None and isinstance(p.default, int) and not isinstance(p.default, bool):
             desc.integer_range = [IntegerRange(from_value=int(p.min), to_value=int(p.max), step=1)]

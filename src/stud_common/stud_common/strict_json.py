@@ -78,22 +78,34 @@ def dumps_document(obj: Any) -> str:
     return "{\n " + ",\n ".join(lines) + "\n}"
 
 
-def write_json(path: str | os.PathLike, obj: Any) -> Path:
+def write_json(path: str | os.PathLike, obj: Any, durable: bool = False) -> Path:
     """Write ``obj`` as strict JSON (:func:`dumps_document`) to ``path``, parent folders created,
     newline-terminated, through a temporary file renamed into place: a reader never sees half a
-    document."""
-    return write_text_atomic(path, dumps_document(obj) + "\n")
+    document (``durable``: see :func:`write_text_atomic`)."""
+    return write_text_atomic(path, dumps_document(obj) + "\n", durable=durable)
 
 
-def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
+def write_text_atomic(path: str | os.PathLike, text: str, durable: bool = False) -> Path:
     """Write ``text`` to ``path`` (parent folders created) through a temporary file renamed into
-    place: a reader, or a process writing the same file, never sees half of it."""
+    place: a reader, or a process writing the same file, never sees half of it. ``durable``: the
+    temporary file is forced to disk before the rename and the folder after it, so a power cut or a
+    kill leaves either the old file whole or the new one (a record someone signs)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}.{threading.get_ident()}")
     try:
-        tmp.write_text(text, encoding="utf-8")
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+            if durable:
+                f.flush()
+                os.fsync(f.fileno())
         os.replace(tmp, path)
+        if durable:
+            fd = os.open(path.parent, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
     finally:
         if tmp.exists():
             tmp.unlink()

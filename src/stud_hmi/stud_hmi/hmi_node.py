@@ -9,12 +9,14 @@ integrator needs to build another HMI on the same interfaces is in docs/HMI.md.
               at most ``overlay_rate_hz``), /arm/state (ArmState), /cell/status (CellStatus) — all
               RESULT_QOS; /registration/result (Registration), /drawing/layout (StudLayout),
               /inspection/result (InspectionResult), /calibration/hand_eye (String, JSON) —
-              LATCHED_QOS; /inspection/rework (ReworkDecision, every decision); /diagnostics
+              LATCHED_QOS; /inspection/rework (ReworkDecision, every decision); /inspection/bend_tests
+              (BendTestPlan, LATCHED_QOS: the QA record's bend-test list); /diagnostics
               (WARN/ERROR/STALE -> alarms); /arm/weld_job/_action/feedback and .../status (the
               WeldJob action's own topics, read only: which stud is being welded, which jobs finished)
   calls       /cell/start, /cell/pause, /cell/resume, /cell/stop (the cell sequencer), /arm/stop,
               /arm/estop (rm65_driver) — std_srvs/Trigger; /arm/resolve_stud (ResolveStud: the
-              uncertain-stud decision); /inspection/record_rework (RecordRework: the rework decision);
+              uncertain-stud decision); /inspection/record_rework (RecordRework: the rework decision),
+              /inspection/record_bend_test (RecordBendTest), both signed with the operator's name;
               /arm/weld_job/_action/get_result for the welded/skipped/failed lists of finished jobs
   publishes   /diagnostics (address, connected browsers)
 
@@ -49,9 +51,9 @@ from sensor_msgs.msg import Image
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
-from stud_welding_msgs.msg import (ArmState, CellStatus, InspectionResult, Registration, ReworkDecision, StudLayout,
-                                   WeldTargetArray)
-from stud_welding_msgs.srv import RecordRework, ResolveStud
+from stud_welding_msgs.msg import (ArmState, BendTestPlan, CellStatus, InspectionResult, Registration, ReworkDecision,
+                                   StudLayout, WeldTargetArray)
+from stud_welding_msgs.srv import RecordBendTest, RecordRework, ResolveStud
 
 from stud_common import hand_eye_ros, ros_io
 from stud_perception import image_io
@@ -124,7 +126,14 @@ def _resolve_request(msg: dict) -> ResolveStud.Request:
 
 def _rework_request(msg: dict) -> RecordRework.Request:
     return RecordRework.Request(stud_id=str(msg.get("stud_id", "")), decision=str(msg.get("decision", "")),
-                                note=str(msg.get("note", "")))
+                                note=str(msg.get("note", "")), operator_name=str(msg.get("operator", "")))
+
+
+def _bend_request(msg: dict) -> RecordBendTest.Request:
+    angle = msg.get("angle_deg")
+    return RecordBendTest.Request(stud_id=str(msg.get("stud_id", "")), result=str(msg.get("result", "")),
+                                  angle_deg=float(angle) if angle is not None else float("nan"),
+                                  note=str(msg.get("note", "")), operator_name=str(msg.get("operator", "")))
 
 
 #: Page command -> the services it calls, in this order (all are called; see docs/HMI.md). "ack"
@@ -138,6 +147,7 @@ COMMANDS: dict[str, tuple[ServiceCall, ...]] = {
     "ack": (),
     "resolve_stud": (ServiceCall(names.ARM_RESOLVE_STUD, ResolveStud, _resolve_request),),
     "record_rework": (ServiceCall(names.INSPECTION_RECORD_REWORK, RecordRework, _rework_request),),
+    "record_bend_test": (ServiceCall(names.INSPECTION_RECORD_BEND_TEST, RecordBendTest, _bend_request),),
 }
 _PROVIDER = {"/cell": "the cell sequencer (stud_planner cell_sequencer)", "/arm": "the arm driver (rm65_driver driver)",
              "/inspection": "the inspector (stud_planner inspector)"}
@@ -206,6 +216,7 @@ class HmiNode(Node):
         self.create_subscription(StudLayout, names.DRAWING_LAYOUT, self._on_layout, ros_io.LATCHED_QOS)
         self.create_subscription(InspectionResult, names.INSPECTION_RESULT, self._on_inspection, ros_io.LATCHED_QOS)
         self.create_subscription(ReworkDecision, names.INSPECTION_REWORK, self._on_rework, REWORK_QOS)
+        self.create_subscription(BendTestPlan, names.INSPECTION_BEND_TESTS, self._on_bend_tests, ros_io.LATCHED_QOS)
         self.create_subscription(String, hand_eye_ros.TOPIC, self._on_hand_eye, ros_io.LATCHED_QOS)
         self.create_subscription(DiagnosticArray, names.DIAGNOSTICS, self._on_diagnostics, 50)
         self.create_subscription(WeldJob.Impl.FeedbackMessage, f"{WELD_JOB}/_action/feedback", self._on_feedback, 10)
@@ -375,6 +386,16 @@ class HmiNode(Node):
         self.view.on_rework(msg.stud_id, msg.decision, time.time())
         self._table_dirty = True
 
+    def _on_bend_tests(self, msg: BendTestPlan) -> None:
+        def number(x: float) -> float | None:
+            return float(x) if x == x else None  # NaN: not said
+
+        self.view.on_bend_tests(({"stud_id": t.stud_id, "reasons": list(t.reasons), "angle_deg": number(t.angle_deg),
+                                  "direction": t.direction, "result": t.result, "bent_deg": number(t.bent_deg),
+                                  "note": t.note, "operator": t.operator_name, "time": t.time} for t in msg.studs),
+                                msg.qa_code)
+        self._table_dirty = True
+
     def _on_hand_eye(self, msg: String) -> None:
         try:
             summary = json.loads(msg.data)
@@ -470,7 +491,8 @@ class HmiNode(Node):
                                      "message": f"{n} alarm(s) acknowledged"})
             self._flush()
             return
-        what = f" {msg.get('stud_id')} {msg.get('decision')}" if "stud_id" in msg else ""
+        what = (f" {msg.get('stud_id')} {msg.get('decision') or msg.get('result')}"
+                + (f" by {msg.get('operator')}" if msg.get("operator") else "")) if "stud_id" in msg else ""
         self.get_logger().info(f"operator: {cmd}{what} (from {conn.peer}) -> "
                                f"{', '.join(c.name for c in COMMANDS[cmd])}")
         call = _Call(conn, cmd, cid, COMMANDS[cmd], time.monotonic() + self.p["service_timeout_s"])

@@ -15,7 +15,9 @@ view at a time; its *weld state* comes from the arm: the WeldJob feedback (phase
 ``/arm/state`` (the stud being processed) and the WeldJob results (welded / skipped / failed
 lists, the truth). The two are kept apart, so a new view never clears a weld. A welded stud's
 *inspection* verdict comes from ``/inspection/result`` and the operator's rework decision on it
-from ``/inspection/rework``.
+from ``/inspection/rework``; the bend tests the QA record lists, with their results, from
+``/inspection/bend_tests``. Every decision the page sends is signed with the operator's name, which
+the page asks once per session (``operator`` in the command; stud_inspection.operator_log checks it).
 """
 from __future__ import annotations
 
@@ -24,6 +26,7 @@ from dataclasses import dataclass
 from typing import Any, Iterable
 
 from stud_common.vocabulary import ArmMode, CellState, TargetStatus
+from stud_inspection.operator_log import OperatorError, operator_name
 from stud_hmi.alarms import ALARMS, DIAG_CODE, STATE_SOURCES, Alarm, AlarmDef, AlarmList, Code, Severity
 from stud_hmi.calibration_display import HandEyeDisplay, hand_eye_text, same_hand_eye
 from stud_hmi.job_clock import ENDED_STATES, OPERATOR_STOP_TEXT, RUNNING_STATES, JobClock
@@ -37,7 +40,7 @@ __all__ = [
     "ENDED_STATES", "OPERATOR_STOP_TEXT", "RUNNING_STATES", "JobClock",
     "FINAL_WELD_STATES", "STATUS_NOT_SEEN", "STATUS_OUT_OF_VIEW", "WELD_ACTIVE", "WELD_FAILED", "WELD_NONE",
     "WELD_SKIPPED", "WELD_WELDED", "StudTable", "TargetInfo",
-    "ArmInfo", "CellInfo", "Timeouts", "COMMANDS", "STUD_DECISIONS", "CellView",
+    "ArmInfo", "CellInfo", "Timeouts", "BEND_RESULTS", "COMMANDS", "STUD_DECISIONS", "CellView",
 ]
 
 
@@ -91,7 +94,9 @@ class Timeouts:
 
 
 #: Page commands and what each does (the node maps them to services).
-COMMANDS = ("start", "pause", "resume", "stop", "estop", "ack", "resolve_stud", "record_rework")
+COMMANDS = ("start", "pause", "resume", "stop", "estop", "ack", "resolve_stud", "record_rework", "record_bend_test")
+#: Bend-test results the page sends (stud_inspection.bend.BendResult's values).
+BEND_RESULTS = ("pass", "fail")
 #: Decisions on an uncertain stud (ResolveStud): the page's words -> welded?
 STUD_DECISIONS = {"welded": True, "weld_again": False}
 
@@ -114,6 +119,8 @@ class CellView:
         self.has_layout = False
         self.registration: dict | None = None
         self.hand_eye = HandEyeDisplay()
+        self.bend_tests: list[dict] = []   # the QA record's list (/inspection/bend_tests), results and all
+        self.bend_code = ""
         self.changed = True
 
     # -- inputs ----------------------------------------------------------------------------------
@@ -199,6 +206,14 @@ class CellView:
     def on_rework(self, stud_id: str, decision: str, now: float) -> None:
         self.table.rework_decided(stud_id, decision)
         self._rework_alarm(now)
+        self.changed = True
+
+    def on_bend_tests(self, tests: Iterable[dict], qa_code: str) -> None:
+        """``/inspection/bend_tests``: the studs to bend-test (stud_id, reasons, angle_deg, direction,
+        result, operator, time), the newest list replacing the last."""
+        self.bend_tests = [dict(t) for t in tests]
+        self.bend_code = qa_code
+        self.table.bend_results({t["stud_id"]: t.get("result") or "to do" for t in self.bend_tests})
         self.changed = True
 
     def _rework_alarm(self, now: float | None) -> None:
@@ -335,8 +350,10 @@ class CellView:
         else:
             why = ""
         uncertain = list(self.arm.uncertain) if self.arm is not None else []
+        pending = [t for t in self.bend_tests if not t.get("result")]
         return {"uncertain": uncertain, "uncertain_enabled": not why, "uncertain_why": why,
-                "rework": self.table.awaiting_rework()}
+                "rework": self.table.awaiting_rework(),
+                "bend_tests": pending + [t for t in self.bend_tests if t.get("result")], "bend_code": self.bend_code}
 
     def check_command(self, cmd: str, msg: dict, now: float) -> str | None:
         """Why ``cmd`` is not valid now (None: it is). Stop and e-stop are never refused here."""
@@ -355,12 +372,24 @@ class CellView:
             if sid not in d["uncertain"]:
                 return f"{sid!r} is not an uncertain stud of the arm's journal"
             return None
-        if cmd == "record_rework":
+        if cmd in ("record_rework", "record_bend_test"):
             if not isinstance(msg.get("stud_id"), str) or not msg.get("stud_id"):
                 return "no stud_id given"
             if not isinstance(msg.get("note", ""), str):
                 return "note must be a string"
-            return None  # the inspector checks the decision and the verdict (one place: stud_inspection.rework)
+            try:
+                signer = msg.get("operator")
+                operator_name(signer if isinstance(signer, str) else "")
+            except OperatorError as exc:
+                return f"{exc} (the page asks for it once per session)"
+            if cmd == "record_bend_test":
+                if msg.get("result") not in BEND_RESULTS:
+                    return f"result must be one of {list(BEND_RESULTS)}, got {msg.get('result')!r}"
+                angle = msg.get("angle_deg")
+                if angle is not None and (isinstance(angle, bool) or not isinstance(angle, (int, float))):
+                    return f"angle_deg must be a number, got {angle!r}"
+            # the inspector checks the decision and the verdict (one place: stud_inspection.rework, .bend)
+            return None
         return f"unknown command {cmd!r}; expected one of {list(COMMANDS)}"
 
     def progress(self, now: float) -> dict:

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Iterable
 
-from stud_common.vocabulary import TargetStatus
+from stud_common.vocabulary import TargetStatus, WeldPhase
 from stud_inspection.rework import NEEDS_DECISION
 
 #: Weld states of a stud, as sent in the rows' ``weld`` field.
@@ -15,9 +15,9 @@ WELD_NONE, WELD_ACTIVE, WELD_WELDED, WELD_SKIPPED, WELD_FAILED = "", "active", "
 #: A stud in one of these weld states is done with (no longer "remaining").
 FINAL_WELD_STATES = (WELD_WELDED, WELD_SKIPPED, WELD_FAILED)
 #: WeldJob feedback phases while a stud is being worked on (rm65_driver.weld.weld_sequence).
-_ACTIVE_PHASES = ("approach", "descend", "weld", "dwell")
+_ACTIVE_PHASES = (WeldPhase.APPROACH, WeldPhase.DESCEND, WeldPhase.WELD, WeldPhase.DWELL)
 #: The driver reports "retract" only after the weld is confirmed and journalled as welded.
-_WELDED_PHASE = "retract"
+_WELDED_PHASE = WeldPhase.RETRACT
 STATUS_OUT_OF_VIEW = TargetStatus.OUT_OF_VIEW.text
 STATUS_NOT_SEEN = "not_seen"  # in the drawing, in no view yet
 STATUS_UNREACHABLE = "unreachable"  # the cell named it as one it cannot weld (/cell/status, with the reason)
@@ -48,6 +48,7 @@ class StudTable:
         self._inspection: dict[str, tuple[str, tuple[str, ...]]] = {}  # stud -> (verdict, reasons)
         self._rework: dict[str, str] = {}  # stud -> the operator's decision ("rework" / "accept")
         self._unreachable: dict[str, str] = {}  # stud -> why the cell cannot weld it (/cell/status)
+        self._bend: dict[str, str] = {}    # stud -> its bend test: "to do", "pass" or "fail"
         self._has_layout = False
         self.view = -1
         self.algorithm = ""
@@ -69,6 +70,7 @@ class StudTable:
             self._phase.clear()
             self._inspection.clear()
             self._rework.clear()
+            self._bend.clear()
             self._active = ""
             self.view = -1
             self._order = ids
@@ -142,6 +144,12 @@ class StudTable:
         self._unreachable = dict(reasons)
         return True
 
+    def bend_results(self, results: dict[str, str]) -> None:
+        """The QA record's bend-test list: stud -> "to do", "pass" or "fail" (the whole list, newest)."""
+        for sid in results:
+            self._known(sid)
+        self._bend = dict(results)
+
     def awaiting_rework(self) -> list[dict]:
         """Inspected studs that did not pass and have no decision yet, in table order."""
         out = []
@@ -176,8 +184,8 @@ class StudTable:
                    "weld": weld, "phase": self._phase.get(sid, ""), "welded": weld == WELD_WELDED,
                    "inspection": self._inspection.get(sid, ("", ()))[0],
                    "inspection_reasons": list(self._inspection.get(sid, ("", ()))[1]),
-                   "rework": self._rework.get(sid, ""),
-                   "reason": self._unreachable.get(sid, "") if named else ""}
+                    "rework": self._rework.get(sid, ""), "bend": self._bend.get(sid, ""),
+                    "reason": self._unreachable.get(sid, "") if named else ""}
             out.append(row)
         return out
 

@@ -7,18 +7,21 @@ the target's weld point and normal from the shot before the weld (its tangent pl
 centimetres a stud occupies a curved part departs from it by a fraction of a millimetre).
 
 Per stud, from the points of its top cap -- the highest band of its new points, a robust plane
-fit -- come:
+fit -- and its side come:
 - the **axis**: the cap's normal (a stud's top face is perpendicular to its axis);
 - the **base point**: where the axis through the cap's centre meets the surface;
 - the **lean**: the angle between the axis and the surface normal;
 - the **offset** of the base from the planned weld point, in the tangent plane (mm);
-- the **standing height** above the surface along the axis (the burn-off check).
+- the **standing height** above the surface along the axis (the burn-off check);
+- the **collar** (flash) around its base: how much of the circle a collar of ``min_collar_height_mm``
+  covers, of how much the camera sees, and its height (stud_inspection.collar).
 
-Verdicts (:class:`Verdict`): ``pass``, ``fail`` (with the reasons: lean, offset, height beyond the
-limits), ``missing`` (the place is seen, nothing stands there), ``not_inspected`` (the camera
-cannot judge: the stud's place outside the image, hidden behind something, no depth, its cap
-partly cut off -- with the reason; it never passes by default), ``not_welded``. New things that
-stand where no stud was planned are reported as unexpected objects.
+Verdicts (:class:`Verdict`): ``pass``, ``fail`` (with the reasons: lean, offset, height, collar
+beyond the limits), ``missing`` (the place is seen, nothing stands there), ``not_inspected`` (the
+camera cannot judge: the stud's place outside the image, hidden behind something, no depth, its
+cap partly cut off, too little of its collar seen -- with the reason; it never passes by default),
+``not_welded``. New things that stand where no stud was planned are reported as unexpected objects.
+The limits' values per stud-welding code are stud_inspection.qa_codes'.
 
 Frames and units: `world`, metres in, millimetres and degrees in the results (as an inspector
 reads them); depth images (H, W) metres, NaN = none. No ROS here.
@@ -33,6 +36,7 @@ import numpy as np
 
 from stud_perception.camera_model import CameraModel
 from stud_common.rotations import float3, frame_from_normal
+from stud_inspection.collar import CollarMeasurement, CollarSettings, measure_collar
 
 
 class Verdict(str, enum.Enum):
@@ -49,10 +53,12 @@ class InspectionLimits:
 
     Judged: ``max_lean_deg`` (the code's 5 deg: the paper's Fig. 9, 13 mm top offset for an
     M16x150), ``position_tol_mm`` (the base's distance from the planned point), the height within
-    ``height_tol_mm`` of ``nominal_length_mm`` (the stud's length after weld). Looking:
-    ``stud_diameter_mm``; ``change_mm``: a pixel is new when it came this much closer and
-    stands this much above the surface; ``min_cap_fraction`` of the cap's expected pixels must be
-    seen to judge it.
+    ``height_tol_mm`` above and ``height_tol_below_mm`` (None: the same) below ``nominal_length_mm``
+    (the stud's length after weld), a collar of at least ``min_collar_height_mm`` over
+    ``min_collar_coverage_deg`` of the circle (0: no collar check) -- judged when the camera sees at
+    least ``min_collar_seen_deg`` of it. Looking: ``stud_diameter_mm``; ``change_mm``: a pixel is new
+    when it came this much closer and stands this much above the surface; ``min_cap_fraction`` of
+    the cap's expected pixels must be seen to judge it; ``collar``: where the collar is looked for.
     """
 
     max_lean_deg: float = 5.0
@@ -65,20 +71,44 @@ class InspectionLimits:
     change_mm: float = 5.0
     min_cap_fraction: float = 0.5
     min_cap_points: int = 30
+    height_tol_below_mm: float | None = None
+    min_collar_coverage_deg: float = 360.0
+    min_collar_height_mm: float = 1.0
+    min_collar_seen_deg: float = 180.0
+    collar: CollarSettings = field(default_factory=CollarSettings)
 
     def __post_init__(self) -> None:
         for name in ("max_lean_deg", "position_tol_mm", "nominal_length_mm", "height_tol_mm", "stud_diameter_mm",
-                     "search_offset_mm", "search_lean_deg", "change_mm"):
+                     "search_offset_mm", "search_lean_deg", "change_mm", "min_collar_height_mm"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"inspection limit {name}={value}: expected a positive number")
+        if self.height_tol_below_mm is not None and not (np.isfinite(self.height_tol_below_mm)
+                                                         and self.height_tol_below_mm > 0):
+            raise ValueError(f"inspection limit height_tol_below_mm={self.height_tol_below_mm}: expected a positive "
+                             "number (or none: the same as height_tol_mm)")
+        for name in ("min_collar_coverage_deg", "min_collar_seen_deg"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and 0 <= value <= 360):
+                raise ValueError(f"inspection limit {name}={value}: expected degrees in [0, 360]")
         if not 0 < self.min_cap_fraction <= 1:
             raise ValueError(f"min_cap_fraction={self.min_cap_fraction}: expected a fraction in (0, 1]")
+
+    @property
+    def height_below_mm(self) -> float:
+        """How far below the nominal length a stud may stand [mm]."""
+        return self.height_tol_mm if self.height_tol_below_mm is None else self.height_tol_below_mm
+
+    @property
+    def checks_collar(self) -> bool:
+        return self.min_collar_coverage_deg > 0
 
     def to_dict(self) -> dict:
         return {"max_lean_deg": self.max_lean_deg, "position_tol_mm": self.position_tol_mm,
                 "nominal_length_mm": self.nominal_length_mm, "height_tol_mm": self.height_tol_mm,
-                "stud_diameter_mm": self.stud_diameter_mm}
+                "height_tol_below_mm": self.height_below_mm, "stud_diameter_mm": self.stud_diameter_mm,
+                "min_collar_coverage_deg": self.min_collar_coverage_deg,
+                "min_collar_height_mm": self.min_collar_height_mm, "min_collar_seen_deg": self.min_collar_seen_deg}
 
 
 @dataclass(frozen=True)
@@ -93,13 +123,23 @@ class StudMeasurement:
     offset_mm: tuple[float, float] | None = None          # (x, y) in the tangent frame at the planned point
     height_mm: float | None = None
     cap_points: int = 0
+    collar: CollarMeasurement | None = None               # None: not measured (no stud, or no collar check)
 
     def measured_dict(self) -> dict | None:
         if self.position_m is None:
             return None
         assert self.axis is not None and self.offset_mm is not None  # measured together with the position
         return {"position_m": list(self.position_m), "axis": list(self.axis), "lean_deg": self.lean_deg,
-                "offset_mm": list(self.offset_mm), "height_mm": self.height_mm}
+                "offset_mm": list(self.offset_mm), "height_mm": self.height_mm, **collar_fields(self.collar)}
+
+
+def collar_fields(c: CollarMeasurement | None) -> dict:
+    """A collar measurement as the QA record's fields (all None when not measured)."""
+    if c is None:
+        return {"collar_seen_deg": None, "collar_coverage_deg": None, "collar_height_mm": None, "collar_gap_deg": None,
+                "collar_gap_azimuth_deg": None}
+    return {"collar_seen_deg": c.seen_deg, "collar_coverage_deg": c.covered_deg, "collar_height_mm": c.height_mm,
+            "collar_gap_deg": c.gap_deg, "collar_gap_azimuth_deg": c.gap_azimuth_deg}
 
 
 @dataclass(frozen=True)
@@ -309,7 +349,21 @@ def _look(p, n, before, after, camera: CameraModel, lim: InspectionLimits) -> _L
     return _Look(box, whole, u, v, X, h, np.where(inside, rho / cone, np.inf))
 
 
-def _judge_one(p, n, look: _Look, mine: np.ndarray, after, camera: CameraModel,
+def _collar_verdict(c: CollarMeasurement, lim: InspectionLimits) -> tuple[str | None, str | None]:
+    """(a fail reason, a reason it cannot be judged) of a measured collar; (None, None): it passes."""
+    if c.seen_deg < lim.min_collar_seen_deg:
+        return None, (f"collar: only {c.seen_deg:.0f} deg of it seen (the rest hidden behind the stud), "
+                      f"{lim.min_collar_seen_deg:g} deg needed to judge it")
+    if c.covered_deg == 0:
+        highest = np.nanmax(c.sector_heights_mm)
+        return f"no collar of {lim.min_collar_height_mm:g} mm seen (at most {highest:.1f} mm high)", None
+    if c.uncovered_seen_deg > 360.0 - lim.min_collar_coverage_deg:
+        return (f"collar {c.covered_deg:.0f} deg of the {c.seen_deg:.0f} deg seen: a {c.gap_deg:.0f} deg gap "
+                f"({lim.min_collar_coverage_deg:g} deg of at least {lim.min_collar_height_mm:g} mm required)"), None
+    return None, None
+
+
+def _judge_one(p, n, look: _Look, mine: np.ndarray, before, after, camera: CameraModel,
                lim: InspectionLimits) -> StudMeasurement:
     """One stud from its own new points (``mine``: the ones nearer its axis than any other stud's)."""
     length = lim.nominal_length_mm * 1e-3
@@ -353,11 +407,20 @@ def _judge_one(p, n, look: _Look, mine: np.ndarray, after, camera: CameraModel,
         reasons.append(f"lean {lean:.1f} deg > {lim.max_lean_deg:g} deg")
     if np.hypot(*off) > lim.position_tol_mm:
         reasons.append(f"offset {np.hypot(*off):.1f} mm > {lim.position_tol_mm:g} mm")
-    if abs(height - lim.nominal_length_mm) > lim.height_tol_mm:
-        reasons.append(f"height {height:.1f} mm, expected {lim.nominal_length_mm:g} +- {lim.height_tol_mm:g} mm")
-    return StudMeasurement(Verdict.FAIL if reasons else Verdict.PASS, tuple(reasons),
+    if not -lim.height_below_mm <= height - lim.nominal_length_mm <= lim.height_tol_mm:
+        tol = (f"+- {lim.height_tol_mm:g}" if lim.height_below_mm == lim.height_tol_mm
+               else f"+{lim.height_tol_mm:g}/-{lim.height_below_mm:g}")
+        reasons.append(f"height {height:.1f} mm, expected {lim.nominal_length_mm:g} {tol} mm")
+    collar, unjudged = None, None
+    if lim.checks_collar:
+        collar = measure_collar(before, after, camera, base, a, n, radius, lim.min_collar_height_mm, lim.collar)
+        fail, unjudged = _collar_verdict(collar, lim)
+        if fail:
+            reasons.append(fail)
+    verdict = Verdict.FAIL if reasons else Verdict.NOT_INSPECTED if unjudged else Verdict.PASS
+    return StudMeasurement(verdict, tuple(reasons) or ((unjudged,) if unjudged else ()),
                            float3(base), float3(a), lean, (float(off[0]), float(off[1])),
-                           height, len(cap_pts))
+                           height, len(cap_pts), collar)
 
 
 def inspect_studs(planned_w: np.ndarray, normals_w: np.ndarray, welded: np.ndarray, before_depth_m: np.ndarray,
@@ -394,7 +457,7 @@ def inspect_studs(planned_w: np.ndarray, normals_w: np.ndarray, welded: np.ndarr
             out.append(StudMeasurement(Verdict.NOT_INSPECTED, ("its place is not in front of the camera",)))
         elif (look := looks[i]) is not None:
             mine = (look.score < 1.0) & (look.score <= best[look.v, look.u])
-            out.append(_judge_one(P[i], N[i] / np.linalg.norm(N[i]), look, mine, after, camera, limits))
+            out.append(_judge_one(P[i], N[i] / np.linalg.norm(N[i]), look, mine, before, after, camera, limits))
     return Inspection(tuple(out), _unexpected(before, after, taken, camera, limits, min_object_px), limits)
 
 
@@ -452,4 +515,4 @@ def draw_inspection_overlay(color_bgr: np.ndarray, ids: list[str], planned_w: np
 
 
 __all__ = ["Inspection", "InspectionLimits", "StudMeasurement", "UnexpectedObject", "VERDICT_BGR", "Verdict",
-           "draw_inspection_overlay", "inspect_studs"]
+           "collar_fields", "draw_inspection_overlay", "inspect_studs"]

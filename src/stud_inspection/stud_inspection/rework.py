@@ -3,10 +3,12 @@
 A stud that fails inspection is never welded again automatically (the weld journal knows it is
 welded); what happens to it is a person's decision, recorded here: ``rework`` (a person repairs or
 replaces it) or ``accept`` (it is fit as it stands, e.g. after a gauge check). Each decision is one
-JSON line, appended with its time, in ``<output dir>/rework_decisions.jsonl``::
+JSON line, appended with its time and who took it, in ``<output dir>/rework_decisions.jsonl``
+(stud_inspection.operator_log)::
 
     {"time": "2025-05-01T10:12:03.120+00:00", "stamp": 1746094323.12, "stud_id": "S0004",
-     "decision": "rework", "verdict": "fail", "note": "lean 8 deg, cut off and re-weld by hand"}
+     "decision": "rework", "verdict": "fail", "note": "lean 8 deg, cut off and re-weld by hand",
+     "operator": "A. Inspector"}
 
 The newest line of a stud is its decision (:func:`latest_decisions`). The inspector node serves
 ``/inspection/record_rework`` with this module, publishes each record on ``/inspection/rework`` and
@@ -22,6 +24,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from stud_inspection.inspection import Verdict
+from stud_inspection.operator_log import OperatorError, append_line, complete_lines, operator_name
 
 FILE_NAME = "rework_decisions.jsonl"
 MAX_NOTE_CHARS = 2000
@@ -47,6 +50,7 @@ class ReworkRecord:
     verdict: str         # the inspection verdict the decision was taken on
     note: str
     stamp: float         # s since the epoch
+    operator: str = ""   # who decided ("" only in decisions recorded before operators signed them)
 
     @property
     def time(self) -> str:
@@ -56,15 +60,23 @@ class ReworkRecord:
         return json.dumps({"time": self.time, **asdict(self)}, ensure_ascii=False, allow_nan=False)
 
     def for_qa_record(self) -> dict:
-        """What the QA record's row carries (qa_report's ``rework`` and ``rework_note``)."""
-        return {"decision": self.decision, "note": self.note, "time": self.time}
+        """What the QA record's row carries (qa_report's ``rework``, ``rework_note``, ``rework_operator``,
+        ``rework_time``)."""
+        return {"decision": self.decision, "note": self.note, "time": self.time, "operator": self.operator}
 
 
-def make_record(stud_id: str, decision: str, note: str, verdict: str | None, stamp: float) -> ReworkRecord:
-    """A checked decision on ``stud_id``, whose last inspection ``verdict`` (None: never inspected)."""
+def make_record(stud_id: str, decision: str, note: str, verdict: str | None, stamp: float,
+                operator: str | None = None) -> ReworkRecord:
+    """A checked decision on ``stud_id``, whose last inspection ``verdict`` (None: never inspected),
+    signed by ``operator`` (required when given: None only for callers that sign elsewhere)."""
     stud_id, note = stud_id.strip(), note.strip()
     if not stud_id:
         raise ReworkError("no stud_id given")
+    if operator is not None:
+        try:
+            operator = operator_name(operator)
+        except OperatorError as exc:
+            raise ReworkError(str(exc)) from None
     try:
         decision = ReworkDecision(decision.strip().lower()).value
     except ValueError:
@@ -77,18 +89,12 @@ def make_record(stud_id: str, decision: str, note: str, verdict: str | None, sta
                           "rework decision")
     if len(note) > MAX_NOTE_CHARS:
         raise ReworkError(f"the note has {len(note)} characters; at most {MAX_NOTE_CHARS}")
-    return ReworkRecord(stud_id, decision, verdict, note, stamp)
+    return ReworkRecord(stud_id, decision, verdict, note, stamp, operator or "")
 
 
 def append_record(path: str | os.PathLike[str], record: ReworkRecord) -> Path:
     """Append ``record`` as one line (flushed and fsynced: a decision must survive a power cut)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "a", encoding="utf-8") as f:
-        f.write(record.to_json() + "\n")
-        f.flush()
-        os.fsync(f.fileno())
-    return path
+    return append_line(path, record.to_json())
 
 
 def latest_decisions(path: str | os.PathLike[str]) -> dict[str, ReworkRecord]:
@@ -97,26 +103,18 @@ def latest_decisions(path: str | os.PathLike[str]) -> dict[str, ReworkRecord]:
     A last line without its newline is an append cut short (a power cut): it is skipped. Any other
     line that is not a decision is a :class:`ReworkError` naming the file and the line."""
     path = Path(path)
+    latest: dict[str, ReworkRecord] = {}
     try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        return {}
+        for number, line in complete_lines(path):
+            try:
+                doc = json.loads(line)
+                record = ReworkRecord(str(doc["stud_id"]), ReworkDecision(doc["decision"]).value, str(doc["verdict"]),
+                                      str(doc.get("note", "")), float(doc["stamp"]), str(doc.get("operator", "")))
+            except (ValueError, KeyError, TypeError) as exc:
+                raise ReworkError(f"{path}:{number}: not a rework decision ({type(exc).__name__}: {exc}); expected "
+                                  "one JSON object with stud_id, decision, verdict, note, stamp, operator") from None
+            latest[record.stud_id] = record
     except (OSError, UnicodeDecodeError) as exc:
         raise ReworkError(f"{path}: cannot read the rework decisions ({exc})") from None
-    # split("\n")'s last piece is "" after a complete file, else an append cut short (never confirmed
-    # to the operator): not a decision
-    complete = text.split("\n")[:-1]
-    latest: dict[str, ReworkRecord] = {}
-    for number, line in enumerate(complete, start=1):
-        if not line.strip():
-            continue
-        try:
-            doc = json.loads(line)
-            record = ReworkRecord(str(doc["stud_id"]), ReworkDecision(doc["decision"]).value, str(doc["verdict"]),
-                                  str(doc.get("note", "")), float(doc["stamp"]))
-        except (ValueError, KeyError, TypeError) as exc:
-            raise ReworkError(f"{path}:{number}: not a rework decision ({type(exc).__name__}: {exc}); "
-                              "expected one JSON object with stud_id, decision, verdict, note, stamp") from None
-        latest[record.stud_id] = record
     return latest
 

@@ -4,7 +4,9 @@ Publishes one triggered, synchronised RGB-D shot, as the paper takes one overhea
 after the arm has moved: ``/camera/color/image_raw`` (bgr8), ``/camera/depth/image_raw``
 (16UC1 mm, registered to colour), ``/camera/color/camera_info`` and ``/camera/pose`` (the
 optical frame in ``world``), all with one stamp. Shots come on ``/camera/trigger``
-(std_srvs/Trigger) or at ``rate_hz``.
+(std_srvs/Trigger) or at ``rate_hz``. A post-weld inspection shot, on
+``/camera/trigger_inspection``, goes out on the same four topics under ``/camera/inspection/``
+(stud_common.names.shot_topics): the inspector takes it, the matcher never plans welds on it.
 
 The camera pose comes from parameters, or from the arm (``pose_source:=arm``): the tool
 pose in ``/arm/state`` times the hand-eye transform (tool -> optical frame). Like a real cell,
@@ -47,7 +49,7 @@ from stud_perception.scene_file import load_scene
 from stud_perception.scene_render import render
 from stud_perception.scene_sensor import MAX_DEPTH_NOISE_M
 from stud_perception.scene_solids import SceneError
-from stud_perception.welded_studs import StudCylinder, welded_stud
+from stud_perception.welded_studs import DefectsByPosition, StudCylinder, welded_stud
 from stud_common import names
 
 OPTICAL_FRAME = "camera_color_optical_frame"
@@ -76,8 +78,9 @@ PARAMS = [
           min=0.0, max=20.0),
     Param("hole_fraction", 0.0, "fraction of depth pixels lost in blobs", min=0.0, max=0.9),
     Param("mark_depth_dropout", False, "dark paint returns no depth (marks and stud marks lose depth)"),
-    Param("render_welded_studs", True, "show the studs the arm welds (/arm/welds) in later shots, with the scene's "
-          "weld_defects, its stud_length_mm and stud_diameter_mm (for the post-weld inspection)"),
+    Param("render_welded_studs", True, "show the studs the arm welds (/arm/welds) in later shots, in their weld "
+          "collars, with the scene's weld_defects (each on the weld nearest to its scene stud), its stud_length_mm, "
+          "stud_diameter_mm, collar_height_mm and collar_width_mm (for the post-weld inspection)"),
     Param("seed", 0, "random seed of noise and holes (incremented per shot)", min=0, max=2**31 - 1),
     Param("rate_hz", 0.0, "shots per second; 0: only on /camera/trigger", min=0.0, max=30.0),
     Param("pose_source", "param", "'param': camera_xyz_m/yaw/tilt; 'arm': /arm/state tool pose x hand-eye",
@@ -157,11 +160,13 @@ class CameraNode(Node):
             self.get_logger().fatal(f"cannot load scene_file '{self.p['scene_file']}': {exc}")
             raise SystemExit(2) from None
         q = ros_io.CAMERA_PUB_QOS
-        self.pub_color = self.create_publisher(Image, names.COLOR_IMAGE, q)
-        self.pub_depth = self.create_publisher(Image, names.DEPTH_IMAGE, q)
-        self.pub_info = self.create_publisher(CameraInfo, names.CAMERA_INFO, q)
-        self.pub_pose = self.create_publisher(PoseStamped, names.CAMERA_POSE, q)
+        types = {"color": Image, "depth": Image, "info": CameraInfo, "pose": PoseStamped}
+        # per kind of shot (False: a view to match, True: a post-weld inspection shot), its four publishers
+        self.pubs = {inspection: {k: self.create_publisher(types[k], topic, q)
+                                  for k, topic in names.shot_topics(inspection).items()}
+                     for inspection in (False, True)}
         self.create_service(Trigger, names.CAMERA_TRIGGER, self._on_trigger)
+        self.create_service(Trigger, names.CAMERA_TRIGGER_INSPECTION, self._on_trigger_inspection)
         self.diag = ros_io.Diagnostics(self, hardware_id="sim_rgbd_camera")
         self.hand_eye = hand_eye_ros.hand_eye_in_use(self, self.p)  # believed: poses /camera/pose
         self.true_hand_eye = (tuple(v if math.isfinite(v) else b for v, b in
@@ -181,9 +186,12 @@ class CameraNode(Node):
             from stud_welding_msgs.msg import ArmState
 
             self.create_subscription(ArmState, names.ARM_STATE, self._on_arm_state, ros_io.RESULT_QOS)
-        # Studs the arm welds stand in later shots, where the arm welded them (with the scene's weld
-        # defects): what a post-weld inspection sees.
+        # Studs the arm welds stand in later shots, where the arm welded them (with the defect of the
+        # scene stud nearest to the weld, whatever either calls it): what a post-weld inspection sees.
         self._welded: dict[str, StudCylinder] = {}
+        self._scene_stud_of: dict[str, str] = {}  # weld's stud id -> the scene stud it welded
+        self._defects = DefectsByPosition(self.scene.studs_world_xy_m, self.scene.stud_ids, self.scene.weld_defects)
+        self._told_not_welded: tuple[str, ...] = ()
         if self.p["render_welded_studs"]:
             from stud_welding_msgs.msg import WeldRecord
 
@@ -206,16 +214,40 @@ class CameraNode(Node):
 
     def _on_weld(self, msg) -> None:
         R, t = self._true_pose(*ros_io.pose_to_rt(msg.tool_pose), msg.rail_position_m)
-        if msg.stud_id not in self.scene.stud_ids:
-            self.get_logger().warn(f"welded stud {msg.stud_id!r} is not a stud of the scene: shown without its "
-                                   "scene defects", throttle_duration_sec=5.0)
-        stud = welded_stud(msg.stud_id, t, R[:, 2], self.scene.weld_defects.get(msg.stud_id),
-                           length_m=self.scene.stud_length_m, diameter_m=self.scene.stud_diameter_m)
+        scene_id, distance_m = self._defects.nearest(t)
+        if scene_id is None:
+            self.get_logger().warn(f"weld of {msg.stud_id!r} at {np.round(t, 4).tolist()} m is {distance_m * 1e3:.1f} mm "
+                                   f"from the nearest scene stud (more than {self._defects.reach_m * 1e3:.1f} mm, half "
+                                   "the scene's stud spacing): shown without a scene defect", throttle_duration_sec=5.0)
+        defect = self.scene.weld_defects.get(scene_id) if scene_id is not None else None
+        if defect is not None:
+            self.get_logger().info(f"weld of {msg.stud_id!r} is scene stud {scene_id!r}: shown with its defect "
+                                   f"({', '.join(defect.kinds())})")
+        scene = self.scene
+        stud = welded_stud(msg.stud_id, t, R[:, 2], defect, length_m=scene.stud_length_m,
+                           diameter_m=scene.stud_diameter_m, collar_height_m=scene.collar_height_m,
+                           collar_width_m=scene.collar_width_m)
         with self._lock:
+            if scene_id is not None:
+                self._scene_stud_of[msg.stud_id] = scene_id
             if stud is None:
                 self._welded.pop(msg.stud_id, None)
             else:
                 self._welded[msg.stud_id] = stud
+
+    def _say_defects_not_welded(self) -> None:
+        """Once the arm has welded, log (when it changes) which scene studs with a defect no weld has
+        reached yet: a defect that never shows is said, never silently dropped."""
+        if not self._scene_stud_of:
+            return
+        waiting = tuple(self._defects.never_welded(self._scene_stud_of.values()))
+        if waiting != self._told_not_welded:
+            self._told_not_welded = waiting
+            if waiting:
+                self.get_logger().warn(f"{len(waiting)} weld defect(s) of the scene not shown: their stud was never "
+                                       "welded (so far): " + ", ".join(
+                                           f"{sid} ({', '.join(self.scene.weld_defects[sid].kinds())})"
+                                           for sid in waiting))
 
     # -- pose -----------------------------------------------------------------------------------
     def _on_arm_state(self, msg) -> None:
@@ -243,7 +275,8 @@ class CameraNode(Node):
         return template.with_pose(*camera_pose_from_tool(*tool, xyz, rpy))
 
     # -- shots ------------------------------------------------------------------------------------
-    def shoot(self) -> tuple[bool, str]:
+    def shoot(self, inspection: bool = False) -> tuple[bool, str]:
+        """One shot on the matching view's topics, or with ``inspection`` on the inspection shot's."""
         with self._lock:
             camera, believed = self.camera_model(true_pose=True), self.camera_model()
             if camera is None or believed is None:
@@ -256,18 +289,21 @@ class CameraNode(Node):
             if has_distortion(self.p["distortion_d"]):  # raw images of a lens with distortion
                 view = distort_view(view, self.p["distortion_d"], self.p["distortion_model"])
             self._shots += 1
+            self._say_defects_not_welded()
             stamp = self.get_clock().now().to_msg()
             shot = shot_messages(view, self.p["depth_encoding"], stamp, self.p["depth_noise_m"],
                                  self.p["seed"] + self._shots - 1, pose_camera=believed)
-            self.pub_color.publish(shot["color"])
-            self.pub_depth.publish(shot["depth"])
-            self.pub_info.publish(shot["info"])
-            self.pub_pose.publish(shot["pose"])
+            for key, pub in self.pubs[inspection].items():
+                pub.publish(shot[key])
             self.diag.set(self.diag.OK, "publishing", shots=self._shots, visible_studs=int(view.stud_visible.sum()))
-            return True, f"shot {self._shots} at {stamp.sec}.{stamp.nanosec:09d}"
+            return True, f"{'inspection ' if inspection else ''}shot {self._shots} at {stamp.sec}.{stamp.nanosec:09d}"
 
     def _on_trigger(self, _request, response):
         response.success, response.message = self.shoot()
+        return response
+
+    def _on_trigger_inspection(self, _request, response):
+        response.success, response.message = self.shoot(inspection=True)
         return response
 
     def _on_timer(self) -> None:

@@ -33,8 +33,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from stud_perception.scene_solids import Component, Dome, Girder, Plate, Pose2D, SceneError, _pair
-from stud_perception.welded_studs import DEFAULT_STUD_DIAMETER_M, DEFAULT_STUD_LENGTH_M
+from stud_perception.scene_solids import Component, Dome, Girder, Plate, Pose2D, SceneError, finite_pair
+from stud_perception.welded_studs import (DEFAULT_COLLAR_HEIGHT_M, DEFAULT_COLLAR_WIDTH_M, DEFAULT_STUD_DIAMETER_M,
+                                         DEFAULT_STUD_LENGTH_M)
 
 # Surface ids of :attr:`stud_perception.scene_render.RenderedView.surface_id`.
 SURFACE_NONE = -1
@@ -43,6 +44,7 @@ SURFACE_BOARD = 1
 SURFACE_COMPONENT = 2
 SURFACE_OBSTACLE = 3
 SURFACE_STUD = 4  # a welded stud (stud_perception.welded_studs)
+SURFACE_COLLAR = 5  # a welded stud's weld collar (flash)
 
 
 # -- scene description ------------------------------------------------------------------------
@@ -83,7 +85,7 @@ class ReferenceMark:
             raise SceneError(f"reference_marks label must be a name other than O, A, B (e.g. 'M1'), got "
                              f"{self.label!r}")
         object.__setattr__(self, "label", self.label.strip())
-        object.__setattr__(self, "drawing_xy_m", _pair(self.drawing_xy_m, f"reference_marks {self.label} drawing_xy_m"))
+        object.__setattr__(self, "drawing_xy_m", finite_pair(self.drawing_xy_m, f"reference_marks {self.label} drawing_xy_m"))
 
 
 @dataclass(frozen=True)
@@ -99,7 +101,8 @@ class SceneSpec:
     station by station. ``specular_lobe_deg``: the component is shiny
     steel -- a structured-light camera gets no depth where the surface mirrors its projector into
     the camera, within this angle (0: a matte part). ``stud_length_m`` / ``stud_diameter_m``: the
-    welded studs' size, ``weld_defects``: {stud id: WeldDefect} (stud_perception.welded_studs).
+    welded studs' size, ``collar_height_m`` / ``collar_width_m`` their weld collars' (0: none),
+    ``weld_defects``: {stud id: WeldDefect} (stud_perception.welded_studs).
     """
 
     component: Component | None
@@ -115,6 +118,8 @@ class SceneSpec:
     stud_diameter_m: float = DEFAULT_STUD_DIAMETER_M
     weld_defects: dict = field(default_factory=dict)
     reference_marks: tuple[ReferenceMark, ...] = ()
+    collar_height_m: float = DEFAULT_COLLAR_HEIGHT_M
+    collar_width_m: float = DEFAULT_COLLAR_WIDTH_M
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "reference_marks", tuple(self.reference_marks))
@@ -128,6 +133,9 @@ class SceneSpec:
         if not (0.001 <= self.stud_length_m <= 1.0 and 0.001 <= self.stud_diameter_m <= 0.1):
             raise SceneError(f"stud_length_mm={self.stud_length_m * 1e3:g} and stud_diameter_mm="
                              f"{self.stud_diameter_m * 1e3:g} must be in [1, 1000] and [1, 100] mm")
+        if not (0.0 <= self.collar_height_m <= 0.05 and 0.0 <= self.collar_width_m <= 0.05):
+            raise SceneError(f"collar_height_mm={self.collar_height_m * 1e3:g} and collar_width_mm="
+                             f"{self.collar_width_m * 1e3:g} must be in [0, 50] mm")
         object.__setattr__(self, "obstacles", tuple(self.obstacles))
         for i, ob in enumerate(self.obstacles):
             if not isinstance(ob, Plate) or ob.tilt_rad != 0:

@@ -10,8 +10,8 @@ import numpy as np
 
 from stud_perception.scene import MarkingBoard, ReferenceMark, SceneSpec
 from stud_perception.scene_solids import Component, Cylinder, Dome, Girder, Plate, Pose2D, SceneError, Trough
-from stud_perception.welded_studs import (DEFAULT_STUD_DIAMETER_M, DEFAULT_STUD_LENGTH_M, WeldDefectError,
-                                         parse_weld_defects)
+from stud_perception.welded_studs import (DEFAULT_COLLAR_HEIGHT_M, DEFAULT_COLLAR_WIDTH_M, DEFAULT_STUD_DIAMETER_M,
+                                         DEFAULT_STUD_LENGTH_M, WeldDefectError, parse_weld_defects)
 
 # -- plain-dict / file form -----------------------------------------------------------------------
 def _take(d: dict, name: str, allowed: set[str]) -> dict:
@@ -149,7 +149,8 @@ def scene_from_dict(d: dict[str, Any]) -> SceneSpec:
     docs/SCENES.md describes every key.
     """
     _take(d, "", {"component", "board", "drawing_to_world", "studs", "obstacles", "specular_lobe_deg",
-                  "stud_length_mm", "stud_diameter_mm", "weld_defects", "reference_marks"})
+                  "stud_length_mm", "stud_diameter_mm", "weld_defects", "reference_marks", "collar_height_mm",
+                  "collar_width_mm"})
     board_keys = {"marks_drawing_m", "mark_diameter_m", "thickness_m", "margin_m"}
     board = MarkingBoard(**_take(d.get("board", {}), "board", board_keys))
     pose_d = _take(d.get("drawing_to_world", {}), "drawing_to_world", {"x_m", "y_m", "yaw_deg"})
@@ -182,6 +183,8 @@ def scene_from_dict(d: dict[str, Any]) -> SceneSpec:
         stud_diameter_m=1e-3 * _mm(d, "stud_diameter_mm", DEFAULT_STUD_DIAMETER_M * 1e3),
         weld_defects=_weld_defects(d.get("weld_defects"), studs.get("ids", ()), len(studs.get("xy_m", []))),
         reference_marks=_reference_marks(d.get("reference_marks")),
+        collar_height_m=1e-3 * _mm(d, "collar_height_mm", DEFAULT_COLLAR_HEIGHT_M * 1e3),
+        collar_width_m=1e-3 * _mm(d, "collar_width_mm", DEFAULT_COLLAR_WIDTH_M * 1e3),
     )
 
 
@@ -215,6 +218,7 @@ def scene_to_dict(scene: SceneSpec) -> dict[str, Any]:
                        "yaw_deg": math.degrees(ob.yaw_rad), "height_m": ob.height_m} for ob in scene.obstacles],
         "specular_lobe_deg": scene.specular_lobe_deg,
         "stud_length_mm": scene.stud_length_m * 1e3, "stud_diameter_mm": scene.stud_diameter_m * 1e3,
+        "collar_height_mm": scene.collar_height_m * 1e3, "collar_width_mm": scene.collar_width_m * 1e3,
         "weld_defects": {sid: defect.to_dict() for sid, defect in scene.weld_defects.items()},
         "reference_marks": [{"label": m.label, "drawing_xy_m": list(m.drawing_xy_m)} for m in scene.reference_marks],
     }

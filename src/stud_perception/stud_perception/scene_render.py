@@ -15,11 +15,11 @@ import numpy as np
 
 from stud_perception.camera_model import CameraModel
 from stud_perception.depth_image import depth_mm_to_m
-from stud_perception.scene import (SURFACE_BOARD, SURFACE_COMPONENT, SURFACE_NONE, SURFACE_OBSTACLE, SURFACE_STUD,
-                                   SURFACE_TABLE, SceneSpec, surface_height, surface_normal)
+from stud_perception.scene import (SURFACE_BOARD, SURFACE_COLLAR, SURFACE_COMPONENT, SURFACE_NONE, SURFACE_OBSTACLE,
+                                   SURFACE_STUD, SURFACE_TABLE, SceneSpec, surface_height, surface_normal)
 from stud_perception.scene_sensor import sensor_depth_mm, specular_mask
 from stud_perception.scene_solids import Component, SceneError
-from stud_perception.welded_studs import StudCylinder
+from stud_perception.welded_studs import StudCollar, StudCylinder
 
 # Appearance (8-bit grey levels before shading, BGR tints). Dark marks on a light board
 # and a mid-grey table give the contrast the paper's Hough stage relies on.
@@ -29,12 +29,14 @@ _MARK_GREY = 22.0
 _STEEL_GREY = 185.0
 _STUD_MARK_GREY = 30.0
 _STUD_GREY = 205.0  # bright steel of a welded stud
+_COLLAR_GREY = 120.0  # its weld collar: darker, heat-tinted
 _TINT_BGR = {
     SURFACE_TABLE: (0.92, 1.0, 1.06),
     SURFACE_BOARD: (1.0, 1.0, 1.0),
     SURFACE_COMPONENT: (1.04, 1.0, 0.97),
     SURFACE_OBSTACLE: (1.0, 0.98, 0.92),
     SURFACE_STUD: (0.98, 0.98, 1.02),
+    SURFACE_COLLAR: (1.08, 0.96, 0.9),
 }
 # Lambertian shading with a light slightly off vertical, so curvature is visible in colour.
 _LIGHT_DIR_W = np.array([0.25, 0.15, 1.0]) / np.linalg.norm([0.25, 0.15, 1.0])
@@ -255,11 +257,12 @@ def _cast_rays(scene: SceneSpec, camera: CameraModel, welded: tuple[StudCylinder
         t = np.where(dz < 0, -o[2] / dz, np.inf)
     sid = np.where(np.isfinite(t), SURFACE_TABLE, SURFACE_NONE).astype(np.int8)
     wall = np.zeros((h, w), dtype=bool)
-    solids: list[tuple[int, Component | StudCylinder]] = [(SURFACE_BOARD, scene.board_plate)]
+    solids: list[tuple[int, Component | StudCylinder | StudCollar]] = [(SURFACE_BOARD, scene.board_plate)]
     if scene.component is not None:
         solids.append((SURFACE_COMPONENT, scene.component))
     solids += [(SURFACE_OBSTACLE, ob) for ob in scene.obstacles]
     solids += [(SURFACE_STUD, stud) for stud in welded]
+    solids += [(SURFACE_COLLAR, stud.collar) for stud in welded if stud.collar is not None]
     for surf, solid in solids:
         win = _image_window(camera, solid.bounding_box_w())
         if win is None:
@@ -279,7 +282,8 @@ def _shade(scene: SceneSpec, camera: CameraModel, hits: _Hits, projector_offset_
     walls (float32: colour only), and the component's pixels that mirror the projector."""
     h, w = hits.sid.shape
     sid, o = hits.sid, hits.o
-    grey_lut = np.array([0.0, _TABLE_GREY, _BOARD_GREY, _STEEL_GREY, _STEEL_GREY, _STUD_GREY], dtype=np.float32)
+    grey_lut = np.array([0.0, _TABLE_GREY, _BOARD_GREY, _STEEL_GREY, _STEEL_GREY, _STUD_GREY, _COLLAR_GREY],
+                        dtype=np.float32)
     shade = np.full((h, w), _AMBIENT + (1 - _AMBIENT) * _LIGHT_DIR_W[2], dtype=np.float32)
     comp_top = (sid == SURFACE_COMPONENT) & ~hits.wall
     specular = np.zeros((h, w), dtype=bool)
@@ -313,14 +317,14 @@ def _paint_marks(scene: SceneSpec, camera: CameraModel, hits: _Hits, grey: np.nd
         mark_cover = np.maximum(mark_cover, _reference_mark_coverage(scene, camera, hits, px_per_depth))
     grey = grey * (1 - mark_cover) + np.float32(_MARK_GREY) * mark_cover
     stud_cover = _stud_mark_coverage(scene, camera, hits.hit_x, hits.hit_y, hits.depth_exact, px_per_depth)
-    stud_cover[sid == SURFACE_STUD] = 0.0  # the marks are painted on the part, not on a stud standing there
+    stud_cover[(sid == SURFACE_STUD) | (sid == SURFACE_COLLAR)] = 0.0  # painted on the part, not on a stud
     grey = grey * (1 - stud_cover) + np.float32(_STUD_MARK_GREY) * stud_cover
     return grey, mark_cover, stud_cover
 
 
 def _colour(sid: np.ndarray, grey: np.ndarray, color_noise: float, rng_color: np.random.Generator) -> np.ndarray:
     """(H, W, 3) uint8 BGR: the grey levels tinted per surface, with Gaussian noise of ``color_noise``."""
-    tint_lut = np.ones((6, 3), dtype=np.float32)
+    tint_lut = np.ones((len(_TINT_BGR) + 1, 3), dtype=np.float32)  # SURFACE_NONE .. SURFACE_COLLAR
     for surf, bgr in _TINT_BGR.items():
         tint_lut[surf + 1] = bgr
     color = grey[..., None] * tint_lut[sid + 1]

@@ -8,7 +8,9 @@ depth, info matched by stamp within ``sync_slop_s``) stamped at least ``settle_s
 request, and republishes it on ``/camera/color/image_raw``, ``/camera/depth/image_raw``,
 ``/camera/color/camera_info`` with ``/camera/pose`` = the last ``/arm/state`` tool pose x the
 hand-eye transform (``hand_eye_*`` or ``hand_eye_file``), all with the frame's stamp. Point the ``input_*_topic`` parameters at the
-driver's topics (depth must be registered/aligned to colour).
+driver's topics (depth must be registered/aligned to colour). ``/camera/trigger_inspection`` takes a
+post-weld inspection shot the same way and publishes it under ``/camera/inspection/``
+(stud_common.names.shot_topics), where the matcher does not look.
 """
 from __future__ import annotations
 
@@ -49,10 +51,11 @@ class ShotNode(Node):
         self.p = ros_io.declare_params(self, PARAMS)
         group = ReentrantCallbackGroup()
         q = ros_io.CAMERA_PUB_QOS
-        self.pub = {"color": self.create_publisher(Image, names.COLOR_IMAGE, q),
-                    "depth": self.create_publisher(Image, names.DEPTH_IMAGE, q),
-                    "info": self.create_publisher(CameraInfo, names.CAMERA_INFO, q)}
-        self.pub_pose = self.create_publisher(PoseStamped, names.CAMERA_POSE, q)
+        types = {"color": Image, "depth": Image, "info": CameraInfo, "pose": PoseStamped}
+        # per kind of shot (False: a view to match, True: a post-weld inspection shot), its four publishers
+        self.pubs = {inspection: {k: self.create_publisher(types[k], topic, q)
+                                  for k, topic in names.shot_topics(inspection).items()}
+                     for inspection in (False, True)}
         self._arm: tuple[int, object] | None = None  # (receive time ns, tool pose)
         self._wanted_after_ns: int | None = None
         self._frame: dict | None = None
@@ -65,6 +68,8 @@ class ShotNode(Node):
                                      ros_io.SENSOR_QOS, callback_group=group)
         self.create_subscription(ArmState, names.ARM_STATE, self._on_arm, ros_io.RESULT_QOS, callback_group=group)
         self.create_service(Trigger, names.CAMERA_TRIGGER, self._on_trigger, callback_group=group)
+        self.create_service(Trigger, names.CAMERA_TRIGGER_INSPECTION,
+                            lambda req, resp: self._on_trigger(req, resp, inspection=True), callback_group=group)
         self.diag = ros_io.Diagnostics(self)
         self.hand_eye = hand_eye_ros.hand_eye_in_use(self, self.p)
         self.calibration_topic = hand_eye_ros.CalibrationTopic(self, self.hand_eye)
@@ -86,7 +91,7 @@ class ShotNode(Node):
         self._frame = frame
         self._got.set()
 
-    def _on_trigger(self, _req, resp):
+    def _on_trigger(self, _req, resp, inspection: bool = False):
         self._got.clear()
         self._frame = None
         self._wanted_after_ns = self.get_clock().now().nanoseconds + int(self.p["settle_s"] * 1e9)
@@ -103,15 +108,16 @@ class ShotNode(Node):
             resp.success, resp.message = False, "no fresh /arm/state for the camera pose"
             return resp
         R, t = camera_pose_from_tool(*ros_io.pose_to_rt(self._arm[1]), self.hand_eye.xyz_m, self.hand_eye.rpy_deg)
+        pubs = self.pubs[inspection]
         for key in ("color", "depth", "info"):
             msg = frame[key]
             msg.header.stamp = stamp  # one stamp for the whole shot
             msg.header.frame_id = msg.header.frame_id or OPTICAL_FRAME
-            self.pub[key].publish(msg)
+            pubs[key].publish(msg)
         pose = PoseStamped()
         pose.header.stamp, pose.header.frame_id = stamp, "world"
         pose.pose = ros_io.rt_to_pose(R, t)
-        self.pub_pose.publish(pose)
+        pubs["pose"].publish(pose)
         resp.success, resp.message = True, f"shot at {stamp.sec}.{stamp.nanosec:09d}"
         self.diag.set(self.diag.OK, resp.message)
         return resp

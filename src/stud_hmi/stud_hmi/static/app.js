@@ -4,7 +4,8 @@
 
 const $ = (id) => document.getElementById(id);
 const hmi = { ws: null, connected: false, retryMs: 500, nextId: 1, pending: new Map(), received: 0,
-              readOnly: false, controls: null, status: null, statusAt: 0 };
+              readOnly: false, controls: null, status: null, statusAt: 0,
+              operator: sessionStorage.getItem("operator") || "" };  // who signs decisions: asked once per session
 window.hmi = hmi; // for a look from the browser console
 
 function fmt(v, digits = 1) {
@@ -44,10 +45,22 @@ function applyControls() {
   });
   $("ack-all").disabled = !hmi.connected || hmi.readOnly || !hmi.unacked;
   text($("controls-why"), why.join(" · "));
+  const unsigned = !hmi.operator.trim();
   document.querySelectorAll("#decisions button").forEach((b) => {
-    b.disabled = !hmi.connected || hmi.readOnly || b.dataset.blocked === "1";
+    const needsName = b.dataset.signed === "1" && unsigned;
+    b.disabled = !hmi.connected || hmi.readOnly || b.dataset.blocked === "1" || needsName;
+    if (needsName) b.title = "enter your name above first: every decision is signed";
   });
+  text($("operator-why"), unsigned ? "– enter your name: rework decisions and bend results are signed with it" : "");
 }
+
+// The operator's name, asked once per session (kept for this tab); sent with every decision.
+$("operator-name").value = hmi.operator;
+$("operator-name").addEventListener("input", (ev) => {
+  hmi.operator = ev.target.value;
+  sessionStorage.setItem("operator", hmi.operator.trim());
+  applyControls();
+});
 
 // The access token (docs/HMI.md), when the page was opened as http://host:port/?token=...
 const token = new URLSearchParams(location.search).get("token");
@@ -84,7 +97,7 @@ function scheduleReconnect() {
 
 // -- buttons ------------------------------------------------------------------------------------
 function send(cmd, args) {
-  const label = cmd + (args && args.stud_id ? " " + args.stud_id + " " + (args.decision || "") : "");
+  const label = cmd + (args && args.stud_id ? " " + args.stud_id + " " + (args.decision || args.result || "") : "");
   const item = li(label + ": sent…", "pending");
   const replies = $("replies");
   replies.prepend(item);
@@ -197,9 +210,10 @@ function tickEta() {
 setInterval(tickEta, 1000);
 
 // A decision is two clicks: the first arms the button (its text asks to confirm), the second sends.
-function decisionButton(label, confirmText, onConfirm, blocked, why) {
+function decisionButton(label, confirmText, onConfirm, blocked, why, signed) {
   const b = el("button", "small", label);
   b.dataset.blocked = blocked ? "1" : "0";
+  b.dataset.signed = signed ? "1" : "0";
   b.title = blocked ? why : "";
   b.addEventListener("click", () => {
     if (b.dataset.armed === "1") { b.dataset.armed = "0"; b.textContent = label; onConfirm(); return; }
@@ -238,16 +252,51 @@ function renderDecisions(d) {
       note.placeholder = "note (who checked what)";
       item.append(el("b", "", r.stud_id), el("span", "verdict v-" + r.verdict, r.verdict.replace(/_/g, " ")),
         el("span", "reasons", r.reasons.join(", ")),
-        decisionButton("Rework", "Confirm: rework " + r.stud_id + "?", () => send("record_rework", { stud_id: r.stud_id, decision: "rework", note: note.value }), false, ""),
-        decisionButton("Accept", "Confirm: accept " + r.stud_id + "?", () => send("record_rework", { stud_id: r.stud_id, decision: "accept", note: note.value }), false, ""),
+        decisionButton("Rework", "Confirm: rework " + r.stud_id + "?", () => send("record_rework", { stud_id: r.stud_id, decision: "rework", note: note.value, operator: hmi.operator.trim() }), false, "", true),
+        decisionButton("Accept", "Confirm: accept " + r.stud_id + "?", () => send("record_rework", { stud_id: r.stud_id, decision: "accept", note: note.value, operator: hmi.operator.trim() }), false, "", true),
         note);
       return item;
     }));
   }
+  renderBendTests(d.bend_tests || [], d.bend_code || "");
   $("uncertain-box").hidden = !d.uncertain.length;
   $("rework-box").hidden = !d.rework.length;
-  $("decisions").hidden = !d.uncertain.length && !d.rework.length;
+  $("decisions").hidden = !d.uncertain.length && !d.rework.length && !(d.bend_tests || []).length;
   applyControls();
+}
+
+// The bend tests the QA record lists: those to do with Pass / Fail (two clicks), then those done.
+function renderBendTests(tests, code) {
+  const key = tests.map((t) => t.stud_id + ":" + (t.result || "") + ":" + (t.time || ""));
+  text($("bend-code"), code || "–");
+  $("bend-box").hidden = !tests.length;
+  if (hmi.bKey && sameList(hmi.bKey, key)) return;
+  hmi.bKey = key;
+  $("bend-tests").replaceChildren(...tests.map((t) => {
+    const item = el("li", "decision" + (t.result ? " done" : ""));
+    item.dataset.stud = t.stud_id;
+    const why = el("span", "reasons", t.reasons.join("; ") + (t.direction ? " – " + t.direction : ""));
+    const angle = "bend " + (t.angle_deg === null ? "–" : fmt(t.angle_deg, 0) + "°");
+    if (t.result) {
+      item.append(el("b", "", t.stud_id), el("span", "verdict v-" + (t.result === "pass" ? "pass" : "fail"), t.result),
+        el("span", "", angle + (t.bent_deg !== null ? " (bent " + fmt(t.bent_deg, 0) + "°)" : "")), why,
+        el("small", "", "by " + (t.operator || "?") + ", " + (t.time || "").slice(0, 16).replace("T", " ")
+           + (t.note ? " – " + t.note : "")));
+      return item;
+    }
+    const bent = el("input", "angle");
+    bent.type = "number"; bent.min = "1"; bent.max = "180"; bent.step = "1";
+    bent.value = t.angle_deg === null ? "" : String(Math.round(t.angle_deg));
+    bent.title = "the angle bent (°)";
+    const note = el("input", "note");
+    note.placeholder = "note (what was seen)";
+    const result = (r) => () => send("record_bend_test", { stud_id: t.stud_id, result: r, note: note.value,
+      angle_deg: bent.value === "" ? null : Number(bent.value), operator: hmi.operator.trim() });
+    item.append(el("b", "", t.stud_id), el("span", "", angle), why, bent,
+      decisionButton("Pass", "Confirm: " + t.stud_id + " passed?", result("pass"), false, "", true),
+      decisionButton("Fail", "Confirm: " + t.stud_id + " failed?", result("fail"), false, "", true), note);
+    return item;
+  }));
 }
 
 function onJob(m) {
@@ -335,7 +384,8 @@ function onTargets(m) {
     const p = r.position_mm || [null, null, null];
     const weld = r.weld === "active" ? "● " + (r.phase || "active") : r.weld === "welded" ? "✔ welded"
       : r.reason ? "✖ " + r.reason.replace(/^unreachable: /, "") : r.weld;
-    const insp = (r.inspection || "").replace(/_/g, " ") + (r.rework ? " → " + r.rework : "");
+    const insp = (r.inspection || "").replace(/_/g, " ") + (r.rework ? " → " + r.rework : "")
+      + (r.bend ? " · bend " + r.bend : "");
     const cells = [r.stud_id, r.status.replace(/_/g, " "), fmt(r.inclination_deg, 1), fmt(p[0], 1), fmt(p[1], 1),
                    fmt(p[2], 1), fmt(r.xy_error_mm, 2), r.view === null ? "–" : String(r.view), weld, insp];
     cells.forEach((v, i) => text(tr.children[i], v));
