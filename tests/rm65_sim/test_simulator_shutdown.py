@@ -124,3 +124,17 @@ def test_no_thread_of_the_simulator_runs_a_handler_for_the_stop_signals(simulato
         assert len(blocking) >= 3, [(s["Pid"], s["SigBlk"]) for s in status]
     finally:
         client.close()
+
+
+def test_the_simulator_cli_leaves_its_callers_signal_state_as_it_found_it():
+    """``main`` blocks SIGINT/SIGTERM while it serves; called in-process (a test, an embedding program) and
+    returning, it must put the mask and handlers back, or every child started afterwards inherits the
+    blocked signals and never stops on Ctrl-C (``ros2 bag record`` later in the same pytest run did not)."""
+    from rm65_sim.simulator import ArmSimulator, main
+
+    before_mask = signal.pthread_sigmask(signal.SIG_BLOCK, set())
+    before_handlers = {s: signal.getsignal(s) for s in STOP_SIGNALS}
+    with ArmSimulator(port=0) as busy:
+        assert main(["--port", str(busy.port)]) == 2  # cannot bind: returns at once
+    assert signal.pthread_sigmask(signal.SIG_BLOCK, set()) == before_mask
+    assert {s: signal.getsignal(s) for s in STOP_SIGNALS} == before_handlers

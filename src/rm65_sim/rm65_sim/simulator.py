@@ -509,9 +509,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     # bytecodes of every Event.wait turn, and a signal landing then would block the handler on that lock
     # for ever, the simulator outliving its SIGTERM.
     stop_signals = {signal.SIGINT, signal.SIGTERM}
+    # Whatever main changes of the process's signal state is put back when it returns (a caller in the
+    # same process, a test, must not be left with the stop signals blocked: its children would inherit
+    # the mask and never see a SIGINT).
+    handlers = {sig: signal.getsignal(sig) for sig in stop_signals}
     for sig in stop_signals:  # not Python's KeyboardInterrupt either (never ignored: an ignored signal is lost)
         signal.signal(sig, signal.SIG_DFL)
-    signal.pthread_sigmask(signal.SIG_BLOCK, stop_signals)
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, stop_signals)
+    try:
+        return _serve(args, stop_signals)
+    finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+
+
+def _serve(args: argparse.Namespace, stop_signals: set[signal.Signals]) -> int:
+    """Start the simulator ``args`` describe and serve until one of ``stop_signals`` (blocked) arrives."""
     try:
         rail_axis = (RailAxis(args.rail_length_m, args.rail_pos_unit_m, args.rail_max_speed_m_s, args.rail_accel_m_s2)
                      if args.rail_length_m != 0 else None)
