@@ -35,7 +35,7 @@ import time
 import numpy as np
 import rclpy
 from rclpy.action import ActionClient
-from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -47,6 +47,7 @@ from stud_welding_msgs.msg import ArmState, CellStatus, Registration, StudLayout
 from stud_welding_msgs.srv import Inspect, MoveTo, RailMove
 
 from stud_common import ros_io
+from stud_common.executor_calls import ExecutorCalls
 from stud_common.stacks import dump_stacks_on_signal
 from stud_perception.camera_model import nadir_rotation
 from stud_common.ros_io import Param, three_numbers
@@ -200,7 +201,11 @@ class CellSequencer(Node):
         self.cli_inspect = self.create_client(Inspect, names.INSPECTION_INSPECT, callback_group=cb)
         self.cli_arm = {name: self.create_client(Trigger, f"/arm/{name}", callback_group=cb)
                         for name in ("stop", "pause", "resume")}
-        self.weld_action = ActionClient(self, WeldJob, names.ARM_WELD_JOB, callback_group=cb)
+        # The action client in a group of its own, its requests sent from inside that group (ExecutorCalls):
+        # rclpy's action client is not thread-safe against the executor taking the response.
+        action_group = MutuallyExclusiveCallbackGroup()
+        self.weld_action = ActionClient(self, WeldJob, names.ARM_WELD_JOB, callback_group=action_group)
+        self._in_action_group = ExecutorCalls(self, action_group)
         for name, handler in (("start", self._on_start), ("pause", self._on_pause), ("resume", self._on_resume),
                               ("stop", self._on_stop)):
             self.create_service(Trigger, f"/cell/{name}", handler, callback_group=cb)
@@ -501,11 +506,14 @@ class CellSequencer(Node):
             return self._outcome(lost.result().result)
         if not self.weld_action.wait_for_server(timeout_sec=min(p["step_timeout_s"], 10.0)):
             raise JobAborted("the arm driver's /arm/weld_job action is not available")
-        goal = self._wait_future(self.weld_action.send_goal_async(
-            WeldJob.Goal(targets=[t.payload for t in targets], resume=True), feedback_callback=self._on_feedback),
-            p["step_timeout_s"], "/arm/weld_job goal")
+        request = WeldJob.Goal(targets=[t.payload for t in targets], resume=True)
+        sent = self._wait_future(self._in_action_group.call(
+            lambda: self.weld_action.send_goal_async(request, feedback_callback=self._on_feedback)),
+            p["step_timeout_s"], "/arm/weld_job goal sent")
+        goal = self._wait_future(sent, p["step_timeout_s"], "/arm/weld_job goal")
         if goal.accepted:
-            result = goal.get_result_async()
+            result = self._wait_future(self._in_action_group.call(goal.get_result_async), p["step_timeout_s"],
+                                       "/arm/weld_job result request")
         elif lost is not None and not lost.done():
             self.get_logger().warn("the arm driver rejected the resent job: it is still on the job it was believed "
                                    "to have lost (its /arm/state only paused); waiting for that job's result")
