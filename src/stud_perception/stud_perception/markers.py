@@ -252,8 +252,7 @@ def _best_triples(P: np.ndarray, expected: np.ndarray, turn_sign: float):
 
 def _failure(status: MarkStatus, message: str, cand_uv, cand_r, cand_w, distance_error_m=float("nan")):
     return MarkDetection(
-        status=status,
-        message=message,
+        status=status, message=message,
         marks_world_m=np.full((3, 3), np.nan),
         marks_pixels_uv=np.full((3, 2), np.nan),
         depth_rules=np.full(3, FillRule.NONE, dtype=np.int8),
