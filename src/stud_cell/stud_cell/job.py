@@ -28,6 +28,7 @@ implements it over topics, services and the weld action; tests implement it in p
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import secrets
 import time
@@ -463,7 +464,7 @@ class CellJob:
                     self.qa[t.stud_id].update(fields)
             self.unexpected += outcome.unexpected
             if outcome.limits:
-                self.c.qa_limits = dict(outcome.limits)
+                self.c = dataclasses.replace(self.c, qa_limits=dict(outcome.limits))
                 self._judged = True
             if outcome.overlay_file:
                 self.overlays.append(outcome.overlay_file)

@@ -143,9 +143,10 @@ class CellPorts(Protocol):
 RESHOOT_STATUS_TEXTS = frozenset(s.text for s in VIEW_DEPENDENT)
 
 
-@dataclass
+@dataclass(frozen=True)
 class JobConfig:
-    """The job's settings (the sequencer's parameters of the same names)."""
+    """The job's settings (the sequencer's parameters of the same names); frozen: a change is a new config
+    (``dataclasses.replace``)."""
 
     registration_station_xyz_m: tuple = (0.225, -0.29, 0.285)   # (): no station, search the board
     board_search_area_xy_m: tuple = (0.0, -0.55, 0.65, 0.55)      # x_min, y_min, x_max, y_max (world)

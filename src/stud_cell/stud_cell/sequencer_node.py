@@ -28,6 +28,7 @@ was welded).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 import time
@@ -222,10 +223,8 @@ class CellSequencer(Node):
     # -- the job --------------------------------------------------------------------------------
     def _run_job(self) -> None:
         p = self.p
-        config = cell_job.JobConfig.from_params(p)
-        config.job_id = time.strftime("%Y%m%d-%H%M%S")
-        config.part = p["part_name"]
-        config.qa_overrides = overrides(p, SAMPLING_PARAMS)
+        config = dataclasses.replace(cell_job.JobConfig.from_params(p), job_id=time.strftime("%Y%m%d-%H%M%S"),
+                                     part=p["part_name"], qa_overrides=overrides(p, SAMPLING_PARAMS))
         job_class = RailJob if config.rail_length_m > 0 else cell_job.CellJob
         self.job = job_class(self, config, reach=self.cell_reach())
         _state, self.exit_code = self.job.run()
