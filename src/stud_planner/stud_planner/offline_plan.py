@@ -14,7 +14,7 @@ A, B, each later one names its marks by the nearest registration made before it,
 too few marks takes the nearest registration, saying how far it extrapolates), and matches each
 view with its own registration: the rail's error between two stations never reaches a target.
 The report then lists every view's registration (``registrations``) besides the first
-(``registration``), and ``view_stamps_ns`` gives each view's stamp (a target's ``view`` indexes it).
+(``registration``). ``view_stamps_ns`` gives each view's stamp (a target's ``view`` indexes it).
 
 Memory stays flat with the bag's length: a first pass keeps only stamps of the images (read from
 their CDR headers) and the small camera-info and pose messages; a second pass deserialises each
@@ -340,11 +340,10 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
         "registration": {"M_local2world": registration.M_local2world.tolist(),
                          "residual_mm": registration.residual_m * 1e3, "view": reg_view},
         "views": len(views), "total_iterations": int(iterations_total), "match_time_s": match_time,
-        "targets": targets, "warnings": warnings,
+        "targets": targets, "warnings": warnings, "view_stamps_ns": [v.stamp_ns for v in views],
     }
     if references:
         report["registrations"] = [_registration_entry(i, views[i].stamp_ns, r) for i, r in sorted(registrations.items())]
-        report["view_stamps_ns"] = [v.stamp_ns for v in views]
     return report
 
 
