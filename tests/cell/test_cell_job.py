@@ -280,3 +280,72 @@ def test_fewest_stations_covers_the_plate_with_fewer_stations_and_welds_every_st
     assert (state, code) == ("done", 0)
     assert job.stations_total < grid_job.stations_total
     assert sorted(cell.journal) == sorted(cell.studs) and qa["summary"]["pass"] == len(cell.studs)
+
+
+class ViewsOfADome(FakeCell):
+    """The dome's studs, seen unusable from their own station (a hole over each), and the same studs
+    usable on the views taken at two far studs' stations: ``far_views`` maps each far stud to the
+    (index, targets) of the view its station's shot gives besides it."""
+
+    def __init__(self, studs: dict, far_views: dict):
+        super().__init__(studs, status_of=lambda sid, cam: "ok" if sid in far_views else "no_depth")
+        self.far_views = far_views
+
+    def shoot_view(self, what, xyz, yaw):
+        view = super().shoot_view(what, xyz, yaw)
+        for far, (index, targets) in self.far_views.items():
+            if any(t.stud_id == far for t in view.targets):
+                return cell_job.View(index, view.stamp_ns, view.camera_xyz_w, view.yaw_rad, view.targets + targets)
+        return cell_job.View(100 + view.index, view.stamp_ns, view.camera_xyz_w, view.yaw_rad, view.targets)
+
+
+@pytest.mark.parametrize("tied", [False, True], ids=["rendered", "equal_lean_bounds"])
+def test_plan_and_the_cell_keep_the_same_view_of_a_stud_two_views_saw(tmp_path, tied):
+    """Two rendered views of the dome: `plan` merges them into its report, the cell gets them as
+    WeldTargetArray messages from far stations and welds the dome's studs from its best view of each."""
+    import dataclasses
+
+    from rclpy.serialization import deserialize_message
+    from stud_welding_msgs.msg import WeldTargetArray
+
+    from stud_perception.scene import demo_dome_scene
+    from stud_perception.scene_cameras import view_camera
+    from stud_perception.scene_render import render
+    from stud_planner.matching.target_cdr import weld_target_array_cdr
+    from stud_planner.matching.target_table import TargetTable
+    from stud_planner.matching.view_targets import plan_view
+    from stud_planner.msg_convert import weld_target_table
+
+    scene = demo_dome_scene()
+    ids, xy = list(scene.stud_ids), np.asarray(scene.studs_drawing_m)
+    apex = np.append(scene.studs_world_xy_m.mean(axis=0), 0.1)
+    views, cameras = [], []
+    for index, (dx, dy, tilt, noise) in ((1, (0.0, 0.0, 0.0, 0.0005)), (2, (-0.05, 0.08, 0.35, 0.0005))):
+        cam = view_camera(apex + (dx, dy, 0.0), 0.5, tilt_rad=tilt, tilt_azimuth_rad=1.0, width=640, height=480)
+        depth = render(scene, cam, seed=index, depth_noise_m=noise).depth_m
+        views.append(plan_view(ids, xy, scene.M_local2world, depth, cam, view_index=index))
+        cameras.append(cam)
+    if tied:  # noise-free depth puts both at the floor: the more central match must decide
+        views[1] = dataclasses.replace(views[1], lean_bound_deg=views[0].lean_bound_deg.copy())
+    assert views[0].ok.all() and views[1].ok.all()
+
+    best = TargetTable.unseen(ids, xy)
+    for t in views:  # what `plan` does with its views
+        best = best.merge(t)
+    planned = {e["stud_id"]: e for e in best.report_entries()}
+    assert {e["view"] for e in planned.values()} == {1, 2}  # each view is the best of some studs
+
+    far_views = {}
+    for far, t, cam in zip(("F1", "F2"), views, cameras):  # the matcher's message, read as the sequencer does
+        msg = deserialize_message(weld_target_array_cdr(t, int(t.view_index[0]), 1, 0), WeldTargetArray)
+        table = weld_target_table(msg, (cam.cx, cam.cy, cam.width, cam.height))
+        far_views[far] = (int(msg.view_index), cell_job.table_targets(table, payloads=table.ids))
+    studs = {sid: tuple(p) for sid, p in zip(ids, xy)} | {"F1": (xy[:, 0].max() + 0.6, 0.0),
+                                                           "F2": (xy[:, 0].max() + 1.2, 0.0)}
+    cell = ViewsOfADome(studs, far_views)
+    job, state, code, qa = run(cell, tmp_path)
+    assert (state, code) == ("done", 0), cell.log
+    welded = {e["stud_id"]: e for e in json.loads((tmp_path / "weld_report.json").read_text())["targets"]}
+    for sid in ids:
+        assert welded[sid]["welded"] and welded[sid]["view"] == planned[sid]["view"], sid
+        assert welded[sid]["position_m"] == planned[sid]["position_m"], sid

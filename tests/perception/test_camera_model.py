@@ -57,3 +57,34 @@ def test_unusable_intrinsics_or_pose_are_rejected_with_the_value(bad, match):
     args = dict(K=K, width=1280, height=960, R_wc=R, t_wc=T) | bad
     with pytest.raises(CameraModelError, match=match):
         CameraModel(**args)
+
+
+def test_the_derived_forms_of_eq1_are_eq1(cam):
+    """One pixel in plain floats, the ray linear in the pixel, a vertical line's pixel projective in its
+    height, and pixels per metre: each what Eq. 1 itself gives."""
+    rng = np.random.default_rng(5)
+    u, v, z = rng.uniform(0, 1279, 40), rng.uniform(0, 959, 40), rng.uniform(0.3, 0.9, 40)
+    P = cam.pixel_to_world(u, v, z)
+    one = np.array([cam.pixel_to_world_one(float(a), float(b), float(c)) for a, b, c in zip(u, v, z)])
+    np.testing.assert_array_equal(one, P)  # the same operations: the same values, to the bit
+    base, per_u, per_v = cam.ray_basis_world()
+    rays = base + u[:, None] * per_u + v[:, None] * per_v
+    np.testing.assert_allclose(rays, cam.ray_directions_world(u, v), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(cam.t_wc + z[:, None] * rays, P, rtol=0, atol=1e-12)
+
+    xy = P[:, :2]
+    lines = cam.vertical_lines(xy)
+    heights = P[:, 2] + rng.uniform(-0.05, 0.05, 40)
+    lu, lv = lines.pixels_at(np.arange(40), heights)
+    wu, wv, _ = cam.world_to_pixel(np.column_stack([xy, heights]))
+    np.testing.assert_allclose(np.column_stack([lu, lv]), np.column_stack([wu, wv]), rtol=0, atol=1e-8)
+    assert [lines.pixel_at_one(i, float(h)) for i, h in enumerate(heights)] == list(zip(lu.tolist(), lv.tolist()))
+    lo, hi = cam.lines_in_view(lines, -1.0, 1.0)
+    assert np.all((lo <= P[:, 2]) & (P[:, 2] <= hi))  # every line passes a pixel of the image at its point
+
+    depth = rng.uniform(0.3, 0.9, 5)
+    across = cam.pixels_across(0.02, depth)
+    centre = np.column_stack([np.zeros(5), np.zeros(5), depth])  # on the optical axis, square to it
+    ends = cam.R_wc @ np.array([0.02, 0.0, 0.0]) + (centre @ cam.R_wc.T + cam.t_wc)
+    du = cam.world_to_pixel(ends)[0] - cam.world_to_pixel(centre @ cam.R_wc.T + cam.t_wc)[0]
+    np.testing.assert_allclose(across, du, rtol=1e-12)

@@ -18,7 +18,7 @@ from stud_perception.scene import SceneSpec
 from stud_perception.scene_cameras import view_camera
 from stud_perception.scene_render import render
 from stud_perception.scene_solids import Cylinder, Dome, Plate, Pose2D, Trough
-from stud_planner.matching.surface_pose import estimate_surface_poses, tangent_basis
+from stud_planner.matching.surface_pose import SurfaceFitConfig, estimate_surface_poses, tangent_basis
 from stud_planner.matching.view_targets import STATUS_OK, PlannerConfig, plan_view
 
 POSE = Pose2D(-0.36, -0.26, 0.0)  # the marking board well clear of the part
@@ -132,7 +132,8 @@ def test_a_window_half_in_a_hole_on_a_dome_is_not_biased_by_the_curvature():
         toward = np.array([c[0] - ui, c[1] - vi]) / np.hypot(c[0] - ui, c[1] - vi)
         near = (uu - ui) ** 2 + (vv - vi) ** 2 < 40**2
         depth[near & (((uu - ui) * toward[0] + (vv - vi) * toward[1]) > 3)] = np.nan
-    poses = estimate_surface_poses(P, np.column_stack([u, v]), depth, cam, target_xy_w=P[:, :2], min_fill_ratio=0.2)
+    poses = estimate_surface_poses(P, np.column_stack([u, v]), depth, cam, SurfaceFitConfig(min_fill_ratio=0.2),
+                                   target_xy_w=P[:, :2])
     assert np.all(poses.ok)
     err = angle_deg(poses.normal_w, view.stud_normals_w[1:])
     assert err.max() < 1.0 and err.mean() < 0.5  # a plane through the same points: 2.7 max, 2.0 mean

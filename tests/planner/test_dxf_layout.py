@@ -6,6 +6,7 @@ shared/data/dxf (CAD programs' and libraries' files: each parses or fails with D
 """
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import json
 import math
@@ -22,6 +23,7 @@ from hypothesis import strategies as st
 from stud_planner.drawing import (
     DrawingError,
     DrawingLayout,
+    LayoutOptions,
     close_pairs,
     read_circles,
     read_layout,
@@ -108,7 +110,7 @@ def test_block_references_are_expanded_with_their_full_transform(tmp_path, flavo
 
 
 def test_insert_matrices_match_ezdxf_for_random_references():
-    from stud_planner.drawing.circles import _insert_matrices, _matrix
+    from stud_planner.drawing.entities import insert_matrices, matrix_of
 
     rng = np.random.default_rng(3)
     doc = ezdxf.new("R2010")
@@ -121,8 +123,8 @@ def test_insert_matrices_match_ezdxf_for_random_references():
             "xscale": sx, "yscale": sy, "zscale": sz, "rotation": rng.uniform(-360, 360)})
         d = ref.dxf
         params = np.array([[*d.insert, d.xscale, d.yscale, d.zscale, d.rotation]])
-        np.testing.assert_allclose(_insert_matrices(params, np.array([3.0, -4.0, 0.5]))[0],
-                                   _matrix(ref.matrix44()), atol=1e-9)
+        np.testing.assert_allclose(insert_matrices(params, np.array([3.0, -4.0, 0.5]))[0],
+                                   matrix_of(ref.matrix44()), atol=1e-9)
 
 
 def test_minsert_arrays_are_expanded(tmp_path):
@@ -449,6 +451,22 @@ def test_stud_layers_are_case_insensitive_glob_patterns(tmp_path):
     assert set(everything.stud_layers) == set(layers)
 
 
+def test_the_options_object_and_the_keywords_read_the_same(tmp_path):
+    layers = ["Studs-M16", "STUDS-M19", "other", "studs"] * 3 + ["x", "y", "z"]
+    _plain_doc(STUDS * 1e3, layers).saveas(tmp_path / "layers.dxf")
+    options = LayoutOptions(stud_layers=["studs-*"], min_spacing_m=0.0)
+    by_options = read_layout(tmp_path / "layers.dxf", options)
+    assert len(by_options.studs) == 6
+    assert by_options == read_layout(tmp_path / "layers.dxf", stud_layers=["studs-*"], min_spacing_m=0.0)
+    wider = options.with_changes(stud_layers="*")   # a copy: the options are frozen
+    assert options.stud_layers == ("studs-*",) and len(read_layout(tmp_path / "layers.dxf", wider).studs) == 15
+    assert len(read_layout(tmp_path / "layers.dxf", options, stud_layers="*").studs) == 15   # keywords change it
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        options.min_spacing_m = 1.0  # type: ignore[misc]
+    with pytest.raises(TypeError):
+        read_layout(tmp_path / "layers.dxf", stud_layer="*")   # a misspelt option is not silently ignored
+
+
 def test_diameter_filter_keeps_only_studs_in_range(tmp_path):
     diameters = [16.0, 19.0, 22.0, 5.0, 19.0] * 3
     doc = _plain_doc(STUDS * 1e3, diameters=diameters)
@@ -654,14 +672,14 @@ def test_error_collinear_and_coincident_marks(tmp_path):
 
 
 def test_unexpected_ezdxf_failures_become_drawing_errors(tmp_path, monkeypatch):
-    import stud_planner.drawing.circles as dl
+    from stud_planner.drawing.entities import EntityCollector
 
     path = write_layout_dxf(tmp_path / "ok.dxf", STUDS, MARKS)
 
     def boom(*args, **kwargs):
         raise KeyError("weird entity")
 
-    monkeypatch.setattr(dl._Collector, "scan", boom)
+    monkeypatch.setattr(EntityCollector, "scan", boom)
     assert "cannot interpret the drawing (KeyError" in _error(path)
 
 

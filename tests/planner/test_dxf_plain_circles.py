@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from stud_planner.drawing import DrawingError, read_circles, read_layout
-from stud_planner.drawing.dxf_file import _check_file, _load_with_plain_circles
+from stud_planner.drawing.dxf_file import check_file, load_with_plain_circles
 from stud_planner.drawing.dxf_writer import write_layout_dxf
 from stud_planner.drawing.plain_circles import split_plain_circles
 
@@ -44,8 +44,8 @@ def assert_same(a, b) -> None:
 
 
 def used_plain(path: Path) -> bool:
-    data, _ = _check_file(path)
-    return _load_with_plain_circles(path, data)[1] is not None
+    data, _ = check_file(path)
+    return load_with_plain_circles(path, data)[1] is not None
 
 
 CORPUS_FILES = sorted(p for p in CORPUS.rglob("*") if p.suffix.lower() == ".dxf") if CORPUS.is_dir() else []
@@ -56,7 +56,7 @@ CORPUS_FILES = sorted(p for p in CORPUS.rglob("*") if p.suffix.lower() == ".dxf"
 def test_corpus_files_read_the_same_with_and_without_the_plain_path(path, hidden, require_shared_data):
     require_shared_data(CORPUS)
     try:
-        _check_file(path)
+        check_file(path)
     except DrawingError:
         pass  # refused before any reading: both paths share that check
     a, b = both(path, include_hidden_layers=hidden)

@@ -50,7 +50,7 @@ def test_plan_on_the_committed_bag_reproduces_the_ground_truth(algorithm):
     assert np.abs(np.array(report["registration"]["M_local2world"]) - truth["M_local2world"]).max() < 5e-4
     # 16UC1 depth with 0.5 mm noise: XY within the paper's 1 mm; normals from mm-quantised noisy depth.
     _check_against_truth(report, truth, xy_tol_m=0.001, normal_tol_deg=2.5)
-    # each stud comes from the view where it is most central: a station, not the registration view
+    # each stud comes from its best view (the smallest lean bound): a station, not the registration view
     assert {t["view"] for t in report["targets"]} <= set(range(1, len(truth["views"])))
 
 

@@ -8,9 +8,10 @@ from hypothesis import strategies as st
 
 from stud_perception.camera_model import CameraModel
 from stud_planner.matching.matchers import match_batch
-from stud_planner.matching.surface_pose import (M16X150_TOP_OFFSET_M, SurfaceStatus, estimate_surface_poses,
-                                                estimate_surface_poses_for_matches, frame_from_normal, inclination_deg,
-                                                offset_along_normal, quaternion_from_matrix, quaternion_from_normal)
+from stud_planner.matching.surface_pose import (M16X150_TOP_OFFSET_M, SurfaceFitConfig, SurfaceStatus,
+                                                estimate_surface_poses, estimate_surface_poses_for_matches,
+                                                frame_from_normal, inclination_deg, offset_along_normal,
+                                                quaternion_from_matrix, quaternion_from_normal)
 
 
 def angle_deg(a, b):
@@ -70,8 +71,9 @@ def test_twenty_mm_window_keeps_normals_under_one_degree_at_half_mm_noise(scenes
     xy = np.random.default_rng(11).uniform([-0.15, -0.12], [0.15, 0.12], (400, 2))
     xy = xy[away_from_dome_rim(dome, xy)]
     matches = match_batch(xy, depth, cam_full)
-    wide = estimate_surface_poses_for_matches(matches, depth, cam_full, window_m=0.02)
-    narrow = estimate_surface_poses_for_matches(matches, depth, cam_full, window_m=0.004, max_rms_m=1.0)
+    wide = estimate_surface_poses_for_matches(matches, depth, cam_full, SurfaceFitConfig(window_m=0.02))
+    narrow = estimate_surface_poses_for_matches(matches, depth, cam_full,
+                                                SurfaceFitConfig(window_m=0.004, max_rms_m=1.0))
     truth = dome.normal(xy)
     err_wide = angle_deg(wide.normal_w, truth)
     err_narrow = angle_deg(narrow.normal_w, truth)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stud_planner.matching.surface_pose import estimate_surface_poses
+from stud_planner.matching.surface_pose import SurfaceFitConfig, estimate_surface_poses
 from stud_planner.matching.window_moments import BLOCK_PX, BlockMoments
 
 
@@ -106,7 +106,8 @@ def test_smooth_windows_take_the_plain_fit_and_a_step_goes_to_the_robust_path(sc
     uu = np.arange(cam_full.width)
     depth[:, uu > u[0] + 10] -= 0.006
     poses = estimate_surface_poses(P, np.column_stack([u, v]), depth, cam_full, target_xy_w=xy)
-    plain = estimate_surface_poses(P, np.column_stack([u, v]), depth, cam_full, target_xy_w=xy, fast_fit=False)
+    plain = estimate_surface_poses(P, np.column_stack([u, v]), depth, cam_full, SurfaceFitConfig(fast_fit=False),
+                                   target_xy_w=xy)
     far = np.abs(u - u[0]) > 60  # windows the step does not reach
     assert np.all(poses.ok[far])
     assert np.all(poses.outlier_ratio[far] == 0.0)  # every valid pixel used: the plain fit

@@ -11,7 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rm65_driver.journal.records import JournalError, encode_record, mirror_path
+from stud_common.vocabulary import JournalStatus
+
+from rm65_driver.journal.records import (DECISION_NOT_WELDED, DECISION_WELDED, TRANSITIONS, JournalError,
+                                         encode_record, mirror_path)
 from rm65_driver.journal.scan import JournalCorrupt
 from rm65_driver.journal.writer import Journal
 from rm65_testing import nul_block_over_one_stud, random_bytes, write_job
@@ -90,6 +93,19 @@ def test_resolving_uncertain_studs(tmp_path):
     with pytest.raises(JournalError, match="not uncertain"):
         j.resolve("never-seen", welded=False)
     assert j.last_record("A")["decision"] == "welded"
+
+
+def test_the_journal_speaks_the_cells_vocabulary(tmp_path):
+    j = Journal(tmp_path / "j.jsonl")
+    assert j.status("never-seen") is JournalStatus.NEW
+    j.started("A")
+    j.resolve("A", welded=False)
+    assert j.status("A") is JournalStatus.NOT_WELDED
+    assert (DECISION_WELDED, DECISION_NOT_WELDED) == (JournalStatus.WELDED, JournalStatus.NOT_WELDED)
+    for event, rule in TRANSITIONS.items():   # every rule, from every status, lands on a status of the vocabulary
+        for before in JournalStatus:
+            for decision in (DECISION_WELDED, DECISION_NOT_WELDED):
+                assert isinstance(rule(before, {"decision": decision}), JournalStatus), event
 
 
 def test_skip_never_downgrades_a_welded_stud(tmp_path):

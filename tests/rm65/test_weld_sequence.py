@@ -13,6 +13,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from stud_common.vocabulary import OnDisconnect, StudOrder
+
 from rm65_driver.journal.writer import Journal
 from rm65_driver.kinematics.rm65 import RM65Kinematics
 from rm65_driver.protocol import messages as P
@@ -244,6 +246,9 @@ def test_job_refused_for_speed_caps_and_a_foreign_work_frame(client, sim, tmp_pa
     assert not res.success and "not the base frame" in res.message
     with pytest.raises(ValueError):
         WeldParams(on_disconnect="retry")
+    # the modes arrive as text (ROS parameters) and are held as the vocabulary's members
+    modes = WeldParams(stud_order="path", on_disconnect="abort")
+    assert modes.stud_order is StudOrder.PATH and modes.on_disconnect is OnDisconnect.ABORT
 
 
 @pytest.mark.parametrize("standoff_m, stud_length_m, ok", [

@@ -1,10 +1,12 @@
 """The matcher's hand-written WeldTargetArray bytes are what rclpy itself would send: rclpy reads
 every field back as the view's arrays say, and its own serialisation of that message has the same
 layout — on a real rendered view (matched, out-of-view and failed studs, NaN positions),
-with odd-length and non-ASCII ids, and with no studs at all."""
+with odd-length and non-ASCII ids, and with no studs at all. The writer's field layout is the
+``.msg`` files' (derived from them here), and a message read back into a TargetTable is the table sent."""
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,7 +16,9 @@ from stud_welding_msgs.msg import WeldTargetArray
 from stud_perception.scene import demo_dome_scene
 from stud_perception.scene_cameras import demo_camera
 from stud_perception.scene_render import render
-from stud_planner.matching.target_cdr import weld_target_array_cdr
+from stud_planner.matching.target_cdr import WELD_TARGET_ARRAY_FIELDS, WELD_TARGET_FIELDS, weld_target_array_cdr
+from stud_planner.matching.target_table import COLUMNS
+from stud_planner.msg_convert import weld_target_table
 from stud_planner.matching.view_targets import STATUS_OUT_OF_VIEW, plan_view
 
 
@@ -85,3 +89,58 @@ def test_a_view_without_studs(view_targets):
     empty = plan_view([], np.zeros((0, 2)), np.eye(3), np.full((960, 1280), np.nan, np.float32),
                       demo_camera())
     assert _check(empty, view_index=0, sec=0, nanosec=0, frame_id="").targets == []
+
+
+REPO = Path(__file__).resolve().parents[2]
+PRIMITIVES = {"bool", "byte", "char", "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64",
+              "float32", "float64", "string"}
+
+
+def msg_fields(package: str, name: str, prefix: str = "") -> list[tuple[str, str]]:
+    """The fields of ``package/name``.msg in wire order, nested messages flattened to dotted names
+    (arrays of messages stay one ``Type[]`` field), read from the .msg files themselves."""
+    ours = REPO / "src" / package / "msg" / f"{name}.msg"
+    if ours.exists():
+        path = ours
+    else:
+        from ament_index_python.packages import get_package_share_directory
+
+        path = Path(get_package_share_directory(package)) / "msg" / f"{name}.msg"
+    out = []
+    for line in path.read_text().splitlines():
+        words = line.split("#", 1)[0].split()
+        if not words or "=" in words[1] or (len(words) > 2 and words[2] == "="):
+            continue  # blank, comment or constant
+        kind, field = words[0], words[1]
+        if kind in PRIMITIVES:
+            out.append((prefix + field, kind))
+        elif kind.endswith("[]"):
+            out.append((prefix + field, kind.split("/")[-1]))
+        else:
+            pkg, _, sub = kind.rpartition("/")
+            pkg = pkg or ("std_msgs" if sub == "Header" else package)
+            out.extend(msg_fields(pkg, sub, f"{prefix}{field}."))
+    return out
+
+
+def test_the_writers_field_layout_is_the_one_the_msg_files_define():
+    assert list(WELD_TARGET_FIELDS) == msg_fields("stud_welding_msgs", "WeldTarget")
+    assert list(WELD_TARGET_ARRAY_FIELDS) == msg_fields("stud_welding_msgs", "WeldTargetArray")
+
+
+def test_a_received_array_reads_back_into_the_table_that_was_sent(view_targets):
+    msg = deserialize_message(weld_target_array_cdr(view_targets, 3, 1, 2), WeldTargetArray)
+    got = weld_target_table(msg)
+    assert got.ids == view_targets.ids
+    for name in COLUMNS:
+        want = getattr(view_targets, name)
+        if name == "quat_xyzw":
+            want = view_targets.message_quat_xyzw  # the identity on the wire where there is no normal
+        elif name == "view_index":
+            want = np.full(len(want), 3)
+        elif name == "centre_offset":
+            assert np.isnan(got.centre_offset).all()  # not on the wire: unknown without the camera
+            continue
+        np.testing.assert_array_equal(getattr(got, name), want, err_msg=name)
+    sent = dataclasses.replace(view_targets, view_index=np.full(len(view_targets.ids), 3))
+    assert got.report_entries() == sent.report_entries()

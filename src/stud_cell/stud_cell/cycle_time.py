@@ -23,12 +23,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Iterable, Mapping
 
+from stud_common.vocabulary import WeldPhase
+
 #: Cell state text -> category (states not listed, e.g. idle, done, paused, count nowhere).
 CELL_CATEGORY = {"registering": "registration", "moving": "station_moves", "shooting": "shots",
                  "matching": "shots", "inspecting": "inspection", "welding": "weld_overhead"}
 #: Weld feedback phase -> category (``approach`` is split further, see the module docstring).
-PHASE_CATEGORY = {"approach": "approach", "descend": "descent", "weld": "weld", "dwell": "dwell",
-                  "retract": "retract", "skip": "skip"}
+PHASE_CATEGORY: dict[str, str] = {
+    WeldPhase.APPROACH: "approach", WeldPhase.DESCEND: "descent", WeldPhase.WELD: "weld", WeldPhase.DWELL: "dwell",
+    WeldPhase.RETRACT: "retract", WeldPhase.SKIP: "skip"}
 CATEGORIES = ("registration", "station_moves", "shots", "moves_between_studs", "approach", "descent", "weld",
               "dwell", "retract", "skip", "weld_overhead", "inspection")
 END_STATES = ("done", "failed")

@@ -206,11 +206,10 @@ class HandEyeCalibrator(Node):
         view = self._wait_for(lambda: self.view if self.view is not None and
                               ros_io.stamp_to_ns(self.view["color"].header.stamp) >= t0 else None, "frame of the shot")
         try:
-            camera = image_io.camera_model_from_msgs(view["info"], view["pose"].pose, self.p["images_rectified"])
-            rectifier = image_io.camera_rectifier(view["info"], self.p["images_rectified"])
-            color = image_io.color_to_bgr(view["color"], rectifier)
-            depth = image_io.depth_to_metres(view["depth"], rectifier)
-            det = detect_marks(color, depth, camera, drawing_marks, config)
+            decoded = image_io.decode_view(view["info"], view["pose"].pose, view["depth"], view["color"],
+                                           self.p["images_rectified"], image_io.view_topics(self))
+            camera = decoded.camera
+            det = detect_marks(decoded.color_bgr, decoded.depth_m, camera, drawing_marks, config)
         except (ros_io.MessageError, ValueError) as exc:
             return None, f"unusable frame: {exc}"
         if not det.ok:

@@ -37,7 +37,7 @@ from typing import Protocol
 
 import numpy as np
 
-from stud_common.vocabulary import VIEW_DEPENDENT, CellState
+from stud_common.vocabulary import VIEW_DEPENDENT, CellState, TargetStatus
 from stud_perception.registration import local_to_world
 from stud_common.strict_json import write_json
 from stud_inspection import bend, qa_codes, qa_report, rework
@@ -47,6 +47,7 @@ from stud_cell.cell_reach import CellReach
 from stud_cell.station_reach import StationGeometry, reachable_stations
 from stud_cell.stations import Station, StationPlan, footprint_m, plan_stations, reshoot_station
 from stud_cell.unreachable import UnreachableStuds
+from stud_planner.matching.target_table import BestViewKey, TargetTable, choose_best
 
 #: Job states (CellStatus state_text): stud_common.vocabulary's, by name.
 IDLE, REGISTERING, MOVING, SHOOTING, MATCHING, WELDING, INSPECTING, PAUSED, DONE, FAILED = (
@@ -79,8 +80,21 @@ class Target:
     ok: bool                  # usable: weld it
     status_text: str          # "ok", "normal_uncertain", "no_depth", ...
     lean_bound_deg: float     # how far the welded stud could lean from the normal, from its uncertainty
-    entry: dict               # its weld-report fields (msg_convert.target_report_entry)
+    entry: dict               # its weld-report fields (TargetTable.report_entries)
     payload: object = None    # what the arm driver welds (a WeldTarget message in the node)
+    centre_offset: float = math.nan  # the match's distance from the image centre (target_table.centre_offset)
+
+
+def table_targets(table: TargetTable, payloads=None) -> tuple[Target, ...]:
+    """The job's targets of one view's :class:`TargetTable`; ``payloads`` (one per target): what the
+    arm driver welds of each (None: nothing)."""
+    entries = table.report_entries(with_stud=False)
+    payloads = [None] * len(table.ids) if payloads is None else payloads
+    return tuple(Target(stud_id=sid, ok=ok, status_text=entry["status"], lean_bound_deg=lean, entry=entry,
+                        payload=payload, centre_offset=offset)
+                 for sid, ok, lean, offset, entry, payload in zip(table.ids, table.ok.tolist(),
+                                                                  table.lean_bound_deg.tolist(),
+                                                                  table.centre_offset.tolist(), entries, payloads))
 
 
 @dataclass(frozen=True)
@@ -201,7 +215,7 @@ class CellJob:
         self.named = UnreachableStuds(reach, self._publish_unreachable)
         self.stud_report: dict[str, dict] = {}     # stud id -> weld-report entry
         self.qa: dict[str, dict] = {}              # stud id -> QA row (qa_report)
-        self.best: dict[str, tuple[float, Target, View]] = {}   # surest usable target per stud, over all views
+        self.best: dict[str, tuple[BestViewKey, Target, View]] = {}  # best usable target per stud, over all views
         self.views: dict[int, View] = {}
         self.stations_total = 0
         self.overlays: list[str] = []
@@ -394,14 +408,15 @@ class CellJob:
                 self._weldable(t)
 
     def _remember_best(self, view: View) -> None:
-        """Keep, per stud, the usable target with the surest normal (smallest lean bound) over all
-        views (targets are in `world`: one matched from any station can be welded from anywhere)."""
+        """Keep, per stud, its best usable target over all views by the rule ``plan`` keeps its views by
+        (target_table.choose_best: the smallest lean bound; targets are in `world`: one matched from any
+        station can be welded from anywhere)."""
         for t in view.targets:
             if not t.ok or t.stud_id not in self.stud_report:
                 continue
-            score = t.lean_bound_deg if math.isfinite(t.lean_bound_deg) else math.inf
-            if t.stud_id not in self.best or score < self.best[t.stud_id][0]:
-                self.best[t.stud_id] = (score, t, view)
+            key = BestViewKey(TargetStatus.OK, t.lean_bound_deg, t.centre_offset, view.index)
+            if t.stud_id not in self.best or choose_best(self.best[t.stud_id][0], key):
+                self.best[t.stud_id] = (key, t, view)
 
     def _take_entry(self, t: Target, view: View) -> None:
         report = self.stud_report[t.stud_id]

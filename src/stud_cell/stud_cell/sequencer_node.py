@@ -36,6 +36,7 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo
 from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
 from std_msgs.msg import String
@@ -54,7 +55,7 @@ from stud_cell.job import DriverLost, InspectionUnavailable, JobAborted, MoveRef
 from stud_cell.stations import StationPlanningError, footprint_m
 from stud_inspection.qa_params import QA_CODE_PARAM, SAMPLING_PARAMS, overrides
 from stud_planner.msg_convert import (inspection_extras, inspection_rows, layout_from_msg, registration_from_msg,
-                                      target_report_entry)
+                                      weld_target_table)
 from stud_common import names
 
 
@@ -166,6 +167,11 @@ class CellSequencer(Node):
         # the studs in the order they were sent)
         self._weld_confirmed_ns: dict[str, int] = {}
         self.create_subscription(WeldRecord, names.ARM_WELDS, self._on_weld_record, WELDS_QOS, callback_group=cb)
+        # The camera's principal point and size: how central each target's match is, the tie-break of the
+        # best-view rule (target_table.choose_best). K: the raw images' camera, as the matcher models them.
+        self._image: tuple[float, float, int, int] | None = None
+        self.create_subscription(CameraInfo, names.CAMERA_INFO, self._on_camera_info, ros_io.SENSOR_QOS,
+                                 callback_group=cb)
         self.cli_move = self.create_client(MoveTo, names.ARM_MOVE_TO, callback_group=cb)
         self.cli_shot = self.create_client(Trigger, names.CAMERA_TRIGGER, callback_group=cb)
         self.cli_inspection_shot = self.create_client(Trigger, names.CAMERA_TRIGGER_INSPECTION, callback_group=cb)
@@ -203,6 +209,10 @@ class CellSequencer(Node):
     def _on_weld_record(self, msg: WeldRecord) -> None:
         with self._cond:
             self._weld_confirmed_ns.setdefault(msg.stud_id, ros_io.stamp_to_ns(msg.header.stamp))
+
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        if msg.width > 0 and msg.height > 0:
+            self._image = (float(msg.k[2]), float(msg.k[5]), int(msg.width), int(msg.height))
 
     def _on_arm_state(self, msg: ArmState) -> None:
         with self._cond:
@@ -421,10 +431,7 @@ class CellSequencer(Node):
                 if self._stop.is_set():
                     raise
                 continue
-            targets = tuple(cell_job.Target(stud_id=t.stud_id, ok=t.status == t.STATUS_OK, status_text=t.status_text,
-                                            lean_bound_deg=float(t.lean_bound),
-                                            entry=target_report_entry(t, msg.view_index), payload=t)
-                            for t in msg.targets)
+            targets = cell_job.table_targets(weld_target_table(msg, self._image), payloads=msg.targets)
             return cell_job.View(index=int(msg.view_index), stamp_ns=ros_io.stamp_to_ns(msg.header.stamp),
                                  camera_xyz_w=tuple(float(v) for v in camera_xyz_w), yaw_rad=float(yaw_rad),
                                  targets=targets)

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Iterable
 
-from stud_common.vocabulary import TargetStatus
+from stud_common.vocabulary import TargetStatus, WeldPhase
 from stud_inspection.rework import NEEDS_DECISION
 
 #: Weld states of a stud, as sent in the rows' ``weld`` field.
@@ -15,9 +15,9 @@ WELD_NONE, WELD_ACTIVE, WELD_WELDED, WELD_SKIPPED, WELD_FAILED = "", "active", "
 #: A stud in one of these weld states is done with (no longer "remaining").
 FINAL_WELD_STATES = (WELD_WELDED, WELD_SKIPPED, WELD_FAILED)
 #: WeldJob feedback phases while a stud is being worked on (rm65_driver.weld.weld_sequence).
-_ACTIVE_PHASES = ("approach", "descend", "weld", "dwell")
+_ACTIVE_PHASES = (WeldPhase.APPROACH, WeldPhase.DESCEND, WeldPhase.WELD, WeldPhase.DWELL)
 #: The driver reports "retract" only after the weld is confirmed and journalled as welded.
-_WELDED_PHASE = "retract"
+_WELDED_PHASE = WeldPhase.RETRACT
 STATUS_OUT_OF_VIEW = TargetStatus.OUT_OF_VIEW.text
 STATUS_NOT_SEEN = "not_seen"  # in the drawing, in no view yet
 STATUS_UNREACHABLE = "unreachable"  # the cell named it as one it cannot weld (/cell/status, with the reason)

@@ -181,14 +181,13 @@ class InspectorNode(Node):
 
     def _on_view(self, view: dict) -> None:
         try:
-            camera = image_io.camera_model_from_msgs(view["info"], view["pose"].pose, self.p["images_rectified"])
-            rectifier = image_io.camera_rectifier(view["info"], self.p["images_rectified"])
-            depth = image_io.depth_to_metres(view["depth"], rectifier)
-            color = image_io.color_to_bgr(view["color"], rectifier)
+            decoded = image_io.decode_view(view["info"], view["pose"].pose, view["depth"], view["color"],
+                                           self.p["images_rectified"], image_io.view_topics(self))
         except (ros_io.MessageError, ValueError) as exc:
             self.get_logger().error(f"unusable view: {exc}", throttle_duration_sec=5.0)
             return
-        self._views[ros_io.stamp_to_ns(view["depth"].header.stamp)] = (depth, camera, color)
+        self._views[ros_io.stamp_to_ns(view["depth"].header.stamp)] = (decoded.depth_m, decoded.camera,
+                                                                        decoded.color_bgr)
         while len(self._views) > self.p["view_cache"]:
             self._views.popitem(last=False)
         self._cond.notify_all()

@@ -6,12 +6,16 @@ colour, so one K serves both images. All lengths are metres; depth is the optica
 z coordinate (not the ray length), as RGB-D drivers publish it (REP 118).
 
 This is the only place Eq. 1 lives: every matcher, the registration and the scene
-renderer call :meth:`CameraModel.pixel_to_world` / :meth:`CameraModel.world_to_pixel` (the
-normal fit its windowed form, :meth:`CameraModel.window_to_world`).
+renderer call :meth:`CameraModel.pixel_to_world` / :meth:`CameraModel.world_to_pixel`, and the
+hot paths its derived forms: the windowed form (:meth:`CameraModel.window_to_world`), one pixel in
+plain floats (:meth:`CameraModel.pixel_to_world_one`), the ray as linear in the pixel
+(:meth:`CameraModel.ray_basis_world`), a vertical world line's image, projective in its height
+(:meth:`CameraModel.vertical_lines`), and pixels per metre (:meth:`CameraModel.pixels_across`).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -132,7 +136,7 @@ class CameraModel:
         """
         base = self.ray_directions_world(np.asarray(u0, dtype=np.float64), np.asarray(v0, dtype=np.float64))
         origin = np.broadcast_to(self.t_wc, base.shape) if minus_w is None else self.t_wc - np.asarray(minus_w)
-        per_u, per_v = self.R_wc[:, 0] / self.fx, self.R_wc[:, 1] / self.fy
+        _base, per_u, per_v = self.ray_basis_world()
         z = np.asarray(depth_m, dtype=np.float64)
         out = np.empty((3,) + z.shape) if out is None else out
         tmp = np.empty(z.shape)
@@ -145,6 +149,71 @@ class CameraModel:
             o *= z
             o += origin[:, i, None]
         return out
+
+    def pixel_to_world_one(self, u: float, v: float, depth_m: float) -> tuple[float, float, float]:
+        """:meth:`pixel_to_world` of one pixel in plain floats, for per-stud loops where numpy's call
+        cost dominates: the same operations in the same order, so the same values."""
+        fx, fy, cx, cy, ((r00, r01, r02, t0), (r10, r11, r12, t1), (r20, r21, r22, t2)) = self._floats
+        x = (u - cx) * (depth_m / fx)
+        y = (v - cy) * (depth_m / fy)
+        return (r00 * x + r01 * y + r02 * depth_m + t0, r10 * x + r11 * y + r12 * depth_m + t1,
+                r20 * x + r21 * y + r22 * depth_m + t2)
+
+    @cached_property
+    def _floats(self) -> tuple:
+        """fx, fy, cx, cy and the rows (R_wc[i], t_wc[i]) as Python floats (:meth:`pixel_to_world_one`)."""
+        rows = tuple((*(float(r) for r in self.R_wc[i]), float(self.t_wc[i])) for i in range(3))
+        return self.fx, self.fy, self.cx, self.cy, rows
+
+    def ray_basis_world(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Eq. 1's ray as linear in the pixel: ``R_wc K^-1 [u v 1] = base + u per_u + v per_v`` (world,
+        per metre of depth); returns (base, per_u, per_v), each (3,). ``base`` is pixel (0, 0)'s ray."""
+        per_u, per_v = self.R_wc[:, 0] / self.fx, self.R_wc[:, 1] / self.fy
+        return self.R_wc[:, 2] - self.cx * per_u - self.cy * per_v, per_u, per_v
+
+    def pixels_across(self, length_m, depth_m) -> np.ndarray:
+        """How many pixels (along image x) ``length_m`` spans, square to the optical axis at optical
+        depth ``depth_m`` (floored at 1 um): pixels per metre there times the length."""
+        return length_m * self.fx / np.maximum(depth_m, 1e-6)
+
+    def vertical_lines(self, xy_w) -> "VerticalLines":
+        """The images of the vertical world lines (x_w, y_w, z) through ``xy_w`` (N, 2): see :class:`VerticalLines`."""
+        xy = np.asarray(xy_w, dtype=np.float64).reshape(-1, 2)
+        n = xy.shape[0]
+        A = self.world_to_camera(np.column_stack([xy, np.zeros(n)]))
+        B = self.world_to_camera(np.column_stack([xy, np.ones(n)])) - A
+        fx, fy, cx, cy = self.fx, self.fy, self.cx, self.cy
+        return VerticalLines(A, B, a_u=fx * A[:, 0] + cx * A[:, 2], b_u=fx * B[:, 0] + cx * B[:, 2],
+                             a_v=fy * A[:, 1] + cy * A[:, 2], b_v=fy * B[:, 1] + cy * B[:, 2], a_z=A[:, 2].copy(),
+                             b_z=B[:, 2].copy())
+
+    def lines_in_view(self, lines: "VerticalLines", z_min_m: float, z_max_m: float,
+                      min_depth_m: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
+        """Heights z in [z_min_m, z_max_m] at which each line's pixel is inside the image and at least
+        ``min_depth_m`` in front of the camera: (lo, hi), each (N,); lo > hi: never in view.
+
+        View-frustum clipping, exact: each bound ``0 <= u <= W-1``, ``0 <= v <= H-1``, ``z_c >= min_depth_m``
+        is linear in z on the line P_c(z) = A + z B."""
+        A, B = lines.A, lines.B
+        fx, fy, cx, cy = self.fx, self.fy, self.cx, self.cy
+        W1, H1 = self.width - 1, self.height - 1
+        # (alpha + beta z) >= 0 for each constraint; u = fx x/z + cx >= 0 <=> fx x + cx z >= 0, etc.
+        alpha = np.stack([fx * A[:, 0] + cx * A[:, 2],  # u >= 0
+                          -(fx * A[:, 0] + (cx - W1) * A[:, 2]),  # u <= W-1
+                          fy * A[:, 1] + cy * A[:, 2],  # v >= 0
+                          -(fy * A[:, 1] + (cy - H1) * A[:, 2]),  # v <= H-1
+                          A[:, 2] - min_depth_m])  # in front of the camera
+        beta = np.stack([fx * B[:, 0] + cx * B[:, 2], -(fx * B[:, 0] + (cx - W1) * B[:, 2]),
+                         fy * B[:, 1] + cy * B[:, 2], -(fy * B[:, 1] + (cy - H1) * B[:, 2]), B[:, 2]])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            root = -alpha / beta
+            lo = np.maximum(float(z_min_m), np.max(np.where(beta > 0, root, -np.inf), axis=0))
+            hi = np.minimum(float(z_max_m), np.min(np.where(beta < 0, root, np.inf), axis=0))
+            lo[np.any((beta == 0) & (alpha < 0), axis=0)] = np.inf  # a bound the line never meets
+        # Shrink by a hair so rounding never puts an iterate a femtometre outside the image.
+        span = hi - lo
+        pad = np.where(span > 0, np.minimum(1e-9, 0.25 * span), 0.0)
+        return lo + pad, hi - pad
 
     def world_to_camera(self, P_w) -> np.ndarray:
         P_w = np.asarray(P_w, dtype=np.float64)
@@ -173,6 +242,34 @@ class CameraModel:
             & (u >= margin) & (v >= margin)
             & (u <= self.width - 1 - margin) & (v <= self.height - 1 - margin)
         )
+
+
+@dataclass(frozen=True, eq=False)
+class VerticalLines:
+    """The images of N vertical world lines (x_w, y_w, z) (:meth:`CameraModel.vertical_lines`).
+
+    On each, the optical-frame point is affine in the height, ``P_c(z) = A + z B`` (A, B (N, 3)), so
+    its pixel is projective in z: ``u = (a_u + b_u z) / (a_z + b_z z)``, the same for v, with
+    ``a_z + b_z z`` the optical depth (the coefficients (N,) each)."""
+
+    A: np.ndarray
+    B: np.ndarray
+    a_u: np.ndarray
+    b_u: np.ndarray
+    a_v: np.ndarray
+    b_v: np.ndarray
+    a_z: np.ndarray
+    b_z: np.ndarray
+
+    def pixels_at(self, idx: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(u, v) of lines ``idx`` at heights ``z`` (each (n,)), where they are in front of the camera."""
+        inv_zc = 1.0 / (self.a_z[idx] + self.b_z[idx] * z)
+        return (self.a_u[idx] + self.b_u[idx] * z) * inv_zc, (self.a_v[idx] + self.b_v[idx] * z) * inv_zc
+
+    def pixel_at_one(self, i: int, z: float) -> tuple[float, float]:
+        """:meth:`pixels_at` of one line in plain floats (the same operations, the same values)."""
+        inv_zc = 1.0 / (self.a_z[i] + self.b_z[i] * z)
+        return float((self.a_u[i] + self.b_u[i] * z) * inv_zc), float((self.a_v[i] + self.b_v[i] * z) * inv_zc)
 
 
 def _rotate_translate(R: np.ndarray, xyz, t: np.ndarray) -> np.ndarray:

@@ -1,17 +1,23 @@
 """The edge between camera messages and our numpy core: sensor_msgs/Image <-> numpy (no cv_bridge
-here), CameraInfo -> intrinsics and the pinhole CameraModel of Eq. 1, rectification of raw images.
-Units are converted here: depth 16UC1 millimetres become float metres with NaN for "no depth"
-(REP 118) before the core sees them. (QoS, parameters, poses and stamps: stud_common.ros_io.)
+here), CameraInfo -> intrinsics and the pinhole CameraModel of Eq. 1, rectification of raw images,
+and :func:`decode_view`: one RGB-D view (camera info, pose, depth, colour) decoded and checked once,
+for every node and ``plan`` (:func:`decode_depth_view` without the colour). Units are converted
+here: depth 16UC1 millimetres become float metres with NaN for "no depth" (REP 118) before the core
+sees them. (QoS, parameters, poses and stamps: stud_common.ros_io.)
 """
 from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
 
 import numpy as np
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Pose
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
+from stud_common import names
 from stud_common.ros_io import MessageError, Param, pose_to_rt
-from stud_perception.camera_model import CameraModel
+from stud_perception.camera_model import CameraModel, CameraModelError
 from stud_perception.depth_image import DepthImageError, depth_image_to_m
 from stud_perception.rectify import Rectifier, rectifier_for
 
@@ -152,14 +158,96 @@ def camera_model_from_msgs(info: CameraInfo, pose: Pose, images_rectified: bool 
     Rectified images (a driver's ``image_rect`` topics, whose CameraInfo still carries the raw
     images' K and D) are modelled with the left 3x3 of P, as image_geometry does."""
     R, t = pose_to_rt(pose)
+    return CameraModel(K=camera_matrix(info, images_rectified), width=info.width, height=info.height, R_wc=R, t_wc=t)
+
+
+def camera_matrix(info: CameraInfo, images_rectified: bool = False) -> np.ndarray:
+    """The 3x3 intrinsics the images follow: K for raw images, the left 3x3 of P for rectified ones
+    (see :func:`camera_model_from_msgs`)."""
     if not images_rectified:
-        K = camera_info_to_K(info)
-    else:
-        K = np.asarray(info.p, dtype=np.float64).reshape(3, 4)[:, :3]
-        if K[0, 0] <= 0 or K[1, 1] <= 0:
-            raise MessageError(f"camera_info P has fx={K[0, 0]}, fy={K[1, 1]}: rectified images need the "
-                               "rectified projection P (or set images_rectified false for raw images)")
-    return CameraModel(K=K, width=info.width, height=info.height, R_wc=R, t_wc=t)
+        return camera_info_to_K(info)
+    K = np.asarray(info.p, dtype=np.float64).reshape(3, 4)[:, :3]
+    if K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise MessageError(f"camera_info P has fx={K[0, 0]}, fy={K[1, 1]}: rectified images need the "
+                           "rectified projection P (or set images_rectified false for raw images)")
+    return K
+
+
+#: A view's topics by role, as nodes name them in their view dicts: the default names.
+VIEW_TOPICS = {"color": names.COLOR_IMAGE, "depth": names.DEPTH_IMAGE, "info": names.CAMERA_INFO,
+               "pose": names.CAMERA_POSE}
+
+
+def view_topics(node) -> dict[str, str]:
+    """:data:`VIEW_TOPICS` as an rclpy ``node`` resolves them (its remappings applied): the names its
+    view's errors give."""
+    return {role: node.resolve_topic_name(topic) for role, topic in VIEW_TOPICS.items()}
+
+
+@dataclass(frozen=True, eq=False)
+class DepthView:
+    """One view's camera and depth, decoded and checked (:func:`decode_depth_view`): the pinhole
+    camera of Eq. 1 and ``depth_m`` (H, W) float32 metres, NaN = no depth, on that camera's image
+    (rectified by ``rectifier``; None: nothing to do). ``topics``: role -> topic, for the errors."""
+
+    camera: CameraModel
+    depth_m: np.ndarray
+    rectifier: Rectifier | None
+    topics: Mapping[str, str]
+
+    def color(self, msg: Image) -> np.ndarray:
+        """A colour image of this view as BGR uint8 (H, W, 3) on the view's camera (rectified), its
+        size and encoding checked. Raises MessageError naming the topic and the sizes."""
+        _check_size(msg, "colour", self.topics["color"], self.camera.width, self.camera.height, self.topics["info"])
+        return _decoded(color_to_bgr, msg, self.rectifier, self.topics["color"])
+
+
+@dataclass(frozen=True, eq=False)
+class RgbdView(DepthView):
+    """A :class:`DepthView` with its colour image ``color_bgr`` (H, W, 3) uint8 (:func:`decode_view`)."""
+
+    color_bgr: np.ndarray
+
+
+def decode_view(info: CameraInfo, pose: Pose, depth: Image, color: Image, images_rectified: bool = False,
+                topics: Mapping[str, str] = VIEW_TOPICS) -> RgbdView:
+    """A view's camera info, camera pose, depth and colour image -> :class:`RgbdView`, checked as
+    :func:`decode_depth_view` checks, the colour image as :meth:`DepthView.color`."""
+    view = decode_depth_view(info, pose, depth, images_rectified, topics)
+    return RgbdView(view.camera, view.depth_m, view.rectifier, view.topics, view.color(color))
+
+
+def decode_depth_view(info: CameraInfo, pose: Pose, depth: Image, images_rectified: bool = False,
+                      topics: Mapping[str, str] = VIEW_TOPICS) -> DepthView:
+    """A view's camera info, camera pose (the optical frame in `world`) and depth image ->
+    :class:`DepthView`. Checked once, here: the camera (K, or P for ``images_rectified``; the pose),
+    that the depth image has camera_info's size (registered to colour), its encoding. Raises
+    MessageError (a ValueError) naming the topic (``topics``: role -> name) and the values."""
+    try:
+        R, t = pose_to_rt(pose)
+    except MessageError as exc:
+        raise MessageError(f"{exc} (on {topics['pose']})") from None
+    try:
+        camera = CameraModel(K=camera_matrix(info, images_rectified), width=info.width, height=info.height,
+                             R_wc=R, t_wc=t)
+        rectifier = camera_rectifier(info, images_rectified)
+    except (MessageError, CameraModelError, ValueError) as exc:
+        raise MessageError(f"{exc} (on {topics['info']})") from None
+    _check_size(depth, "depth", topics["depth"], info.width, info.height, topics["info"])
+    return DepthView(camera, _decoded(depth_to_metres, depth, rectifier, topics["depth"]), rectifier, dict(topics))
+
+
+def _check_size(msg: Image, what: str, topic: str, width: int, height: int, info_topic: str) -> None:
+    if (msg.width, msg.height) != (width, height):
+        raise MessageError(f"{what} image {topic} is {msg.width}x{msg.height}, camera_info {info_topic} "
+                           f"{width}x{height}: they must agree (depth registered to colour)")
+
+
+def _decoded(decode, msg: Image, rectifier: Rectifier | None, topic: str) -> np.ndarray:
+    try:
+        return decode(msg, rectifier)
+    except (MessageError, ValueError) as exc:
+        raise MessageError(f"{exc} (on {topic})") from None
 
 
 def camera_rectifier(info: CameraInfo, images_rectified: bool = False) -> Rectifier | None:

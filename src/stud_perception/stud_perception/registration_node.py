@@ -115,15 +115,14 @@ class RegistrationNode(Node):
             return
         stamp = view["color"].header.stamp
         try:
-            camera = image_io.camera_model_from_msgs(view["info"], view["pose"].pose, self.p["images_rectified"])
-            rectifier = image_io.camera_rectifier(view["info"], self.p["images_rectified"])
-            if rectifier is not None:
-                self.get_logger().info(image_io.rectification_note(view["info"]), once=True)
-            color = image_io.color_to_bgr(view["color"], rectifier)
-            depth = image_io.depth_to_metres(view["depth"], rectifier)
+            decoded = image_io.decode_view(view["info"], view["pose"].pose, view["depth"], view["color"],
+                                           self.p["images_rectified"], image_io.view_topics(self))
         except (ros_io.MessageError, ValueError) as exc:
             self._publish_invalid(stamp, f"unusable view: {exc}")
             return
+        if decoded.rectifier is not None:
+            self.get_logger().info(image_io.rectification_note(view["info"]), once=True)
+        camera, color, depth = decoded.camera, decoded.color_bgr, decoded.depth_m
         marks = layout_marks_m(self.layout)
         config = config_for_layout(MarkDetectorConfig(
             depth_range_m=(self.p["depth_min_m"], self.p["depth_max_m"]), distance_tol_m=self.p["distance_tol_m"],

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from stud_perception.scene_solids import Component, Dome, Girder, Plate, Pose2D, SceneError, _pair
+from stud_perception.scene_solids import Component, Dome, Girder, Plate, Pose2D, SceneError, finite_pair
 from stud_perception.welded_studs import (DEFAULT_COLLAR_HEIGHT_M, DEFAULT_COLLAR_WIDTH_M, DEFAULT_STUD_DIAMETER_M,
                                          DEFAULT_STUD_LENGTH_M)
 
@@ -85,7 +85,7 @@ class ReferenceMark:
             raise SceneError(f"reference_marks label must be a name other than O, A, B (e.g. 'M1'), got "
                              f"{self.label!r}")
         object.__setattr__(self, "label", self.label.strip())
-        object.__setattr__(self, "drawing_xy_m", _pair(self.drawing_xy_m, f"reference_marks {self.label} drawing_xy_m"))
+        object.__setattr__(self, "drawing_xy_m", finite_pair(self.drawing_xy_m, f"reference_marks {self.label} drawing_xy_m"))
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,8 @@ class SceneError(ValueError):
 
 
 
-def _pair(value, name: str) -> tuple[float, float]:
+def finite_pair(value, name: str) -> tuple[float, float]:
+    """``value`` as two finite floats (an (x, y) in metres); SceneError naming ``name`` otherwise."""
     arr = np.asarray(value, dtype=np.float64).ravel()
     if arr.shape != (2,) or not np.all(np.isfinite(arr)):
         raise SceneError(f"{name} must be two finite numbers, got {value!r}")
@@ -93,7 +94,7 @@ class Dome:
     kind: ClassVar[str] = "dome"
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "centre_xy_m", _pair(self.centre_xy_m, "dome centre_xy_m"))
+        object.__setattr__(self, "centre_xy_m", finite_pair(self.centre_xy_m, "dome centre_xy_m"))
         if not (self.base_radius_m > 0 and 0 < self.height_m <= self.base_radius_m):
             raise SceneError(
                 f"dome needs 0 < height_m <= base_radius_m, got height_m={self.height_m}, "
@@ -157,7 +158,7 @@ class Cylinder:
     kind: ClassVar[str] = "cylinder"
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "centre_xy_m", _pair(self.centre_xy_m, "cylinder centre_xy_m"))
+        object.__setattr__(self, "centre_xy_m", finite_pair(self.centre_xy_m, "cylinder centre_xy_m"))
         if not (self.radius_m > 0 and 0 < self.height_m <= self.radius_m and self.length_m > 0):
             raise SceneError(
                 f"cylinder needs 0 < height_m <= radius_m and length_m > 0, got radius_m={self.radius_m}, "
@@ -239,7 +240,7 @@ class Trough:
     kind: ClassVar[str] = "trough"
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "centre_xy_m", _pair(self.centre_xy_m, "trough centre_xy_m"))
+        object.__setattr__(self, "centre_xy_m", finite_pair(self.centre_xy_m, "trough centre_xy_m"))
         if not (self.radius_m > 0 and 0 < self.width_m < 2 * self.radius_m and self.length_m > 0):
             raise SceneError(
                 f"trough needs 0 < width_m < 2 radius_m and length_m > 0, got radius_m={self.radius_m}, "
@@ -335,8 +336,8 @@ class Plate:
     tilt_rad: float = 0.0
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "centre_xy_m", _pair(self.centre_xy_m, "plate centre_xy_m"))
-        object.__setattr__(self, "size_m", _pair(self.size_m, "plate size_m"))
+        object.__setattr__(self, "centre_xy_m", finite_pair(self.centre_xy_m, "plate centre_xy_m"))
+        object.__setattr__(self, "size_m", finite_pair(self.size_m, "plate size_m"))
         if min(self.size_m) <= 0 or self.height_m <= 0:
             raise SceneError(
                 f"plate needs a positive size and height, got size_m={self.size_m}, height_m={self.height_m}"
@@ -432,7 +433,7 @@ class Girder:
     kind: ClassVar[str] = "girder"
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "start_xy_m", _pair(self.start_xy_m, "girder start_xy_m"))
+        object.__setattr__(self, "start_xy_m", finite_pair(self.start_xy_m, "girder start_xy_m"))
         for name in ("yaw_rad", "length_m", "width_m", "camber_m", "cross_slope_rad", "height_m"):
             if not math.isfinite(getattr(self, name)):
                 raise SceneError(f"girder {name} must be finite, got {getattr(self, name)!r}")

@@ -1,8 +1,8 @@
 """stud_planner's message <-> core conversions (one place, so nodes stay thin).
 
 Image/CameraInfo conversions are stud_perception.image_io's, poses stud_common.ros_io's; this module
-handles our own interfaces: layouts, registrations, report entries and inspection results (weld
-targets: target_cdr, the hot path).
+handles our own interfaces: layouts, registrations, weld targets (a WeldTargetArray as a TargetTable;
+the other way, the hot path, is target_cdr) and inspection results.
 """
 from __future__ import annotations
 
@@ -10,10 +10,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from geometry_msgs.msg import Point, Pose, PoseArray, Quaternion
-from stud_welding_msgs.msg import Registration, Stud, StudLayout
+from stud_welding_msgs.msg import Registration, Stud, StudLayout, WeldTargetArray
 
 from stud_perception.registration import layout_marks_m, layout_reference_marks_m
 from stud_planner import drawing
+from stud_planner.matching.target_cdr import WELD_TARGET_BLOCK
+from stud_planner.matching.target_table import TargetTable, centre_offset
 
 
 def layout_to_msg(layout: drawing.DrawingLayout, stamp=None) -> StudLayout:
@@ -70,23 +72,40 @@ def registration_from_msg(msg: Registration) -> np.ndarray:
     return np.asarray(msg.m_local2world, dtype=np.float64).reshape(3, 3)
 
 
+def weld_target_table(msg: WeldTargetArray, image: tuple[float, float, int, int] | None = None) -> TargetTable:
+    """A WeldTargetArray's targets as a :class:`TargetTable` (fields by target_cdr's layout; an
+    orientation sent as the identity for want of a normal stays the identity). ``image``: (cx, cy,
+    width, height) of the camera the targets were matched with, for the centre offset that breaks
+    :func:`choose_best`'s ties (None: unknown, NaN)."""
+    targets = msg.targets
+    n = len(targets)
+    widths: dict[str, int] = {}
+    for _field, _kind, column, k in WELD_TARGET_BLOCK:
+        if k is not None:
+            widths[column] = max(widths.get(column, 0), k + 1)
+    columns: dict[str, np.ndarray] = {}
+    for wire_name, kind, column, k in WELD_TARGET_BLOCK:
+        path = wire_name.split(".")  # "pose.position.x": nested messages
+        values = []
+        for t in targets:
+            value = t
+            for name in path:
+                value = getattr(value, name)
+            values.append(value)
+        if k is None:
+            columns[column] = np.array(values, dtype=np.int64 if kind == "uint32" else np.float64).reshape(n)
+        else:
+            columns.setdefault(column, np.full((n, widths[column]), np.nan))[:, k] = values
+    pixel_uv = columns["pixel_uv"]
+    offset = np.full(n, np.nan) if image is None else centre_offset(pixel_uv, *image)
+    return TargetTable(ids=[t.stud_id for t in targets], **columns,
+                       status=np.array([t.status for t in targets], dtype=np.uint8).reshape(n),
+                       reasons=np.array([t.reason for t in targets], dtype=object).reshape(n), centre_offset=offset)
+
+
 def _finite_or_none(x: float, scale: float = 1.0) -> float | None:
     x = float(x)
     return x * scale if np.isfinite(x) else None
-
-
-def target_report_entry(t, view: int) -> dict:
-    """The weld report's fields of one ``WeldTarget`` message matched on ``view`` (the offline
-    report's keys, INTERFACES.md, plus the normal's uncertainty, the lean bound, the window's
-    fill and the gun's clearance); a value the message holds as NaN is None (JSON null)."""
-    p, n = t.pose.position, t.normal
-    return {"status": t.status_text, "position_m": [_finite_or_none(v) for v in (p.x, p.y, p.z)],
-            "normal": [_finite_or_none(v) for v in (n.x, n.y, n.z)],
-            "pixel": [_finite_or_none(t.pixel_u), _finite_or_none(t.pixel_v)], "view": int(view),
-            "iterations": int(t.iterations), "xy_error_mm": _finite_or_none(t.xy_error, 1e3),
-            "inclination_deg": _finite_or_none(t.inclination), "normal_sigma_deg": _finite_or_none(t.normal_sigma),
-            "lean_bound_deg": _finite_or_none(t.lean_bound), "fill_ratio": _finite_or_none(t.fill_ratio),
-            "gun_clearance_mm": _finite_or_none(t.gun_clearance, 1e3), **({"reason": t.reason} if t.reason else {})}
 
 
 def _xyz(v) -> list[float]:

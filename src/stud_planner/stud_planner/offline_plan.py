@@ -2,10 +2,10 @@
 
 Reads a rosbag2 MCAP sensor bag (colour, depth, camera info and /camera/pose, topic names
 overridable), groups the messages into views by stamp, registers the drawing on the first
-view where the marks are found, matches every stud on every view, keeps for each stud the
-view where its match lies most central in the image, and writes the JSON report of
-docs/INTERFACES.md (one entry per drawing stud, in drawing order), optionally overlay
-PNGs and a CSV. Errors are one line on stderr and exit code 2.
+view where the marks are found, matches every stud on every view, keeps for each stud its best
+view (matching/target_table.choose_best, the cell's rule too: the usable target with the smallest
+lean bound), and writes the JSON report of docs/INTERFACES.md (one entry per drawing stud, in
+drawing order), optionally overlay PNGs and a CSV. Errors are one line on stderr and exit code 2.
 
 A drawing with reference marks (M1, M2, ... beside O, A, B: a long part, welded along a rail)
 registers *every* view on the marks it sees, as the registration node does
@@ -45,8 +45,8 @@ from stud_perception.view_registration import config_for_layout, register_view
 from stud_planner.drawing import DrawingError, DrawingLimits, read_layout
 from stud_planner.drawing.limits import add_limit_arguments, cli_hint, limits_from_args
 from stud_planner.matching.gun_clearance import GunModel
-from stud_planner.matching.view_targets import (ALGORITHMS, STATUS_OK, STATUS_OUT_OF_VIEW, STATUS_TEXT, PlannerConfig,
-                                                draw_targets_overlay, plan_view)
+from stud_planner.matching.target_table import TargetTable
+from stud_planner.matching.view_targets import ALGORITHMS, PlannerConfig, draw_targets_overlay, plan_view
 from stud_common import names
 
 DEFAULT_TOPICS = {"color": names.COLOR_IMAGE, "depth": names.DEPTH_IMAGE,
@@ -247,20 +247,14 @@ def views_with_images(bag_path: Path, topics: dict[str, str], views: list[View])
         raise PlanError(str(exc)) from None
 
 
-def _decode(view: View, bag: Path, images_rectified: bool):
-    """The view's pinhole camera and images (raw images with lens distortion rectified onto it)."""
+def _decode(view: View, bag: Path, images_rectified: bool, topics: dict[str, str]):
+    """The view's pinhole camera and images (raw images with lens distortion rectified onto it),
+    checked by :func:`image_io.decode_view`."""
     try:
-        camera = image_io.camera_model_from_msgs(view.info, view.pose.pose, images_rectified)
-        rectifier = image_io.camera_rectifier(view.info, images_rectified)
-        color = image_io.color_to_bgr(view.color, rectifier)
-        depth = image_io.depth_to_metres(view.depth, rectifier)
+        decoded = image_io.decode_view(view.info, view.pose.pose, view.depth, view.color, images_rectified, topics)
     except (ros_io.MessageError, ValueError) as exc:
         raise PlanError(f"{bag}: view {view.index} (depth stamp {view.stamp_ns} ns): {exc}") from None
-    if depth.shape != (camera.height, camera.width) or color.shape[:2] != depth.shape:
-        raise PlanError(f"{bag}: view {view.index}: colour {color.shape[1]}x{color.shape[0]}, depth {depth.shape[1]}x"
-                        f"{depth.shape[0]} and camera_info {camera.width}x{camera.height} differ (depth must be "
-                        "registered to colour)")
-    return camera, color, depth
+    return decoded.camera, decoded.color_bgr, decoded.depth_m
 
 
 def _progress(i: int, n: int, quiet: bool, what: str) -> None:
@@ -301,14 +295,14 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
 
     ids = [s.id for s in layout.studs]
     xy = layout.studs_xy_m()
-    chosen = _BestTargets(len(ids))
+    chosen = TargetTable.unseen(ids, xy)
     totals = {"iterations": 0, "views": 0}
     match_time = 0.0
 
     def match_view(v: View, camera, color, depth, registration: MarkRegistration) -> None:
-        nonlocal match_time
+        nonlocal match_time, chosen
         _progress(totals["views"], len(views), quiet, "matching")
-        t = plan_view(ids, xy, registration.M_local2world, depth, camera, config)
+        t = plan_view(ids, xy, registration.M_local2world, depth, camera, config, view_index=v.index)
         totals["iterations"] += t.matches.total_iterations
         match_time += t.match_time_s
         totals["views"] += 1
@@ -317,7 +311,7 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
 
             overlay_dir.mkdir(parents=True, exist_ok=True)
             cv2.imwrite(str(overlay_dir / f"view_{v.index:03d}.png"), draw_targets_overlay(color, t, camera))
-        chosen.add_view(t, v.index, camera)
+        chosen = chosen.merge(t)
 
     references = layout.reference_marks_xy_m()
     if references:
@@ -329,12 +323,12 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
         registration, reg_view = _register_once(drawing, bag, topics, views, images_rectified, marks, det_config,
                                                 match_view)
         registrations = {}
-    if totals["views"] != len(views) and not references:
-        raise PlanError(f"{bag}: {len(views) - totals['views']} of {len(views)} views lost their images between "
-                        "two reads of the bag (was it written to meanwhile?)")
+        if totals["views"] != len(views):
+            raise PlanError(f"{bag}: {len(views) - totals['views']} of {len(views)} views lost their images between "
+                            "two reads of the bag (was it written to meanwhile?)")
     iterations_total = totals["iterations"]
     _progress(len(views), len(views), quiet, "matching")
-    targets = chosen.entries(ids, xy)
+    targets = chosen.report_entries()
     report = {
         "drawing": str(drawing), "bag": str(bag), "algorithm": config.algorithm,
         "registration": {"M_local2world": registration.M_local2world.tolist(),
@@ -353,7 +347,7 @@ def _register_once(drawing: Path, bag: Path, topics: dict[str, str], views: list
     found, match it and every later view, then the views before it (a second pass over the bag)."""
     registration, reg_view, reasons, before = None, -1, [], []
     for v in views_with_images(bag, topics, views):
-        camera, color, depth = _decode(v, bag, images_rectified)
+        camera, color, depth = _decode(v, bag, images_rectified, topics)
         if registration is None:
             result = register_view(color, depth, camera, marks, det_config)
             if not result.ok:
@@ -366,7 +360,7 @@ def _register_once(drawing: Path, bag: Path, topics: dict[str, str], views: list
         raise PlanError(f"the marks O, A, B of {drawing} were found on none of the {len(views)} views of {bag} "
                         f"(drawing and bag do not match?): " + "; ".join(reasons[:3]))
     for v in views_with_images(bag, topics, before):
-        match_view(v, *_decode(v, bag, images_rectified), registration)
+        match_view(v, *_decode(v, bag, images_rectified, topics), registration)
     return registration, reg_view
 
 
@@ -395,14 +389,14 @@ def _register_every_view(bag: Path, topics: dict[str, str], views: list[View], i
         return True
 
     for v in views_with_images(bag, topics, views):
-        camera, color, depth = _decode(v, bag, images_rectified)
+        camera, color, depth = _decode(v, bag, images_rectified, topics)
         if not register(v, camera, color, depth) and not trail.stations:
             before.append(replace(v, color=None, depth=None))  # no prior yet: again once one is known
     if not done:
         raise PlanError(f"no view of {bag} could be registered on the drawing's marks (the first needs O, A, B): "
                         + "; ".join(f"view {i}: {why}" for i, why in list(failed.items())[:3]))
     for v in views_with_images(bag, topics, before):
-        register(v, *_decode(v, bag, images_rectified))
+        register(v, *_decode(v, bag, images_rectified, topics))
     for i, why in sorted(failed.items()):
         warnings.append(f"{bag}: view {i} could not be registered and was not matched: {why}")
     return done
@@ -414,100 +408,6 @@ def _registration_entry(view: int, stamp_ns: int, r: MarkRegistration) -> dict:
             "marks": list(r.labels_used), "residual_mm": r.residual_m * 1e3,
             "residual_max_mm": r.residual_max_m * 1e3 if math.isfinite(r.residual_max_m) else None,
             "extrapolated_m": r.extrapolated_m}
-
-
-class _BestTargets:
-    """Per stud, the view whose target the report keeps, updated one view at a time (arrays over
-    all studs: a bridge has 250,000 of them, and a bag many views).
-
-    A usable (``ok``) target wins over any other; among usable ones the match most central in
-    its image (distance from the principal point over the half diagonal), ties to the earlier
-    view. A stud with no usable target anywhere keeps its first view (lowest index) that saw it
-    with another status; a stud out of every view is ``out_of_view``."""
-
-    NONE, OK, FALLBACK = 2, 0, 1
-
-    def __init__(self, n: int):
-        self.rank = np.full(n, self.NONE, np.int8)
-        self.centrality = np.full(n, np.inf)
-        self.view = np.full(n, np.iinfo(np.int64).max, np.int64)
-        self.status = np.zeros(n, np.uint8)
-        self.position = np.full((n, 3), np.nan)
-        self.normal = np.full((n, 3), np.nan)
-        self.pixel = np.full((n, 2), np.nan)
-        self.iterations = np.zeros(n, np.int64)
-        self.xy_error_mm = np.full(n, np.nan)
-        self.inclination = np.full(n, np.nan)
-        self.normal_sigma = np.full(n, np.nan)
-        self.lean_bound = np.full(n, np.nan)
-        self.fill_ratio = np.full(n, np.nan)
-        self.gun_clearance_mm = np.full(n, np.nan)
-        self.reason: dict[int, str] = {}  # why a stud kept as a fallback is not usable
-
-    def add_view(self, t, view_index: int, camera) -> None:
-        ok = t.status == STATUS_OK
-        centre = np.array([camera.cx, camera.cy])
-        half_diag = np.hypot(camera.width, camera.height) / 2
-        centrality = np.linalg.norm(t.matches.pixel_uv - centre, axis=1) / half_diag
-        take_ok = ok & ((self.rank != self.OK) | (centrality < self.centrality)
-                        | ((centrality == self.centrality) & (view_index < self.view)))
-        take_other = (~ok & (t.status != STATUS_OUT_OF_VIEW) & (self.rank != self.OK)
-                      & (view_index < self.view))
-        take = take_ok | take_other
-        self.rank[take_ok], self.rank[take_other] = self.OK, self.FALLBACK
-        self.centrality[take_ok] = centrality[take_ok]
-        self.view[take] = view_index
-        self.status[take] = t.status[take]
-        self.position[take] = t.position_w[take]
-        self.normal[take] = t.normal_w[take]
-        self.pixel[take] = t.matches.pixel_uv[take]
-        self.iterations[take] = t.matches.iterations[take]
-        self.xy_error_mm[take] = t.matches.xy_residual_m[take] * 1e3
-        self.inclination[take] = t.inclination_deg[take]
-        self.normal_sigma[take] = t.normal_sigma_deg[take]
-        self.lean_bound[take] = t.lean_bound_deg[take]
-        self.fill_ratio[take] = t.poses.fill_ratio[take]
-        self.gun_clearance_mm[take] = t.gun_clearance_m[take] * 1e3
-        for i in np.flatnonzero(take_ok).tolist():
-            self.reason.pop(i, None)
-        for i in np.flatnonzero(take_other).tolist():  # the few studs not usable here: a text each
-            self.reason[i] = t.reason(i)
-
-    def entries(self, ids: list[str], xy_m: np.ndarray) -> list[dict]:
-        """The report's ``targets``, one per stud in drawing order (INTERFACES.md)."""
-        xy_mm = (np.asarray(xy_m, dtype=np.float64).reshape(-1, 2) * 1e3).tolist()
-        out = [{"stud_id": sid, "drawing_xy_mm": xy, "status": STATUS_TEXT[STATUS_OUT_OF_VIEW]}
-               for sid, xy in zip(ids, xy_mm)]
-        seen = np.flatnonzero(self.rank != self.NONE)
-        names = [STATUS_TEXT[s] for s in self.status[seen].tolist()]
-        pos, nrm, pix = (_nullable(a[seen]) for a in (self.position, self.normal, self.pixel))
-        err, inc = _nullable(self.xy_error_mm[seen]), _nullable(self.inclination[seen])
-        views, its = self.view[seen].tolist(), self.iterations[seen].tolist()
-        sig, lean, fill, clear = (_nullable(a[seen]) for a in (self.normal_sigma, self.lean_bound, self.fill_ratio,
-                                                                self.gun_clearance_mm))
-        for k, i in enumerate(seen.tolist()):
-            # the schema's keys, then ours: the normal's 1-sigma, the lean it could give, the
-            # window's fill, the gun's clearance, and why a stud is not usable
-            out[i].update(status=names[k], position_m=pos[k], normal=nrm[k], pixel=pix[k], view=views[k],
-                          iterations=its[k], xy_error_mm=err[k], inclination_deg=inc[k], normal_sigma_deg=sig[k],
-                          lean_bound_deg=lean[k], fill_ratio=fill[k], gun_clearance_mm=clear[k])
-            if self.reason.get(i):
-                out[i]["reason"] = self.reason[i]
-        return out
-
-
-def _nullable(values: np.ndarray) -> list:
-    """``values.tolist()`` with None where a value is not finite (JSON's null: no value)."""
-    values = np.asarray(values, dtype=np.float64)
-    out = values.tolist()
-    bad = ~np.isfinite(values)
-    if values.ndim == 1:
-        for i in np.flatnonzero(bad).tolist():
-            out[i] = None
-    else:
-        for i in np.flatnonzero(bad.any(axis=1)).tolist():
-            out[i] = [v if math.isfinite(v) else None for v in out[i]]
-    return out
 
 
 def write_csv(report: dict, path: Path) -> None:

@@ -62,6 +62,7 @@ from std_msgs.msg import String
 from stud_welding_msgs.msg import WeldTarget
 
 from stud_common import hand_eye_ros, ros_io
+from stud_common.vocabulary import WeldPhase
 
 from rm65_driver.driver.params import (PARAMS, default_journal, goal_tolerances, job_config, job_config_problem,
                                        rail_axis)
@@ -224,8 +225,8 @@ class DriverNode(Node):
                 seq.cycle.rail_position_m = carriage_m
             total = len(goal.targets)
 
-            def feedback(stud_id: str, phase: str, done: int, _total: int) -> None:
-                fb = WeldJob.Feedback(stud_id=stud_id, phase=phase, done=done + len(pre_skipped), total=total)
+            def feedback(stud_id: str, phase: WeldPhase, done: int, _total: int) -> None:
+                fb = WeldJob.Feedback(stud_id=stud_id, phase=str(phase), done=done + len(pre_skipped), total=total)
                 goal_handle.publish_feedback(fb)
 
             seq.on_phase = feedback

@@ -17,6 +17,7 @@ import numpy as np
 
 from stud_common import hand_eye_ros
 from stud_common.ros_io import Param, three_numbers
+from stud_common.vocabulary import OnDisconnect, StudOrder, choices
 
 from rm65_driver.kinematics.rm65 import D6_BY_VARIANT, DHModel, RM65Kinematics
 from rm65_driver.protocol import messages as P
@@ -79,9 +80,9 @@ PARAMS = [
     Param("connected_approach", True, "send the fast approach and the slow final move as one connected "
           "trajectory (trajectory_connect=1): on their shared line the arm slows to linear_speed_pct without a "
           "stop between them; false: two moves, each from rest to rest"),
-    Param("stud_order", "tour", "the order a job's studs are welded in: 'tour' (a short joint-space path from "
-          "the current joints and back), 'path' (no way back) or 'given' (the request's)",
-          choices=("tour", "path", "given")),
+    Param("stud_order", StudOrder.TOUR.value, "the order a job's studs are welded in: 'tour' (a short joint-space "
+          "path from the current joints and back), 'path' (no way back) or 'given' (the request's)",
+          choices=choices(StudOrder)),
     Param("max_joint_speed_pct", 50, "speed cap for joint moves [%]", min=1, max=100),
     Param("max_linear_speed_pct", 30, "speed cap for linear moves [%]", min=1, max=100),
     Param("workspace_min_m", [-0.70, -0.70, -0.02], "workspace box lower corner, world [m]",
@@ -102,8 +103,9 @@ PARAMS = [
           "refused: the two disagree on the weld direction [deg]", min=0.01, max=30.0),
     Param("motion_timeout_s", 60.0, "a motion that has not arrived by then aborts the job [s]", min=1.0, max=600.0),
     Param("reconnect_timeout_s", 10.0, "reconnection attempts before a job aborts [s]", min=0.5, max=300.0),
-    Param("on_disconnect", "continue", "after a connection loss mid-weld: 'continue' with the next studs or 'abort'",
-          choices=("continue", "abort")),
+    Param("on_disconnect", OnDisconnect.CONTINUE.value, "after a connection loss mid-weld: 'continue' with the next "
+          "studs or 'abort'",
+          choices=choices(OnDisconnect)),
     Param("journal_file", "", "weld journal (JSON lines); empty: $ROS_HOME/stud_welding/weld_journal.jsonl",
           read_only=True),
     Param("publish_camera_pose", False, "publish /camera/pose = weld-tool pose x hand-eye (an eye-in-hand camera)"),

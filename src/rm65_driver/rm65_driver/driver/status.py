@@ -25,6 +25,7 @@ from stud_welding_msgs.msg import ArmState, WeldRecord
 
 from stud_common import frames, names, ros_io
 from stud_common.hand_eye_in_use import camera_in_world
+from stud_common.vocabulary import WeldPhase
 
 from rm65_driver.driver.shared_state import DriverState
 from rm65_driver.journal.scan import JournalCorrupt
@@ -136,7 +137,7 @@ class DriverStatus:
         if s.client.paused:
             return ArmState.MODE_PAUSED
         if seq is not None and seq.running:
-            return ArmState.MODE_WELDING if seq.phase in ("weld", "dwell") else ArmState.MODE_MOVING
+            return ArmState.MODE_WELDING if seq.phase in (WeldPhase.WELD, WeldPhase.DWELL) else ArmState.MODE_MOVING
         if s.rail.moving:
             return ArmState.MODE_MOVING
         return ArmState.MODE_IDLE

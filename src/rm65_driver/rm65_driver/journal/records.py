@@ -19,7 +19,8 @@ Events: ``started`` (trigger about to fire), ``welded``, ``skipped`` (``reason``
 ``uncertain`` [stud ids]) and ``recovered`` (an operator resolved damage: ``action``,
 ``note``, ``damaged_lines``, ``moved_to``, ``uncertain`` [stud ids]).
 
-**Status rules** (one table, :data:`TRANSITIONS`): *welded is final* -- nothing but a welded
+**Status rules** (one table, :data:`TRANSITIONS`; the statuses are
+:class:`stud_common.vocabulary.JournalStatus`): *welded is final* -- nothing but a welded
 stud's own records can follow, and none of them makes it weldable again. ``started`` ->
 **uncertain** (the gun may or may not have fired) until ``welded`` or an operator's
 ``resolved``. ``skipped`` never changes an uncertain or welded stud (a later job that skips
@@ -38,15 +39,15 @@ import zlib
 from pathlib import Path
 from typing import Any, Callable
 
+from stud_common.vocabulary import JournalStatus
+
 STARTED, WELDED, SKIPPED, RESOLVED = "started", "welded", "skipped", "resolved"
 TORN_TAIL, RECOVERED = "torn_tail", "recovered"
-DECISION_WELDED, DECISION_NOT_WELDED = "welded", "not_welded"
+#: A ``resolved`` record's ``decision``: the status the operator gives the stud (ResolveStud.DECISION_*).
+DECISION_WELDED, DECISION_NOT_WELDED = JournalStatus.WELDED.value, JournalStatus.NOT_WELDED.value
 _STUD_EVENTS = frozenset({STARTED, WELDED, SKIPPED, RESOLVED})
 _EVENTS = _STUD_EVENTS | {TORN_TAIL, RECOVERED}
 
-#: Status names returned by :meth:`~rm65_driver.journal.writer.Journal.status`.
-STATUS_NEW, STATUS_UNCERTAIN, STATUS_WELDED, STATUS_SKIPPED, STATUS_NOT_WELDED = (
-    "new", "uncertain", "welded", "skipped", "not_welded")
 
 MIRROR_SUFFIX = ".mirror"
 _LEAD_KEYS = ("seq", "event", "stud")  # first on disk: a torn line still names its stud
@@ -155,25 +156,25 @@ def _json_default(obj: Any) -> Any:
 # -- status rules ----------------------------------------------------------------------------
 
 
-def _after_started(status: str, rec: dict[str, Any]) -> str:
-    return status if status == STATUS_WELDED else STATUS_UNCERTAIN
+def _after_started(status: JournalStatus, rec: dict[str, Any]) -> JournalStatus:
+    return status if status == JournalStatus.WELDED else JournalStatus.UNCERTAIN
 
 
-def _after_skipped(status: str, rec: dict[str, Any]) -> str:
+def _after_skipped(status: JournalStatus, rec: dict[str, Any]) -> JournalStatus:
     # A skip never changes a welded or an uncertain stud: only an operator makes an uncertain one weldable.
-    return status if status in (STATUS_WELDED, STATUS_UNCERTAIN) else STATUS_SKIPPED
+    return status if status in (JournalStatus.WELDED, JournalStatus.UNCERTAIN) else JournalStatus.SKIPPED
 
 
-def _after_resolved(status: str, rec: dict[str, Any]) -> str:
-    if rec.get("decision") == DECISION_WELDED or status == STATUS_WELDED:
-        return STATUS_WELDED
-    return STATUS_NOT_WELDED
+def _after_resolved(status: JournalStatus, rec: dict[str, Any]) -> JournalStatus:
+    if rec.get("decision") == DECISION_WELDED or status == JournalStatus.WELDED:
+        return JournalStatus.WELDED
+    return JournalStatus.NOT_WELDED
 
 
 #: (status before, record) -> status after, per stud event. Welded is final in every row.
-TRANSITIONS: dict[str, Callable[[str, dict[str, Any]], str]] = {
+TRANSITIONS: dict[str, Callable[[JournalStatus, dict[str, Any]], JournalStatus]] = {
     STARTED: _after_started,
-    WELDED: lambda status, rec: STATUS_WELDED,
+    WELDED: lambda status, rec: JournalStatus.WELDED,
     SKIPPED: _after_skipped,
     RESOLVED: _after_resolved,
 }

@@ -17,12 +17,11 @@ import uuid
 from pathlib import Path
 from typing import Any, Iterable
 
+from stud_common.vocabulary import JournalStatus
+
 from rm65_driver.journal.files import atomic_write, free_name
 from rm65_driver.journal.records import (
     RECOVERED,
-    STATUS_NEW,
-    STATUS_UNCERTAIN,
-    STATUS_WELDED,
     TRANSITIONS,
     JournalError,
     encode_record,
@@ -108,18 +107,18 @@ def _what_to_keep(p: FileScan, m: FileScan, report: DamageReport,
     return p, m, p.records[:report.keep]
 
 
-def _kept_status(kept: list[ScanLine]) -> dict[str, str]:
+def _kept_status(kept: list[ScanLine]) -> dict[str, JournalStatus]:
     """Each stud's status after the kept records (the status rules of :mod:`.records`)."""
-    status: dict[str, str] = {}
+    status: dict[str, JournalStatus] = {}
     for ln in kept:
         rec = ln.rec
         assert rec is not None
         if rec["event"] in TRANSITIONS:
-            status[rec["stud"]] = TRANSITIONS[rec["event"]](status.get(rec["stud"], STATUS_NEW), rec)
+            status[rec["stud"]] = TRANSITIONS[rec["event"]](status.get(rec["stud"], JournalStatus.NEW), rec)
         else:
             for s in rec["uncertain"]:
-                if status.get(s) != STATUS_WELDED:
-                    status[s] = STATUS_UNCERTAIN
+                if status.get(s) != JournalStatus.WELDED:
+                    status[s] = JournalStatus.UNCERTAIN
     return status
 
 
@@ -144,4 +143,4 @@ def _uncertain_after(kept: list[ScanLine], source: FileScan, other: FileScan) ->
             mention(studs_in(scan.torn.raw))
     if source.torn is not None and len(kept) == len(source.records):
         mention(uncertain_from_torn(source))
-    return [s for s in mentioned if status.get(s) != STATUS_WELDED]
+    return [s for s in mentioned if status.get(s) != JournalStatus.WELDED]

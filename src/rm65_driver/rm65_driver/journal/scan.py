@@ -34,10 +34,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
 
+from stud_common.vocabulary import JournalStatus
+
 from rm65_driver.journal.records import (
     STARTED,
-    STATUS_NEW,
-    STATUS_UNCERTAIN,
     TORN_TAIL,
     TRANSITIONS,
     JournalError,
@@ -255,16 +255,16 @@ def uncertain_from_torn(s: FileScan) -> tuple[str, ...]:
     named = studs_in(s.torn.raw)
     if named:
         return named
-    status: dict[str, str] = {}
+    status: dict[str, JournalStatus] = {}
     last_started = ""
     for ln in s.records:
         rec = ln.rec
         assert rec is not None
         if rec["event"] in TRANSITIONS:
-            status[rec["stud"]] = TRANSITIONS[rec["event"]](status.get(rec["stud"], STATUS_NEW), rec)
+            status[rec["stud"]] = TRANSITIONS[rec["event"]](status.get(rec["stud"], JournalStatus.NEW), rec)
             if rec["event"] == STARTED:
                 last_started = rec["stud"]
-    return (last_started,) if last_started and status.get(last_started) == STATUS_UNCERTAIN else ()
+    return (last_started,) if last_started and status.get(last_started) == JournalStatus.UNCERTAIN else ()
 
 
 def _report(p: FileScan, m: FileScan, extra: str = "", backup: Path | None = None, keep: int | None = None,

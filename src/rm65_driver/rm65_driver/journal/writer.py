@@ -29,6 +29,8 @@ import zlib
 from pathlib import Path
 from typing import Any
 
+from stud_common.vocabulary import JournalStatus
+
 from rm65_driver.journal.files import atomic_write, fsync_dir, write_all
 from rm65_driver.journal.records import (
     DECISION_NOT_WELDED,
@@ -36,9 +38,6 @@ from rm65_driver.journal.records import (
     RESOLVED,
     SKIPPED,
     STARTED,
-    STATUS_NEW,
-    STATUS_UNCERTAIN,
-    STATUS_WELDED,
     TORN_TAIL,
     TRANSITIONS,
     WELDED,
@@ -71,7 +70,7 @@ class Journal:
         self.warnings: list[str] = []
         self.fault: JournalError | None = None
         self._lock = threading.Lock()
-        self._status: dict[str, str] = {}
+        self._status: dict[str, JournalStatus] = {}
         self._last: dict[str, dict[str, Any]] = {}
         self._where: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {}  # last started: point, normal
         self._fds: list[int] = []
@@ -162,8 +161,8 @@ class Journal:
     def resolve(self, stud_id: str, welded: bool, note: str = "") -> None:
         """Operator decision on an uncertain stud: ``welded`` (never weld again) or not (may be welded)."""
         with self._lock:
-            status = self._status.get(stud_id, STATUS_NEW)
-        if status != STATUS_UNCERTAIN:
+            status = self._status.get(stud_id, JournalStatus.NEW)
+        if status != JournalStatus.UNCERTAIN:
             raise JournalError(f"stud {stud_id!r} is {status}, not uncertain: nothing to resolve")
         self._append(RESOLVED, stud_id, "", decision=DECISION_WELDED if welded else DECISION_NOT_WELDED, note=note)
 
@@ -171,14 +170,14 @@ class Journal:
         event = rec["event"]
         if event in TRANSITIONS:
             stud = rec["stud"]
-            self._status[stud] = TRANSITIONS[event](self._status.get(stud, STATUS_NEW), rec)
+            self._status[stud] = TRANSITIONS[event](self._status.get(stud, JournalStatus.NEW), rec)
             self._last[stud] = rec
             if event == STARTED and rec.get("position") is not None and rec.get("normal") is not None:
                 self._where[stud] = (tuple(rec["position"]), tuple(rec["normal"]))
         else:  # torn_tail / recovered: the studs they list are uncertain unless welded
             for stud in rec.get("uncertain", []):
-                if self._status.get(stud) != STATUS_WELDED:
-                    self._status[stud] = STATUS_UNCERTAIN
+                if self._status.get(stud) != JournalStatus.WELDED:
+                    self._status[stud] = JournalStatus.UNCERTAIN
                     self._last[stud] = rec
 
     # -- checking --------------------------------------------------------------------------
@@ -231,10 +230,10 @@ class Journal:
         self.close()
 
     # -- queries ---------------------------------------------------------------------------
-    def status(self, stud_id: str) -> str:
+    def status(self, stud_id: str) -> JournalStatus:
         """``new``, ``uncertain``, ``welded``, ``skipped`` or ``not_welded``."""
         with self._lock:
-            return self._status.get(stud_id, STATUS_NEW)
+            return self._status.get(stud_id, JournalStatus.NEW)
 
     def last_record(self, stud_id: str) -> dict[str, Any] | None:
         with self._lock:
@@ -249,12 +248,12 @@ class Journal:
     @property
     def welded_ids(self) -> set[str]:
         with self._lock:
-            return {s for s, st in self._status.items() if st == STATUS_WELDED}
+            return {s for s, st in self._status.items() if st == JournalStatus.WELDED}
 
     @property
     def uncertain_ids(self) -> set[str]:
         with self._lock:
-            return {s for s, st in self._status.items() if st == STATUS_UNCERTAIN}
+            return {s for s, st in self._status.items() if st == JournalStatus.UNCERTAIN}
 
     def standing_studs(self) -> list[tuple[str, tuple[float, ...], tuple[float, ...]]]:
         """The studs that stand on the part now: welded, or uncertain (one may stand there), each with
@@ -263,10 +262,10 @@ class Journal:
         written before they were recorded) is left out."""
         with self._lock:
             return [(sid, *self._where[sid]) for sid, st in self._status.items()
-                    if st in (STATUS_WELDED, STATUS_UNCERTAIN) and sid in self._where]
+                    if st in (JournalStatus.WELDED, JournalStatus.UNCERTAIN) and sid in self._where]
 
     def is_welded(self, stud_id: str) -> bool:
-        return self.status(stud_id) == STATUS_WELDED
+        return self.status(stud_id) == JournalStatus.WELDED
 
     def is_uncertain(self, stud_id: str) -> bool:
-        return self.status(stud_id) == STATUS_UNCERTAIN
+        return self.status(stud_id) == JournalStatus.UNCERTAIN

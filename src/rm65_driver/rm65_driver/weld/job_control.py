@@ -12,6 +12,8 @@ import logging
 import threading
 import time
 
+from stud_common.vocabulary import WeldPhase
+
 from rm65_driver.weld.weld_job import PhaseCallback, StudTarget
 
 _log = logging.getLogger("rm65_driver.weld.weld_sequence")  # the weld job's one logger, whichever part writes
@@ -35,7 +37,7 @@ class JobControl:
         self.epoch = 0  # client.stop_count when the job started
         self.running = False
         self.current_stud = ""
-        self.phase = ""
+        self.phase: str = ""  # the running stud's WeldPhase; "" before the first and after the job
         self.done = 0
         self.total = 0
         self.job_id = ""  # of the running (or last) job; in every journal record it writes
@@ -65,12 +67,12 @@ class JobControl:
     def stop_message(self) -> str:
         return f"halted: {self.halt_reason}" if self.halted else "cancelled"
 
-    def finish_one(self, t: StudTarget, phase: str) -> None:
+    def finish_one(self, t: StudTarget, phase: WeldPhase) -> None:
         with self.lock:
             self.done += 1
         self.set_phase(t, phase)
 
-    def set_phase(self, t: StudTarget, phase: str) -> None:
+    def set_phase(self, t: StudTarget, phase: WeldPhase) -> None:
         with self.lock:
             self.current_stud, self.phase = t.stud_id, phase
             done, total = self.done, self.total

@@ -33,6 +33,8 @@ from typing import Callable
 
 import numpy as np
 
+from stud_common.vocabulary import JournalStatus, WeldPhase
+
 from rm65_driver.journal.records import JournalError
 from rm65_driver.journal.writer import Journal
 from rm65_driver.kinematics.rm65 import matrix_to_pose6
@@ -42,6 +44,9 @@ from rm65_driver.weld.job_control import JobControl, JobEnded
 from rm65_driver.weld.safety import SafetyChecker, StudPlan, TargetCheck
 from rm65_driver.weld.weld_job import JobResult, StudTarget, WeldedCallback, WeldParams
 from rm65_driver.weld.welded_neighbours import nearest_welded
+
+#: Journal statuses of a stud that stands on the part (an uncertain one may)
+_STANDING = (JournalStatus.WELDED, JournalStatus.UNCERTAIN)
 
 _log = logging.getLogger("rm65_driver.weld.weld_sequence")  # the weld job's one logger, whichever part writes
 
@@ -167,20 +172,20 @@ class StudCycle:
 
         def on_handover(_: int) -> None:
             handover.append(time.monotonic())
-            self.control.set_phase(t, "descend")
+            self.control.set_phase(t, WeldPhase.DESCEND)
 
         self.client.move_linear_path_and_wait(
             [(matrix_to_pose6(T_short), p.approach_speed_pct), (matrix_to_pose6(T_contact), p.linear_speed_pct)],
             p.motion_timeout_s, stop_count=self.control.epoch, on_handover=on_handover)
         t1 = time.monotonic()
         if not handover:
-            self.control.set_phase(t, "descend")
+            self.control.set_phase(t, WeldPhase.DESCEND)
         mid = handover[0] if handover else t1
-        return {"approach": round(mid - t0, 4), "descend": round(t1 - mid, 4)}
+        return {WeldPhase.APPROACH: round(mid - t0, 4), WeldPhase.DESCEND: round(t1 - mid, 4)}
 
-    def do_stud(self, t: StudTarget, res: JobResult, nxt: StudTarget | None = None) -> str:
-        """Weld one stud (``nxt``: the one after it, planned during the dwell); returns "welded" or
-        "skipped". Raises ArmConnectionError / JobEnded."""
+    def do_stud(self, t: StudTarget, res: JobResult, nxt: StudTarget | None = None) -> JournalStatus:
+        """Weld one stud (``nxt``: the one after it, planned during the dwell); returns the status it
+        leaves in the journal: WELDED or SKIPPED. Raises ArmConnectionError / JobEnded."""
         p, c = self.params, self.control
         try:
             q_now = self.client.get_state().joints_rad
@@ -199,15 +204,15 @@ class StudCycle:
                 raise JobEnded(f"aborted at {t.stud_id}: {exc}") from exc
             res.skipped.append(t.stud_id)
             res.messages.append(f"{t.stud_id}: {check.reason}")
-            c.finish_one(t, "skip")
-            return "skipped"
+            c.finish_one(t, WeldPhase.SKIP)
+            return JournalStatus.SKIPPED
         plan = check.plan
         assert plan is not None
         try:
             c.between_phases()
             if c.cancelled:
                 raise JobEnded("cancelled")
-            c.set_phase(t, "approach")
+            c.set_phase(t, WeldPhase.APPROACH)
             motion_s = {"move": sum(self._timed_move("joint", q, p.joint_speed_pct) for q in plan.waypoints)}
             if p.fast_approach:
                 self.below_clearance = True  # from here on, a recovery backs out along the normal
@@ -220,30 +225,30 @@ class StudCycle:
                 if p.connected_approach:
                     motion_s.update(self._connected_approach(t, T_short, plan.T_contact))
                 else:
-                    motion_s["approach"] = self._timed_move("linear", T_short, p.approach_speed_pct)
-            if "descend" not in motion_s:
+                    motion_s[WeldPhase.APPROACH] = self._timed_move("linear", T_short, p.approach_speed_pct)
+            if WeldPhase.DESCEND not in motion_s:
                 c.between_phases()
                 if c.cancelled:
                     if p.fast_approach:
                         self._back_out(plan)
                     raise JobEnded("cancelled")
-                c.set_phase(t, "descend")
-                motion_s["descend"] = self._timed_move("linear", plan.T_contact, p.linear_speed_pct)
+                c.set_phase(t, WeldPhase.DESCEND)
+                motion_s[WeldPhase.DESCEND] = self._timed_move("linear", plan.T_contact, p.linear_speed_pct)
             c.between_phases()
             if c.cancelled:
                 self._back_out(plan)
                 raise JobEnded("cancelled")
-            c.set_phase(t, "weld")
+            c.set_phase(t, WeldPhase.WELD)
             self._weld(t, plan, motion_s, lambda: self.lookahead.plan(nxt, plan.q_approach))
             c.between_phases()
-            c.set_phase(t, "retract")
+            c.set_phase(t, WeldPhase.RETRACT)
             self._move("linear", plan.T_approach, p.approach_speed_pct if p.fast_approach else p.linear_speed_pct)
             self.below_clearance = False
         except ArmStopped as exc:
             if c.halted:
                 raise JobEnded(c.stop_message()) from exc
             if c.cancelled:
-                if self.journal.status(t.stud_id) not in ("welded", "uncertain"):
+                if self.journal.status(t.stud_id) not in _STANDING:
                     self._back_out(plan)
                 raise JobEnded("cancelled") from exc
             self._abort_motion()
@@ -253,7 +258,7 @@ class StudCycle:
             raise JobEnded(f"aborted at {t.stud_id} ({c.phase}): {exc}") from exc
         with c.lock:
             c.done += 1
-        return "welded"
+        return JournalStatus.WELDED
 
     def _welded_too_close(self, t: StudTarget) -> str:
         """Why the gun's foot has no room at ``t`` beside the studs standing on the part: welded or
@@ -266,7 +271,7 @@ class StudCycle:
         B = np.linalg.inv(self.safety.world_T_base)  # the journal's world -> this job's base frame
         standing = {sid: (B[:3, :3] @ pos + B[:3, 3], B[:3, :3] @ n) for sid, pos, n in self.journal.standing_studs()}
         for o in self.job_targets:
-            if o.stud_id not in standing and self.journal.status(o.stud_id) in ("welded", "uncertain"):
+            if o.stud_id not in standing and self.journal.status(o.stud_id) in _STANDING:
                 standing[o.stud_id] = (o.position, o.normal)
         welded = [(sid, pos, n) for sid, (pos, n) in standing.items() if sid != t.stud_id]
         near = nearest_welded(t.position, t.normal, welded, p.stud_length_m, p.stud_clearance_m)
@@ -296,7 +301,7 @@ class StudCycle:
         if not low:
             raise ArmConnectionError("the trigger output could not be set low")
         c.check_halt()
-        c.set_phase(t, "dwell")
+        c.set_phase(t, WeldPhase.DWELL)
         dwell_end = time.monotonic() + p.dwell_s
         if during_dwell is not None:  # the gun holds the stud still: the dwell is at least dwell_s
             during_dwell()
@@ -342,7 +347,7 @@ class StudCycle:
         self.client.wait_idle(p.motion_timeout_s)
         self.prepare()
         self.control.check_halt()
-        if phase in ("descend", "weld", "dwell", "retract") or self.below_clearance:
+        if phase in (WeldPhase.DESCEND, WeldPhase.WELD, WeldPhase.DWELL, WeldPhase.RETRACT) or self.below_clearance:
             # Straight back along the normal to the standoff, keeping the current orientation.
             T_back = self.safety.kin.fk(self.client.get_state().joints_rad) @ p.tool_T
             T_back[:3, 3] = t.position + p.standoff_m * t.normal

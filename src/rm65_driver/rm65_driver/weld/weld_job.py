@@ -15,7 +15,8 @@ from typing import Callable
 
 import numpy as np
 
-STUD_ORDERS = ("given", "path", "tour")
+from stud_common.vocabulary import OnDisconnect, StudOrder, WeldPhase, choices
+
 
 
 @dataclass(frozen=True)
@@ -77,20 +78,23 @@ class WeldParams:
     # The fast approach and the slow final move sent as one connected trajectory (trajectory_connect=1):
     # on their shared line the arm slows to the slow speed without stopping in between.
     connected_approach: bool = False
-    stud_order: str = "given"  # "given" | "path" | "tour"
+    stud_order: StudOrder = StudOrder.GIVEN
     reconnect_timeout_s: float = 10.0
     max_reconnects_per_stud: int = 3
-    on_disconnect: str = "continue"  # or "abort"
+    on_disconnect: OnDisconnect = OnDisconnect.CONTINUE
     require_base_work_frame: bool = True
     stud_length_m: float = 0.0
     stud_clearance_m: float = 0.01
     min_stud_spacing_m: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.stud_order not in STUD_ORDERS:
-            raise ValueError(f"stud_order={self.stud_order!r}: expected one of {', '.join(STUD_ORDERS)}")
-        if self.on_disconnect not in ("continue", "abort"):
+        if self.stud_order not in choices(StudOrder):
+            raise ValueError(f"stud_order={self.stud_order!r}: expected one of {', '.join(choices(StudOrder))}")
+        if self.on_disconnect not in choices(OnDisconnect):
             raise ValueError(f"on_disconnect={self.on_disconnect!r}: expected 'continue' or 'abort'")
+        # the modes arrive as text (ROS parameters, tests): held as the vocabulary's members
+        object.__setattr__(self, "stud_order", StudOrder(self.stud_order))
+        object.__setattr__(self, "on_disconnect", OnDisconnect(self.on_disconnect))
         for name in ("standoff_m", "tool_offset_m", "plunge_m", "tool_payload_kg", "pulse_s", "dwell_s",
                      "motion_timeout_s", "reconnect_timeout_s", "final_approach_m", "stud_length_m",
                      "stud_clearance_m", "min_stud_spacing_m"):
@@ -131,7 +135,7 @@ class JobResult:
     job_id: str = ""
 
 
-PhaseCallback = Callable[[str, str, int, int], None]  # (stud_id, phase, done, total)
+PhaseCallback = Callable[[str, WeldPhase, int, int], None]  # (stud_id, phase, done, total)
 WeldedCallback = Callable[[str, np.ndarray], None]  # (stud_id, joints at the weld, rad): after the journal says welded
 
 

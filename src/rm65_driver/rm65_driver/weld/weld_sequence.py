@@ -54,6 +54,8 @@ from typing import Sequence
 
 import numpy as np
 
+from stud_common.vocabulary import JournalStatus, OnDisconnect, StudOrder, WeldPhase
+
 from rm65_driver.journal.records import JournalError
 from rm65_driver.journal.writer import Journal
 from rm65_driver.kinematics.rm65 import tool_pose_facing
@@ -145,7 +147,7 @@ class WeldSequence:
             phase = c.phase
             c.paused = False
             c.wake.notify_all()
-        if phase in ("approach", "descend"):
+        if phase in (WeldPhase.APPROACH, WeldPhase.DESCEND):
             self.cycle.stop_arm()
 
     def halt(self, reason: str = "stop requested") -> None:
@@ -231,7 +233,7 @@ class WeldSequence:
         with self.control.lock:
             self.control.epoch = self.client.stop_count  # any stop from now on ends every motion of this job
         request_order = {t.stud_id: k for k, t in enumerate(targets)}
-        if self.params.stud_order != "given":
+        if self.params.stud_order != StudOrder.GIVEN:
             try:
                 targets = self._ordered(targets)
             except ArmError as exc:
@@ -253,7 +255,7 @@ class WeldSequence:
         x_hint = (kin.fk(q_now) @ tool_T)[:3, 0]
         solved, Q, rest = [], [], []
         for t in targets:
-            if self.journal.status(t.stud_id) in ("welded", "uncertain"):
+            if self.journal.status(t.stud_id) in (JournalStatus.WELDED, JournalStatus.UNCERTAIN):
                 rest.append(t)  # not moved to: the journal decides at once
                 continue
             ik = kin.ik(tool_pose_facing(t.position + p.standoff_m * t.normal, t.normal, x_hint=x_hint), q_now,
@@ -266,7 +268,7 @@ class WeldSequence:
         if not solved:
             return targets
         order = order_by_path(q_now, np.asarray(Q), kin.max_speed_rad_s,
-                              q_end=q_now if p.stud_order == "tour" else None)
+                              q_end=q_now if p.stud_order == StudOrder.TOUR else None)
         return [solved[k] for k in order] + rest
 
     def _weld_all(self, targets: list[StudTarget], resume: bool, res: JobResult) -> None:
@@ -297,7 +299,7 @@ class WeldSequence:
                 self._after_job_ended(targets, i, end, res)
                 return
             reconnects = 0
-            if outcome == "welded":
+            if outcome == JournalStatus.WELDED:
                 res.welded.append(t.stud_id)
             i += 1
         self.cycle.trigger_low()
@@ -309,19 +311,19 @@ class WeldSequence:
     def _settled_by_journal(self, t: StudTarget, resume: bool, res: JobResult) -> bool:
         """A stud the journal already decides (welded: not touched; uncertain: refused); True if so."""
         status = self.journal.status(t.stud_id)
-        if status == "welded":
+        if status == JournalStatus.WELDED:
             if resume:
                 res.welded.append(t.stud_id)
             else:
                 res.skipped.append(t.stud_id)
                 res.messages.append(f"{t.stud_id}: already welded (journal); not welded again")
-            self.control.finish_one(t, "skip")
+            self.control.finish_one(t, WeldPhase.SKIP)
             return True
-        if status == "uncertain":
+        if status == JournalStatus.UNCERTAIN:
             res.failed.append(t.stud_id)
             res.messages.append(f"{t.stud_id}: uncertain in the journal (started, never confirmed): "
                                 "needs an operator decision (resolve_stud) before it can be welded")
-            self.control.finish_one(t, "skip")
+            self.control.finish_one(t, WeldPhase.SKIP)
             return True
         return False
 
@@ -338,9 +340,9 @@ class WeldSequence:
             self.cycle.recover(t, phase)
         except (ArmError, JobEnded) as exc2:
             recovered = str(exc2)
-        if status == "welded":  # lost during the retract: the stud is done
+        if status == JournalStatus.WELDED:  # lost during the retract: the stud is done
             res.welded.append(t.stud_id)
-        elif status == "uncertain":
+        elif status == JournalStatus.UNCERTAIN:
             res.failed.append(t.stud_id)
             res.messages.append(f"{t.stud_id}: uncertain (connection lost after the trigger); "
                                 "not re-welded, needs an operator decision")
@@ -348,9 +350,9 @@ class WeldSequence:
             self._end_unprocessed(targets[i:], res)
             res.message = f"aborted: connection lost at {t.stud_id} and not recovered: {recovered}"
             return _END
-        if status in ("welded", "uncertain"):
-            self.control.finish_one(t, "skip")
-            if status == "uncertain" and self.params.on_disconnect == "abort":
+        if status in (JournalStatus.WELDED, JournalStatus.UNCERTAIN):
+            self.control.finish_one(t, WeldPhase.SKIP)
+            if status == JournalStatus.UNCERTAIN and self.params.on_disconnect == OnDisconnect.ABORT:
                 self._end_unprocessed(targets[i + 1:], res)
                 res.message = "aborted after a connection loss mid-weld (on_disconnect=abort)"
                 return _END
@@ -367,9 +369,9 @@ class WeldSequence:
         """The job ended (cancel, halt, abort) at ``targets[i]``: the stud's outcome from the journal."""
         t = targets[i]
         status = self.journal.status(t.stud_id)
-        if status == "welded":
+        if status == JournalStatus.WELDED:
             res.welded.append(t.stud_id)
-        elif status == "uncertain":
+        elif status == JournalStatus.UNCERTAIN:
             res.failed.append(t.stud_id)
             res.messages.append(f"{t.stud_id}: uncertain (job ended after the trigger): "
                                 "needs an operator decision")

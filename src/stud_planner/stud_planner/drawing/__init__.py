@@ -3,12 +3,23 @@
 Pure Python (ezdxf + numpy), no ROS: the drawing node converts :class:`DrawingLayout` to
 ``stud_welding_msgs/StudLayout`` (field for field; lengths are already metres).
 
-Modules: ``dxf_file`` (file checks, ezdxf, recovery), ``plain_circles`` (the fast reader of plain
-CIRCLE entities), ``circles`` (modelspace and block expansion, labels), ``visibility`` (what CAD
-shows), ``units``, ``neighbours`` (grid-hash neighbour search), ``marks`` (O, A, B and the frame),
-``layout`` (ids, order, checks: :func:`read_layout`), ``layout_types`` (the results), ``limits`` (the
-work budget of block expansion: :class:`DrawingLimits`),
-``dxf_writer`` (drawings for tests, demos and benchmarks).
+Modules, one per concern, each with a public API (``__all__``):
+
+* ``layout`` -- :func:`read_layout`, the one entry: it composes the concerns below into a
+  :class:`DrawingLayout` (stud order, ids, duplicates, the warnings); ``options`` -- its frozen
+  configuration :class:`LayoutOptions` (``with_changes``);
+* ``dxf_file`` -- the file: checks (binary, truncated, not a DXF), ezdxf, recovery
+  (:func:`open_drawing`); ``plain_circles`` -- the fast reader of an ASCII file's plain CIRCLE entities;
+* ``entities`` -- entity collection: the dispatch table per DXF entity type and block expansion
+  under the work budget (``limits``: :class:`DrawingLimits`); ``circles`` -- the usable circles of
+  a drawing (:func:`read_circles`, a :class:`CircleSet`);
+* ``visibility`` -- what CAD shows (invisible entities, frozen and off layers); ``layers`` -- the
+  layer names and patterns a rule means;
+* ``marks`` -- O, A, B and the reference marks M1, M2, ...; ``units`` and ``frame`` -- the drawing's
+  unit and the drawing frame the marks define;
+* ``neighbours`` -- the grid-hash neighbour search (duplicates, close pairs);
+* ``layout_types`` -- the results and :class:`DrawingError`; ``dxf_writer`` -- drawings for tests,
+  demos and benchmarks.
 
 What is read
     * DXF R12 .. R2018 (and the pre-R12 files ezdxf accepts), ASCII or binary, via
@@ -110,10 +121,12 @@ Warnings (``DrawingLayout.warnings``, one line each) and errors
 from stud_planner.drawing.circles import collect_circles, read_circles
 from stud_planner.drawing.dxf_file import load_document
 from stud_planner.drawing.layout import read_layout
+from stud_planner.drawing.options import LayoutOptions
 from stud_planner.drawing.layout_types import CircleSet, DrawingError, DrawingLayout, Mark, Stud
 from stud_planner.drawing.limits import DrawingLimitError, DrawingLimits
 from stud_planner.drawing.neighbours import close_pairs
 from stud_planner.drawing.units import UNITS, units_to_metres
 
-__all__ = ["DrawingError", "DrawingLimitError", "DrawingLimits", "Stud", "Mark", "DrawingLayout", "CircleSet", "read_layout", "read_circles", "collect_circles",
-           "load_document", "close_pairs", "UNITS", "units_to_metres"]
+__all__ = ["DrawingError", "DrawingLimitError", "DrawingLimits", "Stud", "Mark", "DrawingLayout", "CircleSet",
+           "LayoutOptions", "read_layout", "read_circles", "collect_circles", "load_document", "close_pairs", "UNITS",
+           "units_to_metres"]

@@ -18,7 +18,7 @@ from stud_welding_msgs.srv import LoadDrawing
 
 from stud_common import ros_io
 from stud_common.ros_io import Param
-from stud_planner.drawing import DrawingError, DrawingLimitError, DrawingLimits, read_layout
+from stud_planner.drawing import DrawingError, DrawingLimitError, DrawingLimits, LayoutOptions, read_layout
 from stud_planner.msg_convert import layout_poses, layout_to_msg
 from stud_common import names
 
@@ -50,6 +50,15 @@ def limits_from(p: dict) -> DrawingLimits:
     return DrawingLimits(**{name: p[f"{LIMITS_NS}.{name}"] for name in DrawingLimits.describe()})
 
 
+def options_from(p: dict) -> LayoutOptions:
+    """LayoutOptions from the declared parameter values (:data:`PARAMS`; 0 / -1 mean "no limit" / "default")."""
+    return LayoutOptions(
+        stud_layers=list(p["stud_layers"]), mark_layer=p["mark_layer"], units_if_unitless=p["units_if_unitless"],
+        min_diameter_m=p["min_diameter_m"] or None, max_diameter_m=p["max_diameter_m"] or None,
+        min_spacing_m=None if p["min_spacing_m"] < 0 else p["min_spacing_m"],
+        include_hidden_layers=p["include_hidden_layers"], gun_spacing_m=p["gun_spacing_m"], limits=limits_from(p))
+
+
 class DrawingNode(Node):
     def __init__(self) -> None:
         super().__init__("drawing")
@@ -68,13 +77,7 @@ class DrawingNode(Node):
     def load(self, path: str) -> tuple[bool, str, int]:
         p = self.p
         try:
-            layout = read_layout(
-                path, stud_layers=list(p["stud_layers"]), mark_layer=p["mark_layer"],
-                units_if_unitless=p["units_if_unitless"],
-                min_diameter_m=p["min_diameter_m"] or None, max_diameter_m=p["max_diameter_m"] or None,
-                min_spacing_m=None if p["min_spacing_m"] < 0 else p["min_spacing_m"],
-                include_hidden_layers=p["include_hidden_layers"], gun_spacing_m=p["gun_spacing_m"],
-                limits=limits_from(p))
+            layout = read_layout(path, options_from(p))
         except DrawingError as exc:
             why = str(exc)
             if isinstance(exc, DrawingLimitError):

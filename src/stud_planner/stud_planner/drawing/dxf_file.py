@@ -1,9 +1,14 @@
 """Reading the file: checks (binary, truncated, not a DXF), ezdxf (recover when damaged), and the
-fast reader of plain CIRCLE entities for large ASCII drawings."""
+fast reader of plain CIRCLE entities for large ASCII drawings.
+
+:func:`open_drawing` is the entry (what :func:`~stud_planner.drawing.circles.read_circles` uses);
+:func:`load_document` opens a file with ezdxf alone. Every failure is a one-line
+:class:`~stud_planner.drawing.layout_types.DrawingError` naming the file."""
 from __future__ import annotations
 
 import io
 import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -12,7 +17,7 @@ import numpy as np
 from ezdxf import recover
 
 from stud_planner.drawing.plain_circles import PlainCircles, split_plain_circles
-from stud_planner.drawing.layout_types import DrawingError
+from stud_planner.drawing.layout_types import DrawingError, one_line
 
 
 # -- reading the file ------------------------------------------------------------------------------
@@ -25,11 +30,7 @@ _ASCII_HEAD = re.compile(rb"^(?:\xef\xbb\xbf)?\s*(?:999\s*" + _EOL + rb"[^\r\n]*
 _ASCII_TAIL_ENDSEC = re.compile(rb"[\r\n][ \t]*0[ \t]*" + _EOL + rb"[ \t]*ENDSEC\s*$")
 
 
-def _one_line(text: object) -> str:
-    return " ".join(str(text).split())
-
-
-def _check_file(path: Path) -> tuple[bytes, list[str]]:
+def check_file(path: Path) -> tuple[bytes, list[str]]:
     """Raise DrawingError for a missing, empty, non-DXF or truncated file; return its bytes and warnings."""
     if not path.exists():
         raise DrawingError(f"{path}: file not found")
@@ -38,7 +39,7 @@ def _check_file(path: Path) -> tuple[bytes, list[str]]:
     try:
         data = path.read_bytes()
     except OSError as exc:
-        raise DrawingError(f"{path}: cannot read ({_one_line(exc.strerror or exc)})") from exc
+        raise DrawingError(f"{path}: cannot read ({one_line(exc.strerror or exc)})") from exc
     if not data.strip():
         raise DrawingError(f"{path}: empty file, not a DXF")
     if data.startswith(_BINARY_SENTINEL):
@@ -48,7 +49,7 @@ def _check_file(path: Path) -> tuple[bytes, list[str]]:
     if re.match(rb"AC[0-9.]{4}", data[:6]):
         raise DrawingError(f"{path}: not a DXF file (this looks like a DWG; export it as DXF)")
     if not _ASCII_HEAD.match(data[:4096]):
-        head = _one_line(data[:24].decode("latin-1"))[:24]
+        head = one_line(data[:24].decode("latin-1"))[:24]
         raise DrawingError(f"{path}: not a DXF file (starts with {head!r}, expected '0 / SECTION')")
     if _ASCII_EOF.search(data, max(0, len(data) - 65536)) or _ASCII_EOF.search(data):  # the end first: 30 MB
         return data, []
@@ -63,22 +64,23 @@ def load_document(path: str | Path) -> tuple[Any, str, list[str]]:
     Raises DrawingError (one line, naming the file) for anything ezdxf cannot read.
     """
     path = Path(path)
-    data, file_warns = _check_file(path)
-    return _load_document(path, data, file_warns)
+    data, file_warns = check_file(path)
+    return load_checked_document(path, data, file_warns)
 
 
-def _load_document(path: Path, data: bytes, file_warns: list[str]) -> tuple[Any, str, list[str]]:
+def load_checked_document(path: Path, data: bytes, file_warns: list[str]) -> tuple[Any, str, list[str]]:
+    """:func:`load_document` for a file :func:`check_file` has read (``data``, ``file_warns``)."""
     try:
         doc, mode, warns = ezdxf.readfile(path), "read", []
     except Exception as exc:  # ezdxf raises DXFStructureError, IOError, IndexError, struct.error ...
-        first = f"{type(exc).__name__}: {_one_line(exc)}"
+        first = f"{type(exc).__name__}: {one_line(exc)}"
         if data.startswith(_BINARY_SENTINEL):  # ezdxf.recover reads ASCII only
             raise DrawingError(f"{path}: truncated or corrupt binary DXF ({first})") from exc
         try:
             doc, auditor = recover.readfile(path)
         except Exception as exc2:
             raise DrawingError(f"{path}: truncated or corrupt DXF, ezdxf cannot read or recover it "
-                               f"({type(exc2).__name__}: {_one_line(exc2)})") from exc2
+                               f"({type(exc2).__name__}: {one_line(exc2)})") from exc2
         mode = "recover"
         warns = [f"{path.name}: damaged DXF ({first}); read with ezdxf.recover ({len(auditor.errors)} errors, "
                  f"{len(auditor.fixes)} fixes): check the layout against the drawing"]
@@ -93,7 +95,7 @@ def _drop_default_insunits(doc: Any, data: bytes) -> None:
         del doc.header["$INSUNITS"]
 
 
-def _load_with_plain_circles(path: Path, data: bytes) -> tuple[Any, PlainCircles | None]:
+def load_with_plain_circles(path: Path, data: bytes) -> tuple[Any, PlainCircles | None]:
     """``(doc, circles)``: ezdxf's document of ``path`` without its plain modelspace circles, and
     those circles (:mod:`~stud_planner.drawing.plain_circles`); ``(None, None)`` when that does not apply (binary
     file, no plain circles, any doubt) or ezdxf cannot read the rest: then ezdxf reads the file
@@ -128,3 +130,27 @@ def _load_with_plain_circles(path: Path, data: bytes) -> tuple[Any, PlainCircles
         plain = plain.without(in_paperspace)
     _drop_default_insunits(doc, data)
     return doc, plain
+
+
+@dataclass(frozen=True, eq=False)
+class OpenedDrawing:
+    """A DXF file opened for reading: ezdxf's ``doc``, how it was read (``read_mode`` "read" or
+    "recover"), the file's warnings, and ``plain``: the modelspace's plain CIRCLE entities when
+    :mod:`~stud_planner.drawing.plain_circles` read them (then cut out of ``doc``), else None."""
+
+    doc: Any
+    read_mode: str
+    warnings: list[str]
+    plain: PlainCircles | None
+
+
+def open_drawing(path: Path, *, plain_circles: bool = True) -> OpenedDrawing:
+    """Check and open ``path``: its plain circles as arrays when ``plain_circles`` and the file allows
+    it (:func:`load_with_plain_circles`), everything else with ezdxf (recovering a damaged file)."""
+    data, file_warns = check_file(path)
+    if plain_circles:
+        doc, plain = load_with_plain_circles(path, data)
+        if plain is not None:
+            return OpenedDrawing(doc, "read", file_warns, plain)
+    doc, mode, warns = load_checked_document(path, data, file_warns)
+    return OpenedDrawing(doc, mode, warns, None)

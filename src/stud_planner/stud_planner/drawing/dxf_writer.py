@@ -101,18 +101,24 @@ def write_layout_dxf(
         block = _stud_block(doc, block_scale, nested_blocks)
         _add_stud_inserts(msp, block, stud_wcs, diam * k, layers, block_rotation_deg, block_scale, mirror_blocks,
                           ocs_flip)
-    mark_r = mark_diameter_m * k / 2.0
+    _add_marks(msp, marks_xy_m, to_wcs, mark_diameter_m * k / 2.0, mark_layer, ocs_flip,
+               label_layer if labels else None, label_kind)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    doc.saveas(path, fmt="bin" if binary else "asc")
+    return path
+
+
+def _add_marks(msp, marks_xy_m: Mapping[str, Sequence[float]], to_wcs, mark_r: float, mark_layer: str,
+               ocs_flip: bool, label_layer: str | None, label_kind: str) -> None:
+    """The marks O, A, B and any reference marks (M1, ...), labelled on ``label_layer`` unless None."""
     missing = [name for name in ("O", "A", "B") if name not in marks_xy_m]
     if missing:
         raise ValueError(f"marks_xy_m lacks {', '.join(missing)}")
     for name in ("O", "A", "B", *(m for m in marks_xy_m if m not in ("O", "A", "B"))):
         p = to_wcs(marks_xy_m[name])[0]
         _add_circle(msp, p, mark_r, mark_layer, ocs_flip)
-        if labels:
+        if label_layer is not None:
             _add_label(msp, name, p, mark_r, label_layer, label_kind)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    doc.saveas(path, fmt="bin" if binary else "asc")
-    return path
 
 
 def _frame_to_wcs(origin_wcs_m: Sequence[float], rotation_deg: float, mirror_frame: bool, k: float):

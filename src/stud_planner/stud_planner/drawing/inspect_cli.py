@@ -23,7 +23,7 @@ import numpy as np
 
 from stud_common.strict_json import write_json
 
-from stud_planner.drawing import DrawingError, DrawingLayout, read_layout, units_to_metres
+from stud_planner.drawing import DrawingError, DrawingLayout, LayoutOptions, read_layout, units_to_metres
 from stud_planner.drawing.limits import add_limit_arguments, cli_hint, limits_from_args
 
 PROG = "drawing_inspect"
@@ -188,12 +188,13 @@ def _run(argv: Sequence[str] | None) -> int:
     except ValueError as exc:
         raise _UsageError(str(exc)) from None
 
-    layout = read_layout(
-        args.file, stud_layers=args.stud_layers or ["STUDS"], mark_layer=args.mark_layer or ["MARKS"],
+    options = LayoutOptions(
+        stud_layers=args.stud_layers or ["STUDS"], mark_layer=args.mark_layer or ["MARKS"],
         units_if_unitless=args.units_if_unitless, min_diameter_m=mm(args.min_diameter_mm),
         max_diameter_m=mm(args.max_diameter_mm), min_spacing_m=mm(args.min_spacing_mm),
         include_hidden_layers=args.include_hidden_layers, limits=limits,
     )
+    layout = read_layout(args.file, options)
     print(summary(layout))
     if args.json:
         try:

@@ -15,6 +15,11 @@ class DrawingError(Exception):
     """A drawing that cannot be used; the message names the file and the problem (one line)."""
 
 
+def one_line(text: object) -> str:
+    """``text`` with its whitespace runs (newlines too) folded to single spaces: for one-line errors."""
+    return " ".join(str(text).split())
+
+
 def _float4(values) -> tuple[float, float, float, float]:
     a, b, c, d = (float(v) for v in values)
     return a, b, c, d

@@ -1,33 +1,55 @@
-"""The marks O, A, B (by labels or by geometry) and the drawing frame they define."""
+"""The marks: O, A, B (by their labels or by geometry) and the reference marks M1, M2, ... (by labels).
+
+:func:`mark_label` reads a label's text (entity collection hands it every TEXT, MTEXT and ATTRIB);
+:func:`identify_marks` picks the mark circles among a drawing's circles. The frame the marks define
+is :mod:`.frame`."""
 from __future__ import annotations
 
-import fnmatch
 import math
+import re
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable
 
 import numpy as np
-from stud_planner.drawing.circles import _LABEL_LETTERS
+
+from stud_planner.drawing.layers import format_patterns, layer_matcher
 from stud_planner.drawing.layout_types import CircleSet, DrawingError
-from stud_planner.drawing.neighbours import _TooDense, close_pairs
+from stud_planner.drawing.neighbours import TooDenseError, close_pairs
+from stud_planner.drawing.options import LayoutOptions
+
+__all__ = ["MARK_LETTERS", "MarkChoice", "identify_marks", "mark_label"]
+
+#: the marks every drawing has, in frame order: origin, x axis, y side
+MARK_LETTERS = ("O", "A", "B")
+#: a reference mark's label: M1, M2, ... (``M01`` and ``M 1`` read as M1)
+_REFERENCE_LABEL = re.compile(r"M\s*0*([1-9][0-9]{0,5})")
+#: TEXT control codes (underline, overline, strike-through) around a label
+_TEXT_CODES = re.compile(r"%%[uUoOkK]")
 
 
-
-# -- marks and the frame ---------------------------------------------------------------------------
-def _layer_matcher(patterns: str | Sequence[str]):
-    pats = [patterns] if isinstance(patterns, str) else list(patterns)
-    pats = [p.casefold() for p in pats if p]
-
-    def match(layer: str) -> bool:
-        lay = layer.casefold()
-        # the exact name first: AutoCAD allows [ ] in layer names, which fnmatch reads as a class
-        return any(lay == p or fnmatch.fnmatchcase(lay, p) for p in pats)
-
-    return match, pats
+def mark_label(text: str) -> str | None:
+    """The mark a label's plain ``text`` names: "O", "A", "B", "M1", "M2", ...; None for any other text."""
+    text = _TEXT_CODES.sub("", text).strip().upper()
+    if text in MARK_LETTERS:
+        return text
+    ref = _REFERENCE_LABEL.fullmatch(text)
+    return f"M{ref.group(1)}" if ref else None
 
 
-def _fmt_pats(patterns: str | Sequence[str]) -> str:
-    return ", ".join([patterns] if isinstance(patterns, str) else list(patterns))
+@dataclass(frozen=True, eq=False)
+class MarkChoice:
+    """The mark circles of a drawing (indices into its :class:`CircleSet`).
+
+    ``marks`` maps O, A, B and each reference mark's label to its circle (reference marks after
+    O, A, B, in label order: M1, M2, ..., M10); ``rule`` is "labels" or "geometry"; ``members`` are
+    all mark-layer circles concentric with a chosen mark (the rings of a target symbol), which are
+    never studs."""
+
+    marks: dict[str, int]
+    rule: str
+    warnings: list[str]
+    members: np.ndarray
 
 
 def _merge_concentric(path: Path, idx: np.ndarray, xy: np.ndarray, r: np.ndarray, tol: float) -> np.ndarray:
@@ -38,7 +60,7 @@ def _merge_concentric(path: Path, idx: np.ndarray, xy: np.ndarray, r: np.ndarray
     alive = np.ones(order.size, dtype=bool)
     try:
         i, j, _ = close_pairs(xy[order], tol)
-    except _TooDense:
+    except TooDenseError:
         raise DrawingError(f"{path}: marks ambiguous: too many coincident circles on the mark layer") from None
     for a, b in sorted(zip(i.tolist(), j.tolist())):
         if alive[a]:
@@ -53,25 +75,24 @@ def _angle_deg(p: np.ndarray, q: np.ndarray, s: np.ndarray) -> float:
     return math.degrees(math.atan2(abs(a[0] * b[1] - a[1] * b[0]), float(a @ b)))
 
 
-def _identify_marks(
-    path: Path, cs: CircleSet, mark_layer: str | Sequence[str], dup_tol_units: float,
-    label_distance_factor: float, collinear_tol_deg: float, right_angle_ambiguity_deg: float,
-    is_stud_layer: Callable[[str], bool] | None = None,
-) -> tuple[dict[str, int], str, list[str], np.ndarray]:
-    """Pick the O, A, B circles and the reference marks M1, M2, ... (indices into ``cs``).
+def identify_marks(path: Path, cs: CircleSet, options: LayoutOptions,
+                   is_stud_layer: Callable[[str], bool] | None = None) -> MarkChoice:
+    """Pick the O, A, B circles and the reference marks M1, M2, ... among ``cs``'s circles on
+    ``options.mark_layer``. ``is_stud_layer``: whether a layer holds studs (an unlabelled circle on a
+    layer that is both is a stud, not a mark missing its label).
 
-    Returns (marks, rule, warnings, members): ``marks`` maps O, A, B and each reference mark's
-    label to its circle (reference marks after O, A, B, in label order: M1, M2, ..., M10);
-    ``members`` are all mark-layer circles concentric with a chosen mark (the rings of a target
-    symbol), which are never studs. ``is_stud_layer``: whether a layer holds studs (an unlabelled
-    circle on a layer that is both is a stud, not a mark missing its label).
+    Raises:
+        DrawingError: marks missing, ambiguous, coincident or collinear (one line naming ``path``).
     """
-    match, _ = _layer_matcher(mark_layer)
+    mark_layer = options.mark_layer
+    dup_tol_units = options.duplicate_tol_m / cs.metres_per_unit
+    collinear_tol_deg, right_angle_ambiguity_deg = options.collinear_tol_deg, options.right_angle_ambiguity_deg
+    match = layer_matcher(mark_layer)
     xy, r = cs.centers_wcs, cs.radii
     hit = {lay: match(lay) for lay in set(cs.layers)}
     on_layer = np.array([k for k, lay in enumerate(cs.layers) if hit[lay]], dtype=np.int64)
     cand = _merge_concentric(path, on_layer, xy, r, dup_tol_units)
-    where = f"on layer {_fmt_pats(mark_layer)}"
+    where = f"on layer {format_patterns(mark_layer)}"
     warns: list[str] = []
     if cand.size < 3:
         raise DrawingError(
@@ -79,7 +100,7 @@ def _identify_marks(
             f"need 3 (O, A, B){cs.skipped_summary()}; layers: {cs.layer_summary()}"
         )
 
-    labelled = _labelled(cs, cand, label_distance_factor)
+    labelled = _labelled(cs, cand, options.label_distance_factor)
     multi = {lt: ks for lt, ks in labelled.items() if len(ks) > 1}
     if multi:
         lt, ks = next(iter(multi.items()))
@@ -87,7 +108,7 @@ def _identify_marks(
     refs = _reference_marks(path, cs, cand, labelled, where, warns)
     if refs:
         cand = cand[~np.isin(cand, list(refs.values()))]
-        labelled = {lt: ks for lt, ks in labelled.items() if lt in _LABEL_LETTERS}
+        labelled = {lt: ks for lt, ks in labelled.items() if lt in MARK_LETTERS}
         marks, rule, board_warns, _ = _identify_marks_of(path, cs, cand, labelled, where, collinear_tol_deg,
                                                          right_angle_ambiguity_deg, on_layer, dup_tol_units)
         extra = [int(k) for k in cand if k not in marks.values()
@@ -100,9 +121,9 @@ def _identify_marks(
                 "other circles off the mark layer"
             )
         marks.update(refs)
-        return marks, rule, warns + board_warns, _members(marks, on_layer, xy, dup_tol_units)
-    return _identify_marks_of(path, cs, cand, labelled, where, collinear_tol_deg, right_angle_ambiguity_deg, on_layer,
-                              dup_tol_units, warns)
+        return MarkChoice(marks, rule, warns + board_warns, _members(marks, on_layer, xy, dup_tol_units))
+    return MarkChoice(*_identify_marks_of(path, cs, cand, labelled, where, collinear_tol_deg, right_angle_ambiguity_deg,
+                                          on_layer, dup_tol_units, warns))
 
 
 def _reference_marks(path: Path, cs: CircleSet, cand: np.ndarray, labelled: dict[str, list[int]], where: str,
@@ -110,9 +131,9 @@ def _reference_marks(path: Path, cs: CircleSet, cand: np.ndarray, labelled: dict
     """The reference marks among the labelled circles: label -> circle, in label order (M1, M2, ...,
     M10). An M label next to no mark circle is warned about (a thread size such as M16 on another
     layer is text like any other)."""
-    refs = {lt: ks[0] for lt, ks in labelled.items() if lt not in _LABEL_LETTERS}
+    refs = {lt: ks[0] for lt, ks in labelled.items() if lt not in MARK_LETTERS}
     refs = dict(sorted(refs.items(), key=lambda kv: int(kv[0][1:])))
-    unused = sorted({lt for lt, _, _ in cs.labels if lt not in _LABEL_LETTERS} - set(refs), key=lambda t: int(t[1:]))
+    unused = sorted({lt for lt, _, _ in cs.labels if lt not in MARK_LETTERS} - set(refs), key=lambda t: int(t[1:]))
     if refs and unused:
         warns.append(f"{path.name}: label(s) {', '.join(unused)} name no mark circle {where} (no reference mark "
                      "read for them)")
@@ -165,7 +186,7 @@ def _labelled(cs: CircleSet, cand: np.ndarray, label_distance_factor: float) -> 
     """Labels: each candidate circle takes the letter of its nearest O/A/B (or M1, M2, ...) label within
     reach. Returns letter -> the circles it names (letters naming none left out), O, A, B first."""
     xy, r = cs.centers_wcs, cs.radii
-    by_letter: dict[str, list[int]] = {k: [] for k in _LABEL_LETTERS}
+    by_letter: dict[str, list[int]] = {k: [] for k in MARK_LETTERS}
     by_letter.update({lt: [] for lt, _, _ in cs.labels if lt not in by_letter})
     if cs.labels:
         lab_xy = np.array([(x, y) for _, x, y in cs.labels])

@@ -1,21 +1,21 @@
 """Neighbour search by grid hash (O(N) for sane spacing): duplicates and close stud pairs."""
 from __future__ import annotations
 
-
 import numpy as np
 
+__all__ = ["TooDenseError", "close_pairs"]
 
 
-# -- neighbour search (grid hash, O(N) for sane spacing) -------------------------------------------
-class _TooDense(Exception):
-    pass
+class TooDenseError(Exception):
+    """More candidate pairs than :func:`close_pairs` examines (``args[0]``: how many): the points are
+    far denser than the radius (a drawing in metres read as mm puts everything in one cell)."""
 
 
 def close_pairs(xy: np.ndarray, radius: float, max_candidates: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Index pairs (i < j) of points closer than ``radius``, and their distances.
 
     Grid hash with cell = radius: each point is compared with its own cell and four forward
-    neighbours only. Raises _TooDense when more than ``max_candidates`` candidate pairs
+    neighbours only. Raises :class:`TooDenseError` when more than ``max_candidates`` candidate pairs
     would be examined (e.g. a drawing in metres read as mm puts everything in one cell).
     """
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
@@ -41,7 +41,7 @@ def close_pairs(xy: np.ndarray, radius: float, max_candidates: int | None = None
         count = np.searchsorted(skey, nkey, "right") - first
         total = int(count.sum())
         if total > max_candidates:
-            raise _TooDense(total)
+            raise TooDenseError(total)
         if total == 0:
             continue
         ii = np.repeat(idx, count)

@@ -1,12 +1,18 @@
-"""DXF $INSUNITS codes and names -> metres."""
+"""Units: DXF $INSUNITS codes and names -> metres, and the unit a drawing's coordinates are in.
+
+The drawing frame these units convert into (metres, origin O, x toward A) is :mod:`.frame`."""
 from __future__ import annotations
 
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from stud_planner.drawing.layout_types import DrawingError
 
+__all__ = ["UNITS", "DrawingUnits", "drawing_units", "units_to_metres"]
 
-# -- units -----------------------------------------------------------------------------------------
 # $INSUNITS code -> (name, metres per drawing unit). Exact SI definitions (1 in = 25.4 mm).
 UNITS: dict[int, tuple[str, float]] = {
     1: ("in", 0.0254),
@@ -58,3 +64,32 @@ def units_to_metres(name_or_code: str | int) -> tuple[int, str, float]:
         known = ", ".join(name for name, _ in UNITS.values())
         raise ValueError(f"unknown unit {name_or_code!r} (known: {known})")
     return _UNIT_BY_NAME[key]
+
+
+@dataclass(frozen=True)
+class DrawingUnits:
+    """The unit of a drawing's coordinates: its $INSUNITS code as found (0: unitless or absent), the
+    unit's name, metres per drawing unit, and whether the unit was assumed (``units_if_unitless``)."""
+
+    insunits: int
+    name: str
+    metres_per_unit: float
+    assumed: bool
+
+
+def drawing_units(doc: Any, path: Path, units_if_unitless: str, warns: list[str]) -> DrawingUnits:
+    """The unit of ezdxf document ``doc`` (file ``path``, for the messages); appends a warning to
+    ``warns`` when the unit is assumed. Raises DrawingError for an unknown ``units_if_unitless``."""
+    insunits = int(doc.header.get("$INSUNITS", 0) or 0)
+    if insunits in UNITS:
+        _, unit_name, scale = units_to_metres(insunits)
+        return DrawingUnits(insunits, unit_name, scale, False)
+    try:
+        _, unit_name, scale = units_to_metres(units_if_unitless)
+    except ValueError as exc:
+        raise DrawingError(f"{path}: units_if_unitless: {exc}") from exc
+    what = "no $INSUNITS" if "$INSUNITS" not in doc.header else f"$INSUNITS {insunits} (unitless)"
+    if insunits not in (0,):
+        what = f"unsupported $INSUNITS code {insunits}"
+    warns.append(f"{path.name}: {what}: coordinates taken as {unit_name} (units_if_unitless)")
+    return DrawingUnits(insunits, unit_name, scale, True)

@@ -11,12 +11,12 @@ from stud_perception.depth_image import FillRule, SampleStatus, fill_holes_at, s
 
 
 #: Up to this many new pixels in one call, the holes around them are filled with them (see
-#: :meth:`_PixelFills._with_holes_around`); beyond, the per-pixel cost of filling dominates.
+#: :meth:`PixelFills._with_holes_around`); beyond, the per-pixel cost of filling dominates.
 PREFETCH_BELOW = 128
 PREFETCH_RADIUS_PX = 2
 
 
-class _PixelFills:
+class PixelFills:
     """:func:`~stud_perception.depth_image.fill_depth_at` of integer pixels of one depth image, each computed once.
 
     A stud whose look-ups touch a hole revisits the same few pixels on every iteration of the
@@ -87,9 +87,9 @@ _CORNER_DU = np.array([0, 1, 0, 1])
 _CORNER_DV = np.array([0, 0, 1, 1])
 
 
-def _depth_at_subpixel(
+def depth_at_subpixel(
     depth_m: np.ndarray, u: np.ndarray, v: np.ndarray, window_px: int, max_window_px: int, discontinuity_m: float,
-    fills: _PixelFills | None = None,
+    fills: PixelFills | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Bilinear depth at sub-pixel (u, v) (n,), in-image, with holes filled and steps respected.
 
@@ -119,7 +119,7 @@ def _depth_at_subpixel(
     w = (np.where(_CORNER_DU, fu[:, None], (1 - fu)[:, None])
          * np.where(_CORNER_DV, fv[:, None], (1 - fv)[:, None]))  # bilinear weights
     if fills is None:
-        fills = _PixelFills(depth_m, window_px, max_window_px)
+        fills = PixelFills(depth_m, window_px, max_window_px)
     d, crule, spread = fills(cu, cv)
     with np.errstate(invalid="ignore"):
         straddle = (crule != FillRule.DIRECT) & (crule != FillRule.NONE) & ~(spread <= 0.5 * discontinuity_m)

@@ -106,8 +106,7 @@ def _axial_radial(camera: CameraModel, U: np.ndarray, V: np.ndarray, d: np.ndarr
     """Eq. 1 of pixels (U, V) (n, M) at depths d, relative to the weld points p (n, 3): the height
     s along each unit axis ``nrm`` (n, 3) and the distance rho from it, (n, M) each. Component by
     component (the ray is linear in the pixel), no (3, n, M) array."""
-    per_u, per_v = camera.R_wc[:, 0] / camera.fx, camera.R_wc[:, 1] / camera.fy
-    base = camera.R_wc[:, 2] - camera.cx * per_u - camera.cy * per_v  # the ray of pixel (0, 0)
+    base, per_u, per_v = camera.ray_basis_world()  # Eq. 1's ray, linear in the pixel
     origin = camera.t_wc - p  # (n, 3)
     s = np.zeros(d.shape)
     xx = np.zeros(d.shape)

@@ -22,7 +22,7 @@ from stud_common.vocabulary import TargetStatus
 Z_RANGE_MARGIN_M = 0.05
 
 
-def _depth_samples(depth_m: np.ndarray, stride: int = 16) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def depth_samples(depth_m: np.ndarray, stride: int = 16) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every ``stride``-th pixel of a depth image: u (1, w), v (h, 1) and depth (h, w), NaN where invalid."""
     sub = depth_m[::stride, ::stride]
     sub = np.where(sub > 0, sub, np.nan)  # NaN stays NaN
@@ -47,7 +47,7 @@ def observed_z_range(depth_m: np.ndarray, camera: CameraModel, stride: int = 16,
 
 def observed_heights(depth_m: np.ndarray, camera: CameraModel, stride: int = 16) -> tuple[float, float, float] | None:
     """(lowest, highest, median) world z of Eq. 1 on every ``stride``-th pixel with depth; None if none."""
-    u, v, sub = _depth_samples(depth_m, stride)
+    u, v, sub = depth_samples(depth_m, stride)
     zw = camera.pixel_to_world(u, v, sub)[..., 2]
     zw = zw[np.isfinite(zw)]
     if zw.size == 0:
@@ -148,7 +148,8 @@ class MatchResults:
 # ---------------------------------------------------------------------------------------------
 # Input checks and small geometry helpers (no Eq. 1 here: that is CameraModel's)
 # ---------------------------------------------------------------------------------------------
-def _check_inputs(targets_xy_w, depth_m, camera: CameraModel) -> tuple[np.ndarray, np.ndarray]:
+def check_inputs(targets_xy_w, depth_m, camera: CameraModel) -> tuple[np.ndarray, np.ndarray]:
+    """A matcher's inputs as (targets (N, 2) float64, depth (H, W) float); MatchingError naming what does not fit."""
     xy = np.asarray(targets_xy_w, dtype=np.float64)
     if xy.ndim == 1 and xy.shape == (2,):
         xy = xy[None, :]
@@ -164,7 +165,8 @@ def _check_inputs(targets_xy_w, depth_m, camera: CameraModel) -> tuple[np.ndarra
     return xy, depth
 
 
-def _empty_results(algorithm: str, n: int) -> dict:
+def empty_results(algorithm: str, n: int) -> dict:
+    """The arrays of :class:`MatchResults` for ``n`` studs before a matcher fills them: nothing found yet."""
     return dict(
         algorithm=algorithm,
         pixel_uv=np.full((n, 2), np.nan),
@@ -179,44 +181,6 @@ def _empty_results(algorithm: str, n: int) -> dict:
 def line_in_view_z_interval(
     camera: CameraModel, targets_xy_w: np.ndarray, z_min_m: float, z_max_m: float, min_depth_m: float = 1e-3
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Heights z in [z_min_m, z_max_m] at which the vertical line (x_w, y_w, z) projects inside the image.
-
-    View-frustum clipping, exact: with P_c(z) = A + z B (optical frame, from
-    :meth:`CameraModel.world_to_camera`), each image bound ``0 <= u <= W-1``, ``0 <= v <= H-1`` and
-    ``z_c >= min_depth_m`` is linear in z. Returns (lo, hi), each (N,); lo > hi means never in view.
-    """
-    return _line_z_interval(camera, *camera_line(camera, targets_xy_w), z_min_m, z_max_m, min_depth_m)
-
-
-def camera_line(camera: CameraModel, targets_xy_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(A, B) (N, 3) with P_c(z) = A + z B the optical-frame point of (x_w, y_w, z) on each stud's
-    vertical line (:meth:`CameraModel.world_to_camera`; exact, the map is affine)."""
-    xy = np.asarray(targets_xy_w, dtype=np.float64).reshape(-1, 2)
-    n = xy.shape[0]
-    A = camera.world_to_camera(np.column_stack([xy, np.zeros(n)]))
-    B = camera.world_to_camera(np.column_stack([xy, np.ones(n)])) - A
-    return A, B
-
-
-def _line_z_interval(camera: CameraModel, A: np.ndarray, B: np.ndarray, z_min_m: float, z_max_m: float,
-                     min_depth_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`line_in_view_z_interval` of the lines P_c(z) = A + z B (:func:`camera_line`)."""
-    # (alpha + beta z) >= 0 for each constraint; u = fx x/z + cx >= 0 <=> fx x + cx z >= 0, etc.
-    fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
-    W1, H1 = camera.width - 1, camera.height - 1
-    alpha = np.stack([fx * A[:, 0] + cx * A[:, 2],  # u >= 0
-                      -(fx * A[:, 0] + (cx - W1) * A[:, 2]),  # u <= W-1
-                      fy * A[:, 1] + cy * A[:, 2],  # v >= 0
-                      -(fy * A[:, 1] + (cy - H1) * A[:, 2]),  # v <= H-1
-                      A[:, 2] - min_depth_m])  # in front of the camera
-    beta = np.stack([fx * B[:, 0] + cx * B[:, 2], -(fx * B[:, 0] + (cx - W1) * B[:, 2]),
-                     fy * B[:, 1] + cy * B[:, 2], -(fy * B[:, 1] + (cy - H1) * B[:, 2]), B[:, 2]])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        root = -alpha / beta
-        lo = np.maximum(float(z_min_m), np.max(np.where(beta > 0, root, -np.inf), axis=0))
-        hi = np.minimum(float(z_max_m), np.min(np.where(beta < 0, root, np.inf), axis=0))
-        lo[np.any((beta == 0) & (alpha < 0), axis=0)] = np.inf  # a bound the line never meets
-    # Shrink by a hair so rounding never puts an iterate a femtometre outside the image.
-    span = hi - lo
-    pad = np.where(span > 0, np.minimum(1e-9, 0.25 * span), 0.0)
-    return lo + pad, hi - pad
+    """Heights z in [z_min_m, z_max_m] at which the vertical line (x_w, y_w, z) projects inside the image:
+    (lo, hi), each (N,); lo > hi means never in view (:meth:`CameraModel.lines_in_view`, exact)."""
+    return camera.lines_in_view(camera.vertical_lines(targets_xy_w), z_min_m, z_max_m, min_depth_m)

@@ -78,39 +78,45 @@ from stud_planner.matching.view_targets import (ALGORITHMS, NoiseMemory, Planner
                                                view_noise_correlation)
 from stud_common import names
 
+_PLAN = PlannerConfig()  # the planner's defaults are its own; the parameters expose them
 PARAMS = [
     ros_io.SENSOR_QOS_PARAM,
-    Param("algorithm", "batch", "matcher: 'batch' (ours), 'fpm' or 'bfs' (the paper's)", choices=ALGORITHMS),
-    Param("tolerance_m", 0.001, "match tolerance on world XY [m] (paper: 1 mm)", min=1e-5, max=0.02),
-    Param("fpm_window_px", 25, "FPM brute-force window side [px] (paper: 25)", min=3, max=201),
-    Param("hole_window_px", 7, "missing-depth window side [px] (paper: 7)", min=3, max=63),
-    Param("normal_window_m", 0.02, "side of the surface patch the normal is fitted on [m]", min=0.002, max=0.2),
-    Param("normal_samples_per_side", 81, "depth samples per side of the normal's patch at most (81: every pixel "
-          "of a 20 mm patch at 0.45 m; fewer is faster and noisier)", min=5, max=161),
-    Param("max_normal_rms_m", 0.0015, "largest fit RMS for a trusted normal [m]", min=1e-5, max=0.05),
-    Param("noise_correlation_max_lag_px", 16, "the normal's 1-sigma is widened by the depth noise's correlation "
-          "across pixels, measured on each frame up to this lag; 0: take the noise as independent (a real "
-          "camera's normal error is then understated several-fold) [px]", min=0, max=64),
-    Param("sample_step_max_loss", 0.05, "where the measured noise correlation makes neighbouring pixels redundant, "
-          "the normal's patch is sampled every few pixels (faster) at a cost of at most this fraction of the "
-          "normal's 1-sigma; 0: every pixel", min=0.0, max=1.0),
+    Param("algorithm", _PLAN.algorithm, "matcher: 'batch' (ours), 'fpm' or 'bfs' (the paper's)", choices=ALGORITHMS),
+    Param("tolerance_m", _PLAN.tol_m, "match tolerance on world XY [m] (paper: 1 mm)", min=1e-5, max=0.02),
+    Param("fpm_window_px", _PLAN.fpm_window_px, "FPM brute-force window side [px] (paper: 25)", min=3, max=201),
+    Param("hole_window_px", _PLAN.hole_window_px, "missing-depth window side [px] (paper: 7)", min=3, max=63),
+    Param("normal_window_m", _PLAN.normal_window_m, "side of the surface patch the normal is fitted on [m]",
+          min=0.002, max=0.2),
+    Param("normal_samples_per_side", _PLAN.normal_samples_per_side, "depth samples per side of the normal's patch "
+          "at most (81: every pixel of a 20 mm patch at 0.45 m; fewer is faster and noisier)", min=5, max=161),
+    Param("max_normal_rms_m", _PLAN.max_normal_rms_m, "largest fit RMS for a trusted normal [m]", min=1e-5, max=0.05),
+    Param("noise_correlation_max_lag_px", _PLAN.noise_correlation_max_lag_px, "the normal's 1-sigma is widened by "
+          "the depth noise's correlation across pixels, measured on each frame up to this lag; 0: take the noise as "
+          "independent (a real camera's normal error is then understated several-fold) [px]", min=0, max=64),
+    Param("sample_step_max_loss", _PLAN.sample_step_max_loss, "where the measured noise correlation makes "
+          "neighbouring pixels redundant, the normal's patch is sampled every few pixels (faster) at a cost of at "
+          "most this fraction of the normal's 1-sigma; 0: every pixel", min=0.0, max=1.0),
     Param("noise_correlation_reuse_s", 2.0, "a frame's measured noise correlation is reused for the same camera's "
           "frames at the same pose (1 mm, 0.1 deg) for up to this long, and measured again after a frame's targets "
           "are published once it is half that old, so a steady stream never waits for it; a new pose is measured "
           "on its own frame; 0: measured on every frame before its targets [s]", min=0.0, max=60.0),
-    Param("lean_budget_deg", 5.0, "the most a welded stud may lean from the true normal (the code's 5 deg); a "
-          "target whose normal is too uncertain for it is normal_uncertain -- the slope never refuses [deg]",
-          min=0.1, max=45.0),
-    Param("arm_orientation_error_deg", 0.5, "the arm's orientation error, its share of the lean budget [deg]",
-          min=0.0, max=10.0),
-    Param("normal_sigma_k", 3.0, "coverage factor on the normal's 1-sigma in the lean bound", min=0.5, max=10.0),
-    Param("check_gun_clearance", True, "refuse studs where the gun would touch the part (gun_blocked)"),
-    Param("gun_radius_m", 0.03, "the welding gun's radius about the stud (body, foot) [m]", min=0.001, max=0.5),
-    Param("gun_length_m", 0.30, "surface to the gun's top at the approach pose (gun length + standoff) [m]",
-          min=0.01, max=2.0),
-    Param("tool_offset_m", 0.0, "report the point this far along the normal [m] (0: on the surface)",
+    Param("lean_budget_deg", _PLAN.lean_budget_deg, "the most a welded stud may lean from the true normal (the "
+          "code's 5 deg); a target whose normal is too uncertain for it is normal_uncertain -- the slope never "
+          "refuses [deg]", min=0.1, max=45.0),
+    Param("arm_orientation_error_deg", _PLAN.arm_orientation_error_deg, "the arm's orientation error, its share of "
+          "the lean budget [deg]", min=0.0, max=10.0),
+    Param("normal_sigma_k", _PLAN.normal_sigma_k, "coverage factor on the normal's 1-sigma in the lean bound",
+          min=0.5, max=10.0),
+    Param("check_gun_clearance", _PLAN.check_gun_clearance, "refuse studs where the gun would touch the part "
+          "(gun_blocked)"),
+    Param("gun_radius_m", _PLAN.gun.radius_m, "the welding gun's radius about the stud (body, foot) [m]",
+          min=0.001, max=0.5),
+    Param("gun_length_m", _PLAN.gun.length_m, "surface to the gun's top at the approach pose (gun length + "
+          "standoff) [m]", min=0.01, max=2.0),
+    Param("tool_offset_m", _PLAN.tool_offset_m, "report the point this far along the normal [m] (0: on the surface)",
           min=-0.5, max=0.5),
-    Param("bfs_max_pixels", 0, "BFS only: pixels evaluated per stud at most (0: all)", min=0, max=100_000_000),
+    Param("bfs_max_pixels", _PLAN.bfs_max_pixels or 0, "BFS only: pixels evaluated per stud at most (0: all)",
+          min=0, max=100_000_000),
     Param("max_registration_age_s", 0.0, "a registration older than this (stamps) is stale [s]; 0: never",
           min=0.0, max=1e6),
     Param("sync_slop_s", 0.0, "stamps closer than this belong to one view [s] (0: equal stamps)", min=0.0, max=1.0),
@@ -154,7 +160,7 @@ class MatcherNode(Node):
         self._arrivals: dict[str, deque] = {k: deque(maxlen=20) for k in ("color", "depth", "info", "pose")}
         self._color_sub: Subscription | None = None  # only while the overlay has a subscriber
         self._colors: OrderedDict[int, Image] = OrderedDict()  # stamp ns -> colour image, newest last
-        self._overlays_due: OrderedDict[int, tuple] = OrderedDict()  # stamp ns -> (targets, camera, rectifier)
+        self._overlays_due: OrderedDict[int, tuple] = OrderedDict()  # stamp ns -> (targets, decoded view)
         self.pub_targets = self.create_publisher(WeldTargetArray, names.WELD_TARGETS, ros_io.RESULT_QOS)
         self.pub_poses = self.create_publisher(PoseArray, names.WELD_TARGET_POSES, ros_io.RESULT_QOS)
         self.pub_markers = self.create_publisher(MarkerArray, names.WELD_TARGET_MARKERS, ros_io.RESULT_QOS)
@@ -244,8 +250,8 @@ class MatcherNode(Node):
         stamp = ros_io.stamp_to_ns(msg.header.stamp)
         due = self._pop_near(self._overlays_due, stamp)
         if due is not None:
-            targets, camera, rectifier = due
-            self._publish_overlay(targets, camera, rectifier, msg)
+            targets, decoded = due
+            self._publish_overlay(targets, decoded, msg)
             return
         _put_bounded(self._colors, stamp, msg)
 
@@ -314,25 +320,22 @@ class MatcherNode(Node):
         """One view's targets with ``registration``, published."""
         stamp = view["depth"].header.stamp
         try:
-            camera = image_io.camera_model_from_msgs(view["info"], view["pose"].pose, self.p["images_rectified"])
-            rectifier = image_io.camera_rectifier(view["info"], self.p["images_rectified"])
-            if rectifier is not None:
-                self.get_logger().info(image_io.rectification_note(view["info"]), once=True)
-            depth = image_io.depth_to_metres(view["depth"], rectifier)
-            if depth.shape != (camera.height, camera.width):
-                raise ros_io.MessageError(f"depth {depth.shape[1]}x{depth.shape[0]} does not match camera_info "
-                                          f"{camera.width}x{camera.height} (is depth registered to colour?)")
+            decoded = image_io.decode_depth_view(view["info"], view["pose"].pose, view["depth"],
+                                                 self.p["images_rectified"], image_io.view_topics(self))
         except (ros_io.MessageError, ValueError) as exc:
             self.get_logger().error(f"unusable view: {exc}", throttle_duration_sec=5.0)
             self.diag.set(self.diag.ERROR, f"unusable view: {exc}")
             return
+        if decoded.rectifier is not None:
+            self.get_logger().info(image_io.rectification_note(view["info"]), once=True)
+        camera, depth = decoded.camera, decoded.depth_m
         layout = self._layout_view
         assert layout is not None  # views wait for it
         now = time.monotonic()
         reused = self._noise.recall(camera, now)
         targets = plan_view(layout.ids, layout.xy_m, registration_from_msg(registration), depth, camera,
-                            self.planner_config(), noise=reused)
-        self._publish(targets, camera, rectifier, stamp,
+                            self.planner_config(), noise=reused, view_index=self.view_index)
+        self._publish(targets, decoded, stamp,
                       noise_age_s=None if reused is None else now - self._noise.measured_at_s)
         self.view_index += 1
         # After the targets are out: this frame's noise, for the frames after it.
@@ -341,7 +344,7 @@ class MatcherNode(Node):
         elif self._noise.refresh_due(time.monotonic()):
             self._noise.remember(camera, view_noise_correlation(targets, depth, camera), time.monotonic())
 
-    def _publish(self, targets, camera, rectifier, stamp, noise_age_s: float | None = None) -> None:
+    def _publish(self, targets, decoded: image_io.DepthView, stamp, noise_age_s: float | None = None) -> None:
         # First: it is what the cell waits for. Written as CDR bytes straight from the arrays (a
         # tenth of the cost of 100 WeldTarget objects through rclpy's conversion).
         self.pub_targets.publish(weld_target_array_cdr(targets, self.view_index, stamp.sec, stamp.nanosec, "world"))
@@ -356,9 +359,9 @@ class MatcherNode(Node):
             stamp_ns = ros_io.stamp_to_ns(stamp)
             color = self._pop_near(self._colors, stamp_ns)
             if color is not None:
-                self._publish_overlay(targets, camera, rectifier, color)
+                self._publish_overlay(targets, decoded, color)
             else:
-                _put_bounded(self._overlays_due, stamp_ns, (targets, camera, rectifier))
+                _put_bounded(self._overlays_due, stamp_ns, (targets, decoded))
         counts = targets.counts()
         widened = targets.sigma_inflation()
         summary = (f"view {self.view_index}: {counts.get('ok', 0)}/{len(targets.ids)} ok "
@@ -372,13 +375,13 @@ class MatcherNode(Node):
                       noise_correlation_from=("this frame" if noise_age_s is None
                                               else f"a frame {noise_age_s:.2f} s before"), **{f"count_{k}": v for k, v in counts.items()})
 
-    def _publish_overlay(self, targets, camera, rectifier, color_msg: Image) -> None:
+    def _publish_overlay(self, targets, decoded: image_io.DepthView, color_msg: Image) -> None:
         try:
-            color = image_io.color_to_bgr(color_msg, rectifier)
+            color = decoded.color(color_msg)
         except (ros_io.MessageError, ValueError) as exc:
             self.get_logger().warn(f"no overlay: unusable colour image: {exc}", throttle_duration_sec=10.0)
             return
-        overlay = draw_targets_overlay(color, targets, camera)
+        overlay = draw_targets_overlay(color, targets, decoded.camera)
         stamp, frame = color_msg.header.stamp, color_msg.header.frame_id
         if self.pub_overlay.get_subscription_count():
             self.pub_overlay.publish(image_io.numpy_to_image(overlay, "bgr8", stamp, frame))

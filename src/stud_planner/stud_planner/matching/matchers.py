@@ -30,12 +30,12 @@ import math
 
 import numpy as np
 
-from stud_perception.camera_model import CameraModel
+from stud_perception.camera_model import CameraModel, VerticalLines
 from stud_perception.depth_image import FillRule
-from stud_planner.matching.depth_lookup import _depth_at_subpixel, _PixelFills
+from stud_planner.matching.depth_lookup import PixelFills, depth_at_subpixel
 from stud_planner.matching.match_common import (Z_RANGE_MARGIN_M, MatchingError, MatchResult, MatchResults,
-                                                MatchStatus, _check_inputs, _empty_results, _line_z_interval,
-                                                camera_line, line_in_view_z_interval, observed_z_range)
+                                                MatchStatus, check_inputs, empty_results, line_in_view_z_interval,
+                                                observed_z_range)
 from stud_planner.matching.paper_baselines import match_bfs, match_fpm, xy_jacobian_at_height
 
 # ---------------------------------------------------------------------------------------------
@@ -81,20 +81,20 @@ def match_batch(
     - NOT_CONVERGED: none of the above, ``max_lookups`` reached outside ``tol_m``.
     Vectorised over studs; the loop is over look-ups (<= max_lookups), on the still-active studs.
     """
-    xy, depth = _check_inputs(targets_xy_w, depth_m, camera)
+    xy, depth = check_inputs(targets_xy_w, depth_m, camera)
     n = xy.shape[0]
-    out = _empty_results("batch", n)
+    out = empty_results("batch", n)
     if z_range_m is None or z_init_m is None:
         z_min, z_max, z_mid = observed_z_range(depth, camera)
         z_range_m = z_range_m or (z_min, z_max)
         z_init_m = z_mid if z_init_m is None else z_init_m
-    line = camera_line(camera, xy)
-    zlo, zhi = _line_z_interval(camera, *line, z_range_m[0], z_range_m[1], 1e-3)
+    lines = camera.vertical_lines(xy)
+    zlo, zhi = camera.lines_in_view(lines, z_range_m[0], z_range_m[1], 1e-3)
     in_view = zlo <= zhi
     out["status"][~in_view] = MatchStatus.OUT_OF_VIEW
     active = np.flatnonzero(in_view)
     if active.size:
-        search = _SecantSearch(xy, depth, camera, line, out, zlo, zhi, tol_m=tol_m, converge_xy_m=converge_xy_m,
+        search = _SecantSearch(xy, depth, camera, lines, out, zlo, zhi, tol_m=tol_m, converge_xy_m=converge_xy_m,
                                z_bracket_tol_m=z_bracket_tol_m, hole_window_px=hole_window_px,
                                hole_max_window_px=hole_max_window_px, discontinuity_m=discontinuity_m)
         search.run(active, z_init_m, max_lookups)
@@ -110,7 +110,7 @@ class _SecantSearch:
     ``out`` it fills in, each stud's bracket [lo_b, hi_b] of heights (g > 0 below the surface,
     g < 0 above) with g there, and whether its last sample straddled a depth step."""
 
-    def __init__(self, xy: np.ndarray, depth: np.ndarray, camera: CameraModel, line: tuple, out: dict,
+    def __init__(self, xy: np.ndarray, depth: np.ndarray, camera: CameraModel, lines: VerticalLines, out: dict,
                  zlo: np.ndarray, zhi: np.ndarray, *, tol_m: float, converge_xy_m: float, z_bracket_tol_m: float, hole_window_px: int,
                  hole_max_window_px: int, discontinuity_m: float) -> None:
         n = xy.shape[0]
@@ -118,20 +118,14 @@ class _SecantSearch:
         self.tol_m, self.converge_xy_m, self.z_bracket_tol_m = tol_m, converge_xy_m, z_bracket_tol_m
         self.hole_window_px, self.hole_max_window_px, self.discontinuity_m = (hole_window_px, hole_max_window_px,
                                                                               discontinuity_m)
-        self.fills = _PixelFills(depth, hole_window_px, hole_max_window_px)
+        self.fills = PixelFills(depth, hole_window_px, hole_max_window_px)
         self.lookup = 0  # look-ups so far; a stud takes part in every one from the first until it settles
         self.lo_b = np.full(n, -np.inf)  # highest z seen with g > 0 (the surface is above it)
         self.hi_b = np.full(n, np.inf)  # lowest z seen with g < 0
         self.g_lo = np.full(n, np.nan)  # g at lo_b / hi_b, to measure a jump of g when the bracket collapses
         self.g_hi = np.full(n, np.nan)
         self.on_step = np.zeros(n, dtype=bool)
-        # The pixel of height z on each stud's line is u = (a_u + b_u z) / (a_z + b_z z), the same
-        # for v: projective in z (from P_c(z) = A + z B), each a few operations a look-up.
-        A, B = line
-        fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
-        self.a_u, self.b_u = fx * A[:, 0] + cx * A[:, 2], fx * B[:, 0] + cx * B[:, 2]
-        self.a_v, self.b_v = fy * A[:, 1] + cy * A[:, 2], fy * B[:, 1] + cy * B[:, 2]
-        self.a_z, self.b_z = A[:, 2].copy(), B[:, 2].copy()
+        self.lines = lines  # each stud's pixel is projective in its height z: a few operations a look-up
 
     def run(self, idx: np.ndarray, z_init_m: float, max_lookups: int) -> None:
         """Search studs ``idx`` from the height ``z_init_m``: a plain fixed-point step first, then
@@ -192,23 +186,19 @@ class _SecantSearch:
     def _evaluate_one(self, i: int, z: float, lookup: int) -> tuple[float, float, bool]:
         """:meth:`evaluate` of one stud at height z, as look-up number ``lookup``: (g, residual, had depth)."""
         cam, out = self.camera, self.out
-        inv_zc = 1.0 / (self.a_z[i] + self.b_z[i] * z)
-        u = min(max((self.a_u[i] + self.b_u[i] * z) * inv_zc, 0.0), cam.width - 1.0)
-        v = min(max((self.a_v[i] + self.b_v[i] * z) * inv_zc, 0.0), cam.height - 1.0)
+        u, v = self.lines.pixel_at_one(i, z)
+        u, v = min(max(u, 0.0), cam.width - 1.0), min(max(v, 0.0), cam.height - 1.0)
         d = self._easy_sample(u, v)
         rule, step = FillRule.DIRECT, False
         if d is None:  # a hole or a step: the vectorised rule, for this one sample
-            dd, rr, ss = _depth_at_subpixel(self.depth, np.array([u]), np.array([v]), self.hole_window_px,
-                                            self.hole_max_window_px, self.discontinuity_m, self.fills)
+            dd, rr, ss = depth_at_subpixel(self.depth, np.array([u]), np.array([v]), self.hole_window_px,
+                                           self.hole_max_window_px, self.discontinuity_m, self.fills)
             d, rule, step = float(dd[0]), FillRule(int(rr[0])), bool(ss[0])
         self.on_step[i] = step
         out["iterations"][i] = lookup
         if not math.isfinite(d):
             return math.nan, math.nan, False
-        x = (u - cam.cx) * (d / cam.fx)  # Eq. 1, as CameraModel.pixel_to_world
-        y = (v - cam.cy) * (d / cam.fy)
-        R, t = cam.R_wc, cam.t_wc
-        q = [R[k, 0] * x + R[k, 1] * y + R[k, 2] * d + t[k] for k in range(3)]
+        q = cam.pixel_to_world_one(u, v, d)  # Eq. 1
         res = float(np.hypot(q[0] - self.xy[i, 0], q[1] - self.xy[i, 1]))
         out["pixel_uv"][i] = (u, v)
         out["point_w"][i] = q
@@ -255,12 +245,10 @@ class _SecantSearch:
         g = height of Eq. 1 there - z; the latest sample with depth is stored in ``out``.
         Returns (g, XY residual, on a step, had depth), each over ``idx``."""
         camera, xy, out = self.camera, self.xy, self.out
-        inv_zc = 1.0 / (self.a_z[idx] + self.b_z[idx] * z)  # > 0: z is inside the in-view interval
-        # ... so u, v are in the image up to rounding.
-        u = np.clip((self.a_u[idx] + self.b_u[idx] * z) * inv_zc, 0.0, camera.width - 1.0)
-        v = np.clip((self.a_v[idx] + self.b_v[idx] * z) * inv_zc, 0.0, camera.height - 1.0)
-        d, rule, step = _depth_at_subpixel(self.depth, u, v, self.hole_window_px, self.hole_max_window_px,
-                                           self.discontinuity_m, self.fills)
+        u, v = self.lines.pixels_at(idx, z)  # z is inside the in-view interval: in the image up to rounding
+        u, v = np.clip(u, 0.0, camera.width - 1.0), np.clip(v, 0.0, camera.height - 1.0)
+        d, rule, step = depth_at_subpixel(self.depth, u, v, self.hole_window_px, self.hole_max_window_px,
+                                          self.discontinuity_m, self.fills)
         Q = camera.pixel_to_world(u, v, d)  # Eq. 1 at the sub-pixel
         g = Q[:, 2] - z
         res = np.hypot(Q[:, 0] - xy[idx, 0], Q[:, 1] - xy[idx, 1])

@@ -18,8 +18,8 @@ import numpy as np
 
 from stud_perception.camera_model import CameraModel
 from stud_perception.depth_image import Fallback, FillRule, fill_depth_at
-from stud_planner.matching.match_common import (MatchingError, MatchResults, MatchStatus, _check_inputs,
-                                                _depth_samples, _empty_results, line_in_view_z_interval,
+from stud_planner.matching.match_common import (MatchingError, MatchResults, MatchStatus, check_inputs,
+                                                depth_samples, empty_results, line_in_view_z_interval,
                                                 observed_z_range)
 
 
@@ -80,8 +80,8 @@ def match_bfs(
     iterations, since no pixel can match such a target --, NO_DEPTH if no pixel had depth, else
     NOT_CONVERGED (best pixel reported).
     """
-    xy, depth = _check_inputs(targets_xy_w, depth_m, camera)
-    out = _empty_results("bfs", xy.shape[0])
+    xy, depth = check_inputs(targets_xy_w, depth_m, camera)
+    out = empty_results("bfs", xy.shape[0])
     H, W = depth.shape
     limit = H * W if max_pixels is None else min(int(max_pixels), H * W)
     lo, hi = line_in_view_z_interval(camera, xy, *(z_range_m or observed_z_range(depth, camera)[:2]))
@@ -192,8 +192,8 @@ def match_fpm(
     (heights in ``z_range_m``, default :func:`observed_z_range`), NO_DEPTH if no pixel of the final window had depth, else
     NOT_CONVERGED (the best pixel evaluated is reported).
     """
-    xy, depth = _check_inputs(targets_xy_w, depth_m, camera)
-    out = _empty_results("fpm", xy.shape[0])
+    xy, depth = check_inputs(targets_xy_w, depth_m, camera)
+    out = empty_results("fpm", xy.shape[0])
     H, W = depth.shape
     if max_halvings is None:
         max_halvings = math.ceil(math.log(W * H, 4))
@@ -203,7 +203,7 @@ def match_fpm(
     def depth_at(u: int, v: int) -> tuple[float, FillRule]:
         return _depth_at_pixel(depth, u, v, hole_window_px, "plane" if hole_fallback else "none")
 
-    sub = _depth_samples(depth)[2]
+    sub = depth_samples(depth)[2]
     sub = sub[np.isfinite(sub)]
     z_typical = float(np.median(sub)) if sub.size else float(camera.position_w[2])
 

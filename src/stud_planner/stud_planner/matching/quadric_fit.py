@@ -2,9 +2,9 @@
 
 :func:`stud_planner.matching.surface_pose.estimate_surface_poses` fits, in each stud's window,
 w(a, b) = 1/z as a quadric over normalised image coordinates. Two ways to the same least-squares
-fit: from the window's pixels (:func:`_window_blocks`, :func:`_fit_inverse_depth`, with robust
+fit: from the window's pixels (:func:`window_blocks`, :func:`fit_inverse_depth`, with robust
 passes that drop outliers) or, for windows of whole blocks, from moment sums
-(:func:`_fast_fits`, :mod:`stud_planner.matching.window_moments`). :func:`_frame_noise_m` is the
+(:func:`fast_fits`, :mod:`stud_planner.matching.window_moments`). :func:`frame_noise_m` is the
 frame's depth noise, against which a plain fit is judged smooth enough to stand.
 
 Pure numpy; no ROS.
@@ -20,11 +20,11 @@ from stud_planner.matching.window_moments import BLOCK_PX, BlockMoments, powers_
 
 
 #: Quadric terms of the fit in the window's normalised image coordinates: 1, a, b, a^2, ab, b^2.
-_N_TERMS = 6
+N_TERMS = 6
 
 
 @dataclass(frozen=True)
-class _InverseDepthFit:
+class InverseDepthFit:
     """Robust quadric fits w(a, b) = 1/z of n windows (all arrays (n, ...)).
 
     (a, b) are normalised image coordinates (x~ = (u - cx)/fx, y~ = (v - cy)/fy) relative to the
@@ -41,22 +41,22 @@ class _InverseDepthFit:
     inliers: np.ndarray | None
     rms_w: np.ndarray
 
-    def take(self, k: np.ndarray) -> "_InverseDepthFit":
+    def take(self, k: np.ndarray) -> "InverseDepthFit":
         """The fits of windows ``k``."""
-        return _InverseDepthFit(x0=self.x0[k], y0=self.y0[k], scale=self.scale[k], beta=self.beta[k],
-                                cov=self.cov[k], inliers=None if self.inliers is None else self.inliers[k],
-                                rms_w=self.rms_w[k])
+        return InverseDepthFit(x0=self.x0[k], y0=self.y0[k], scale=self.scale[k], beta=self.beta[k],
+                               cov=self.cov[k], inliers=None if self.inliers is None else self.inliers[k],
+                               rms_w=self.rms_w[k])
 
-    def without_inliers(self) -> "_InverseDepthFit":
+    def without_inliers(self) -> "InverseDepthFit":
         """The same fits without the (large) inlier masks."""
-        return self if self.inliers is None else _InverseDepthFit(
+        return self if self.inliers is None else InverseDepthFit(
             x0=self.x0, y0=self.y0, scale=self.scale, beta=self.beta, cov=self.cov, inliers=None, rms_w=self.rms_w)
 
     @staticmethod
-    def concatenate(fits: list["_InverseDepthFit"]) -> "_InverseDepthFit":
+    def concatenate(fits: list["InverseDepthFit"]) -> "InverseDepthFit":
         """The fits of several batches of windows, in order (without inlier masks)."""
-        return _InverseDepthFit(**{f: np.concatenate([getattr(x, f) for x in fits])
-                                   for f in ("x0", "y0", "scale", "beta", "cov", "rms_w")}, inliers=None)
+        return InverseDepthFit(**{f: np.concatenate([getattr(x, f) for x in fits])
+                                  for f in ("x0", "y0", "scale", "beta", "cov", "rms_w")}, inliers=None)
 
     def gradient_map(self, xt: np.ndarray, yt: np.ndarray) -> np.ndarray:
         """(n, 3, 6) linear map beta -> g = (w_x, w_y, w - w_x x~ - w_y y~) at normalised image
@@ -125,7 +125,7 @@ _TQ = np.array([t[1] for t in _TERMS])
 
 
 @dataclass(frozen=True)
-class _Windows:
+class PixelWindows:
     """The windows of n studs as k x k blocks of pixels (rows v, columns u), all (n, ...).
 
     A window is a square of ``window_m`` at the stud's optical depth (f * window / z) sampled
@@ -144,10 +144,12 @@ class _Windows:
     n_window: np.ndarray
 
 
-def _window_blocks(camera: CameraModel, depth: np.ndarray, uv: np.ndarray, z_cam: np.ndarray, window_m: float,
-                   max_per_side: int, min_step: int = 1) -> _Windows:
+def window_blocks(camera: CameraModel, depth: np.ndarray, uv: np.ndarray, z_cam: np.ndarray, window_m: float,
+                  max_per_side: int, min_step: int = 1) -> PixelWindows:
+    """The pixel samples of each stud's window (``uv`` (n, 2) px, ``z_cam`` (n,) its optical depth, m):
+    a square of ``window_m`` sampled every ``step`` px, at most ``max_per_side`` a side (:class:`PixelWindows`)."""
     H, W = depth.shape
-    half_px = 0.5 * window_m * camera.fx / np.maximum(z_cam, 1e-6)
+    half_px = camera.pixels_across(0.5 * window_m, z_cam)
     step = np.maximum(max(int(min_step), 1), np.ceil(2 * half_px / max(max_per_side - 1, 1))).astype(np.int64)
     reach = half_px + 0.5 * step
     half_k = int(np.max(np.floor(reach / step)))
@@ -163,7 +165,7 @@ def _window_blocks(camera: CameraModel, depth: np.ndarray, uv: np.ndarray, z_cam
     good = row_ok[:, :, None] & col_ok[:, None, :] & (d > 0)  # NaN compares False
     inv_z = np.zeros(d.shape)
     np.divide(1.0, d, out=inv_z, where=good)
-    return _Windows(u0=u0, v0=v0, step=step, grid=grid.astype(np.float64), good=good, inv_z=inv_z,
+    return PixelWindows(u0=u0, v0=v0, step=step, grid=grid.astype(np.float64), good=good, inv_z=inv_z,
                     n_window=row_ok.sum(axis=1) * col_ok.sum(axis=1))
 
 
@@ -236,7 +238,7 @@ def _evaluate(beta: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
             + beta[:, 3, None, None] * A * A + beta[:, 4, None, None] * A * B + beta[:, 5, None, None] * B * B)
 
 
-def _robust_refits(win: _Windows, rows: np.ndarray, inl: np.ndarray, resid: np.ndarray, beta: np.ndarray,
+def _robust_refits(win: PixelWindows, rows: np.ndarray, inl: np.ndarray, resid: np.ndarray, beta: np.ndarray,
                    A_inv: np.ndarray, var: np.ndarray, a: np.ndarray, b: np.ndarray, ca: np.ndarray, cb: np.ndarray,
                    robust_passes: int, outlier_k: float, floor_w: np.ndarray) -> None:
     """Up to ``robust_passes`` robust passes over windows ``rows``: drop the samples farther from
@@ -269,8 +271,8 @@ def _robust_refits(win: _Windows, rows: np.ndarray, inl: np.ndarray, resid: np.n
         resid[rows] = np.abs(win.inv_z[rows] - _evaluate(beta[rows], a[rows], b[rows]))
 
 
-def _fit_inverse_depth(win: _Windows, camera: CameraModel, scale: np.ndarray, robust_passes: int, outlier_k: float,
-                       floor_w: np.ndarray, trigger_k: float = 4.5) -> _InverseDepthFit:
+def fit_inverse_depth(win: PixelWindows, camera: CameraModel, scale: np.ndarray, robust_passes: int, outlier_k: float,
+                      floor_w: np.ndarray, trigger_k: float = 4.5) -> InverseDepthFit:
     """Robust quadric fits of 1/z over the windows' normalised image coordinates.
 
     The depth noise of an RGB-D camera lies along its rays, that is in z alone at a fixed pixel:
@@ -305,14 +307,14 @@ def _fit_inverse_depth(win: _Windows, camera: CameraModel, scale: np.ndarray, ro
         _robust_refits(win, rows, inl, resid, beta, A_inv, var, a, b, ca, cb, robust_passes, outlier_k, floor_w)
     x0 = (win.u0 - camera.cx) / camera.fx
     y0 = (win.v0 - camera.cy) / camera.fy
-    return _InverseDepthFit(x0=x0, y0=y0, scale=scale, beta=beta, cov=var[:, None, None] * A_inv, inliers=inl,
-                            rms_w=np.sqrt(var))
+    return InverseDepthFit(x0=x0, y0=y0, scale=scale, beta=beta, cov=var[:, None, None] * A_inv, inliers=inl,
+                           rms_w=np.sqrt(var))
 
 
-def _fast_fits(moments: BlockMoments, camera: CameraModel, uv: np.ndarray, z_cam: np.ndarray, window_m: float,
-               step: int = 1):
+def fast_fits(moments: BlockMoments, camera: CameraModel, uv: np.ndarray, z_cam: np.ndarray, window_m: float,
+              step: int = 1):
     """Plain least-squares quadric fits of 1/z over block-aligned windows, from moment sums
-    (:mod:`stud_planner.matching.window_moments`): the fit :func:`_fit_inverse_depth` makes before any
+    (:mod:`stud_planner.matching.window_moments`): the fit :func:`fit_inverse_depth` makes before any
     robust pass, on every valid pixel of a window of whole blocks around each stud (every
     ``step``-th of each row and column where the sums come from the windows' own pixels).
 
@@ -321,7 +323,7 @@ def _fast_fits(moments: BlockMoments, camera: CameraModel, uv: np.ndarray, z_cam
     path takes it).
     """
     b = BLOCK_PX
-    half = 0.5 * window_m * camera.fx / np.maximum(z_cam, 1e-6)
+    half = camera.pixels_across(0.5 * window_m, z_cam)
     c0, c1 = np.rint((uv[:, 0] - half) / b), np.rint((uv[:, 0] + half + 1.0) / b)
     r0, r1 = np.rint((uv[:, 1] - half) / b), np.rint((uv[:, 1] + half + 1.0) / b)
     eligible = (c1 - c0 >= 2) & (r1 - r0 >= 2)
@@ -337,13 +339,13 @@ def _fast_fits(moments: BlockMoments, camera: CameraModel, uv: np.ndarray, z_cam
     n_valid = np.rint(sums.mw[:, 0, 0]).astype(np.int64)
     var = np.maximum(sums.yy - np.einsum("ni,ni->n", beta, rhs), 0.0) / np.maximum(n_valid - len(_TERMS), 1)
     beta[:, 0] += moments.y_ref  # the sums are of 1/z - y_ref
-    fit = _InverseDepthFit(x0=(sums.centre_uv[:, 0] - camera.cx) / camera.fx,
-                           y0=(sums.centre_uv[:, 1] - camera.cy) / camera.fy, scale=scale, beta=beta,
-                           cov=var[:, None, None] * A_inv, inliers=None, rms_w=np.sqrt(var))
+    fit = InverseDepthFit(x0=(sums.centre_uv[:, 0] - camera.cx) / camera.fx,
+                          y0=(sums.centre_uv[:, 1] - camera.cy) / camera.fy, scale=scale, beta=beta,
+                          cov=var[:, None, None] * A_inv, inliers=None, rms_w=np.sqrt(var))
     return fit, n_valid, sums.n_window, eligible, sums.step
 
 
-def _frame_noise_m(moments: BlockMoments, stride: int = 4) -> float:
+def frame_noise_m(moments: BlockMoments, stride: int = 4) -> float:
     """The frame's depth noise (m, 1-sigma): the median RMS of plane fits of 1/z to every
     ``stride``-th block in both directions that has depth in every pixel (curvature is nil over
     a block; a block on an edge is an outlier the median ignores). With all pixels present the
@@ -373,7 +375,7 @@ _MIN_NOISE_BLOCKS = 30
 
 
 def _frame_noise_from_sums(moments: BlockMoments, stride: int) -> float:
-    """:func:`_frame_noise_m` over the blocks that are three-quarters full, from their sums."""
+    """:func:`frame_noise_m` over the blocks that are three-quarters full, from their sums."""
     r, c = (a.ravel() for a in np.meshgrid(np.arange(0, moments.n_rows, stride),
                                            np.arange(0, moments.n_cols, stride), indexing="ij"))
     s = moments.window_sums(r, r + 1, c, c + 1, use_table=False)

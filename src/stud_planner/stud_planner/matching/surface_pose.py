@@ -40,8 +40,8 @@ from stud_perception.camera_model import CameraModel
 from stud_common.rotations import frame_from_normal
 from stud_common.rotations import matrix_to_quaternion as quaternion_from_matrix
 from stud_planner.matching.noise_correlation import NoiseCorrelation, measure_noise_correlation
-from stud_planner.matching.quadric_fit import (_N_TERMS, _fast_fits, _fit_inverse_depth, _frame_noise_m,
-                                               _InverseDepthFit, _window_blocks)
+from stud_planner.matching.quadric_fit import (N_TERMS, fast_fits, fit_inverse_depth, frame_noise_m,
+                                               InverseDepthFit, window_blocks)
 from stud_planner.matching.window_moments import BlockMoments
 
 #: Paper: M16x150 shear stud, tool-top offset along the normal.
@@ -122,7 +122,7 @@ def tangent_basis(normal_w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return R[..., 0], R[..., 1]
 
 
-def _vertical_line_hit(fit: _InverseDepthFit, camera: CameraModel, xy_w: np.ndarray, z0_w: np.ndarray,
+def _vertical_line_hit(fit: InverseDepthFit, camera: CameraModel, xy_w: np.ndarray, z0_w: np.ndarray,
                        iterations: int = 4) -> np.ndarray:
     """World z (n,) where the vertical lines through ``xy_w`` (n, 2) meet the fitted surfaces
     (Newton's method on F = Z w(X/Z, Y/Z) - 1 from z0_w, the matched heights)."""
@@ -143,61 +143,69 @@ def _vertical_line_hit(fit: _InverseDepthFit, camera: CameraModel, xy_w: np.ndar
     return z
 
 
-def estimate_surface_poses(
-    points_w: np.ndarray,
-    pixel_uv: np.ndarray,
-    depth_m: np.ndarray,
-    camera: CameraModel,
-    *,
-    window_m: float = 0.02,
-    max_samples_per_side: int = 81,
-    min_points: int = 12,
-    min_fill_ratio: float = 0.1,
-    max_rms_m: float = 0.0015,
-    max_outlier_ratio: float = 0.2,
-    outlier_k: float = 3.0,
-    outlier_floor_m: float = 0.001,
-    robust_passes: int = 5,
-    valid: np.ndarray | None = None,
-    target_xy_w: np.ndarray | None = None,
-    chunk: int = 256,
-    fast_fit: bool = True,
-    fast_fit_noise_ratio: float = 1.25,
-    fast_fit_floor_m: float = 1e-4,
-    noise_correlation_max_lag_px: int = 16,
-    sample_step_max_loss: float = 0.05,
-    noise: NoiseCorrelation | None = None,
-) -> SurfacePoses:
-    """Normals and weld poses at N matched points by a robust least-squares fit of the window.
+@dataclass(frozen=True)
+class SurfaceFitConfig:
+    """How :func:`estimate_surface_poses` fits each stud's window (metres, pixels).
 
-    Inputs: ``points_w`` (N, 3) matched points in `world` (m); ``pixel_uv`` (N, 2) their pixels;
-    ``depth_m`` (H, W) metres, NaN = invalid; ``valid`` (N,) optional mask of studs to process
-    (e.g. ``matches.ok``); ``target_xy_w`` (N, 2) optional: the studs' own world XY (the drawing's),
-    where the weld point and the normal are taken (else at the match's XY, which the matcher's
-    tolerance allows to be a millimetre off -- a third of a degree of normal on a 150 mm dome).
+    The window: ``window_m`` a side on the surface, sampled at most ``max_samples_per_side`` pixels
+    a side. The fast path (``fast_fit``): the plain least-squares fit of a window of whole 8x8-pixel
+    blocks from moment sums (:mod:`stud_planner.matching.window_moments`), standing where its RMS is at
+    most ``fast_fit_noise_ratio`` times the frame's noise (at least ``fast_fit_floor_m``) and within
+    ``max_rms_m``; every other window takes the robust pixel path (:func:`window_blocks`,
+    :func:`fit_inverse_depth`: samples beyond max(``outlier_k`` MAD-scaled, ``outlier_floor_m``)
+    dropped, up to ``robust_passes`` times, ``chunk`` windows at a time). The normal's 1-sigma is
+    widened by the depth noise's correlation measured beside the studs up to
+    ``noise_correlation_max_lag_px`` (0: the noise taken as independent;
+    :mod:`stud_planner.matching.noise_correlation`); correlated samples being redundant, windows are
+    sampled every s-th row and column, s the largest step (up to 4) that widens the 1-sigma by at most
+    ``sample_step_max_loss`` (0: every pixel; summed-area tables always sum every pixel). A fit is
+    TOO_FEW_POINTS under ``min_points`` (at least the quadric's terms + 2) or a fill under
+    ``min_fill_ratio``, BAD_FIT over ``max_rms_m`` or ``max_outlier_ratio``."""
 
-    Every valid sample of the window enters a quadric fit of 1/z over normalised image
-    coordinates (exact for planes, the quadratic terms take the curvature). With ``fast_fit``
-    (default) the plain least-squares fit of a window of whole 8x8-pixel blocks comes from moment
-    sums (:mod:`stud_planner.matching.window_moments`: summed-area tables for many studs, the window's own
-    pixels for few), and it stands where its RMS is at most ``fast_fit_noise_ratio`` times the
-    frame's noise (the median RMS of plane fits to sample blocks; at least ``fast_fit_floor_m``)
-    and within ``max_rms_m``. Every other window -- a step, an edge, flying pixels, a window under
-    two blocks a side -- and every window with ``fast_fit=False`` takes the robust pixel path
-    (:func:`_window_blocks`, :func:`_fit_inverse_depth`: outliers beyond a MAD-scaled threshold
-    dropped, up to ``robust_passes`` times). The weld point is where the stud's vertical line meets
-    the fitted surface (the fit averages the depth noise out of the height), the normal is the
-    surface's there (Eq. 1's camera: ``R_wc`` takes it to `world`). ``normal_sigma_deg`` is the
-    1-sigma uncertainty of the normal's direction about its least certain axis, from the fit's
-    covariance, widened by the square root of the variance inflation of the frame's correlated depth
-    noise, measured on the frame beside the studs up to ``noise_correlation_max_lag_px`` (0: the
-    noise is taken as independent; :mod:`stud_planner.matching.noise_correlation`), or ``noise`` where
-    given (:func:`frame_noise_correlation` of an earlier frame of the same camera). Correlated samples
-    are redundant: the windows' pixels are sampled every s-th row and column, s the largest step (up
-    to 4) that widens the normal's 1-sigma by at most ``sample_step_max_loss`` for the noise measured
-    (every pixel on independent noise, or with 0; summed-area tables always sum every pixel). Status:
-    TOO_FEW_POINTS (< min_points or fill < min_fill_ratio), BAD_FIT (RMS > max_rms_m or outliers >
-    max_outlier_ratio), else OK.
+    window_m: float = 0.02
+    max_samples_per_side: int = 81
+    min_points: int = 12
+    min_fill_ratio: float = 0.1
+    max_rms_m: float = 0.0015
+    max_outlier_ratio: float = 0.2
+    outlier_k: float = 3.0
+    outlier_floor_m: float = 0.001
+    robust_passes: int = 5
+    chunk: int = 256
+    fast_fit: bool = True
+    fast_fit_noise_ratio: float = 1.25
+    fast_fit_floor_m: float = 1e-4
+    noise_correlation_max_lag_px: int = 16
+    sample_step_max_loss: float = 0.05
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.noise_correlation_max_lag_px <= 64:
+            raise ValueError(f"noise_correlation_max_lag_px={self.noise_correlation_max_lag_px} must be in [0, 64] px")
+        if not 0 <= self.sample_step_max_loss <= 1:
+            raise ValueError(f"sample_step_max_loss={self.sample_step_max_loss} must be in [0, 1] (a fraction of "
+                             "the normal's 1-sigma)")
+
+
+def estimate_surface_poses(points_w: np.ndarray, pixel_uv: np.ndarray, depth_m: np.ndarray, camera: CameraModel,
+                           config: SurfaceFitConfig = SurfaceFitConfig(), *, valid: np.ndarray | None = None,
+                           target_xy_w: np.ndarray | None = None,
+                           noise: NoiseCorrelation | None = None) -> SurfacePoses:
+    """Normals and weld poses at N matched points by a robust least-squares quadric fit of each
+    stud's window (the fits and their settings: :class:`SurfaceFitConfig`).
+
+    ``points_w`` (N, 3) matched points in `world` (m); ``pixel_uv`` (N, 2) their pixels; ``depth_m``
+    (H, W) metres, NaN = invalid; ``valid`` (N,) the studs to fit (e.g. ``matches.ok``); ``target_xy_w``
+    (N, 2): the studs' own world XY (the drawing's), where the weld point and the normal are taken (else
+    the match's XY, which the matcher's tolerance allows to be a millimetre off -- a third of a degree of
+    normal on a 150 mm dome); ``noise``: the depth noise's correlation of an earlier frame of the same
+    camera (:func:`frame_noise_correlation`), else measured on this one beside the studs.
+
+    Every valid sample of a window enters a quadric fit of 1/z over normalised image coordinates
+    (exact for planes, the quadratic terms take the curvature). The weld point is where the stud's
+    vertical line meets the fitted surface (the fit averages the depth noise out of the height), the
+    normal is the surface's there (Eq. 1's camera: ``R_wc`` takes it to `world`); ``normal_sigma_deg``
+    is its 1-sigma about the least certain axis, from the fit's covariance, widened by the square root
+    of the variance inflation of the frame's correlated depth noise.
     """
     P0 = np.asarray(points_w, dtype=np.float64).reshape(-1, 3)
     uv = np.asarray(pixel_uv, dtype=np.float64).reshape(-1, 2)
@@ -207,7 +215,6 @@ def estimate_surface_poses(
     if valid is not None:
         ok_in &= np.asarray(valid, dtype=bool)
     target_xy = P0[:, :2] if target_xy_w is None else np.asarray(target_xy_w, dtype=np.float64).reshape(-1, 2)
-
     out = dict(
         position_w=np.full((n, 3), np.nan), normal_w=np.full((n, 3), np.nan), quat_xyzw=np.full((n, 4), np.nan),
         inclination_deg=np.full(n, np.nan), normal_sigma_deg=np.full(n, np.nan), sigma_inflation=np.full(n, np.nan),
@@ -215,37 +222,43 @@ def estimate_surface_poses(
         fill_ratio=np.full(n, np.nan), outlier_ratio=np.full(n, np.nan), n_points=np.zeros(n, dtype=np.int64),
         status=np.full(n, SurfaceStatus.NOT_MATCHED, dtype=np.int8),
     )
-
-    limits = _Limits(min_points=max(min_points, _N_TERMS + 2), min_fill_ratio=min_fill_ratio, max_rms_m=max_rms_m,
-                     max_outlier_ratio=max_outlier_ratio)
-    robust = np.flatnonzero(ok_in)
+    studs = np.flatnonzero(ok_in)
     # The noise's correlation beside the studs: it widens every sigma, and the fast path's gate
     # needs the noise's whole standard deviation (8x8-pixel blocks see only its fast part).
     if noise is None:
-        noise = _noise_beside(P0[robust], uv[robust], depth, camera, window_m, noise_correlation_max_lag_px)
-    sample_step = noise.redundant_step(sample_step_max_loss)
-    fitted = []  # (idx, fit, z0_w, z_cam, n_in, n_valid, n_window, step) of each path, stored together at the end
-    if fast_fit and robust.size:
-        batch, robust = _fast_path_fits(robust, P0, uv, depth, camera, window_m, limits,
-                                        gate_ratio=fast_fit_noise_ratio, gate_floor_m=fast_fit_floor_m,
-                                        noise_sigma_m=noise.sigma_m, step=sample_step)
-        fitted.append(batch)
-    for start in range(0, robust.size, chunk):
-        fitted.append(_pixel_path_fits(robust[start:start + chunk], P0, uv, depth, camera, window_m,
-                                       max_per_side=int(max_samples_per_side), robust_passes=robust_passes,
-                                       outlier_k=outlier_k, outlier_floor_m=outlier_floor_m,
-                                       min_step=sample_step))
-    fitted = [b for b in fitted if b[0].size]
-    if fitted:  # one pass for all: its fixed cost is paid once
-        idx, fit, z0_w, z_cam, n_in, n_valid, n_window, step = (fitted[0] if len(fitted) == 1
-                                                                else _concatenate(fitted))
+        noise = _noise_beside(P0[studs], uv[studs], depth, camera, config.window_m, config.noise_correlation_max_lag_px)
+    fitted = _fit_windows(studs, P0, uv, depth, camera, config, noise)
+    if fitted is not None:  # one pass for all: its fixed cost is paid once
+        idx, fit, z0_w, z_cam, n_in, n_valid, n_window, step = fitted
         inflation = np.sqrt(np.minimum(noise.inflation(step), np.maximum(n_in, 1)))
-        _store_poses(out, idx, fit, camera, target_xy[idx], z0_w, z_cam, n_in, n_valid, n_window, inflation, limits)
+        _store_poses(out, idx, fit, camera, target_xy[idx], z0_w, z_cam, n_in, n_valid, n_window, inflation, config)
     return SurfacePoses(**out, noise=noise)
 
 
+def _fit_windows(studs: np.ndarray, P0: np.ndarray, uv: np.ndarray, depth: np.ndarray, camera: CameraModel,
+                 config: SurfaceFitConfig, noise: NoiseCorrelation) -> tuple | None:
+    """The fits of studs ``studs``' windows, the fast path's where it stands, the robust path's for the
+    rest: (idx, fit, z0_w, z_cam, n_in, n_valid, n_window, step) of all, or None for no stud."""
+    sample_step = noise.redundant_step(config.sample_step_max_loss)
+    robust = studs
+    fitted = []
+    if config.fast_fit and robust.size:
+        batch, robust = _fast_path_fits(robust, P0, uv, depth, camera, config, noise_sigma_m=noise.sigma_m,
+                                        step=sample_step)
+        fitted.append(batch)
+    for start in range(0, robust.size, config.chunk):
+        fitted.append(_pixel_path_fits(robust[start:start + config.chunk], P0, uv, depth, camera, config.window_m,
+                                       max_per_side=int(config.max_samples_per_side),
+                                       robust_passes=config.robust_passes, outlier_k=config.outlier_k,
+                                       outlier_floor_m=config.outlier_floor_m, min_step=sample_step))
+    fitted = [b for b in fitted if b[0].size]
+    if not fitted:
+        return None
+    return fitted[0] if len(fitted) == 1 else _concatenate(fitted)
+
+
 def frame_noise_correlation(points_w: np.ndarray, pixel_uv: np.ndarray, depth_m: np.ndarray, camera: CameraModel,
-                            *, window_m: float = 0.02, max_lag_px: int = 16,
+                            config: SurfaceFitConfig = SurfaceFitConfig(), *,
                             valid: np.ndarray | None = None) -> NoiseCorrelation:
     """The depth noise's correlation of this frame, measured as :func:`estimate_surface_poses`
     measures it for studs at ``points_w`` / ``pixel_uv`` (``valid`` as there): to be given to the
@@ -256,7 +269,8 @@ def frame_noise_correlation(points_w: np.ndarray, pixel_uv: np.ndarray, depth_m:
     ok = np.all(np.isfinite(P0), axis=1) & np.all(np.isfinite(uv), axis=1)
     if valid is not None:
         ok &= np.asarray(valid, dtype=bool)
-    return _noise_beside(P0[ok], uv[ok], np.asarray(depth_m), camera, window_m, max_lag_px)
+    return _noise_beside(P0[ok], uv[ok], np.asarray(depth_m), camera, config.window_m,
+                         config.noise_correlation_max_lag_px)
 
 
 def _noise_beside(points_w: np.ndarray, uv: np.ndarray, depth: np.ndarray, camera: CameraModel, window_m: float,
@@ -264,13 +278,12 @@ def _noise_beside(points_w: np.ndarray, uv: np.ndarray, depth: np.ndarray, camer
     """The noise's correlation along the windows' edges of studs at ``points_w`` / ``uv`` (all
     usable): the stud's own place may be a painted mark without depth."""
     z_cam = camera.world_to_camera(points_w)[:, 2] if points_w.shape[0] else np.ones(1)
-    edge_px = float(np.median(0.5 * window_m * camera.fx / np.maximum(z_cam, 1e-6)))
+    edge_px = float(np.median(camera.pixels_across(0.5 * window_m, z_cam)))
     return measure_noise_correlation(depth, uv, max_lag_px=max_lag_px, beside_px=edge_px)
 
 
 def _fast_path_fits(idx: np.ndarray, P0: np.ndarray, uv: np.ndarray, depth: np.ndarray, camera: CameraModel,
-                    window_m: float, limits: "_Limits", *, gate_ratio: float, gate_floor_m: float,
-                    noise_sigma_m: float = float("nan"), step: int = 1):
+                    config: SurfaceFitConfig, *, noise_sigma_m: float = float("nan"), step: int = 1):
     """The plain fits from block moment sums of studs ``idx`` where they stand (see
     :func:`estimate_surface_poses`): ((idx, fit, z0_w, z_cam, n_in, n_valid, n_window, step) of those,
     the studs left for the pixel path); the fits sample every ``step``-th pixel where the sums come
@@ -284,16 +297,17 @@ def _fast_path_fits(idx: np.ndarray, P0: np.ndarray, uv: np.ndarray, depth: np.n
     z_cam = camera.world_to_camera(P0[idx])[:, 2]
     y_ref = 1.0 / float(np.median(z_cam))
     moments = BlockMoments(depth, y_ref)
-    fit, n_valid, n_window, eligible, step = _fast_fits(moments, camera, uv[idx], z_cam, window_m, step)
+    fit, n_valid, n_window, eligible, step = fast_fits(moments, camera, uv[idx], z_cam, config.window_m, step)
     rms_m = fit.rms_w * z_cam**2
-    noise_m = _frame_noise_m(moments)
+    noise_m = frame_noise_m(moments)
     if np.isfinite(noise_sigma_m):
         noise_m = max(noise_m, noise_sigma_m) if np.isfinite(noise_m) else noise_sigma_m
-    gate_m = max(gate_ratio * noise_m, gate_floor_m) if np.isfinite(noise_m) else gate_floor_m
-    few = (n_valid < limits.min_points) | (n_valid < limits.min_fill_ratio * np.maximum(n_window, 1))
+    gate_floor_m = config.fast_fit_floor_m
+    gate_m = max(config.fast_fit_noise_ratio * noise_m, gate_floor_m) if np.isfinite(noise_m) else gate_floor_m
+    few = (n_valid < _min_points(config)) | (n_valid < config.min_fill_ratio * np.maximum(n_window, 1))
     # The plain fit stands where the window is as smooth as the frame's noise says it can be;
     # elsewhere (a step, an edge, flying pixels, a rough patch) the robust path decides.
-    take = eligible & (few | ((rms_m <= gate_m) & (rms_m <= limits.max_rms_m)))
+    take = eligible & (few | ((rms_m <= gate_m) & (rms_m <= config.max_rms_m)))
     k = np.flatnonzero(take)
     batch = (idx[k], fit if k.size == take.size else fit.take(k), P0[idx[k], 2], z_cam[k], n_valid[k], n_valid[k],
              n_window[k], np.full(k.size, step, dtype=np.int64))
@@ -307,10 +321,10 @@ def _pixel_path_fits(idx: np.ndarray, P0: np.ndarray, uv: np.ndarray, depth: np.
     pixels: (idx, fit, z0_w, z_cam, n_in, n_valid, n_window, the sample step in pixels)."""
     p_stud = P0[idx]
     z_cam = camera.world_to_camera(p_stud)[:, 2]
-    win = _window_blocks(camera, depth, uv[idx], z_cam, window_m, max_per_side, min_step)
+    win = window_blocks(camera, depth, uv[idx], z_cam, window_m, max_per_side, min_step)
     scale = 0.5 * window_m / np.maximum(z_cam, 1e-6)
     floor_w = outlier_floor_m / np.maximum(z_cam, 1e-6) ** 2  # 1 mm of depth, in 1/z
-    fit = _fit_inverse_depth(win, camera, scale, robust_passes, outlier_k, floor_w)
+    fit = fit_inverse_depth(win, camera, scale, robust_passes, outlier_k, floor_w)
     assert fit.inliers is not None  # a fit of windows keeps its inlier masks
     return (idx, fit.without_inliers(), p_stud[:, 2], z_cam, fit.inliers.sum(axis=(1, 2)), win.good.sum(axis=(1, 2)),
             win.n_window, win.step)
@@ -318,23 +332,18 @@ def _pixel_path_fits(idx: np.ndarray, P0: np.ndarray, uv: np.ndarray, depth: np.
 
 def _concatenate(batches: list[tuple]) -> tuple:
     """One (idx, fit, per-stud arrays...) of several, in order."""
-    return (np.concatenate([b[0] for b in batches]), _InverseDepthFit.concatenate([b[1] for b in batches]),
+    return (np.concatenate([b[0] for b in batches]), InverseDepthFit.concatenate([b[1] for b in batches]),
             *(np.concatenate([b[i] for b in batches]) for i in range(2, len(batches[0]))))
 
 
-@dataclass(frozen=True)
-class _Limits:
-    """What a fit must meet to be OK (see :func:`estimate_surface_poses`)."""
-
-    min_points: int
-    min_fill_ratio: float
-    max_rms_m: float
-    max_outlier_ratio: float
+def _min_points(config: SurfaceFitConfig) -> int:
+    """The fewest points a fit may stand on: the config's, and at least the quadric's terms + 2."""
+    return max(config.min_points, N_TERMS + 2)
 
 
-def _store_poses(out: dict, idx: np.ndarray, fit: _InverseDepthFit, camera: CameraModel, target_xy: np.ndarray,
+def _store_poses(out: dict, idx: np.ndarray, fit: InverseDepthFit, camera: CameraModel, target_xy: np.ndarray,
                  z0_w: np.ndarray, z_cam: np.ndarray, n_in: np.ndarray, n_valid: np.ndarray, n_window: np.ndarray,
-                 inflation: np.ndarray, limits: _Limits) -> None:
+                 inflation: np.ndarray, config: SurfaceFitConfig) -> None:
     """Weld point, normal, its uncertainty (the fit's own times ``inflation``) and the status of studs
     ``idx`` from their fits, into ``out``."""
     if idx.size == 0:
@@ -350,9 +359,9 @@ def _store_poses(out: dict, idx: np.ndarray, fit: _InverseDepthFit, camera: Came
     fill = n_valid / np.maximum(n_window, 1)
     outl = 1.0 - n_in / np.maximum(n_valid, 1)
     status = np.full(idx.size, SurfaceStatus.OK, dtype=np.int8)
-    few = (n_in < limits.min_points) | (fill < limits.min_fill_ratio)
+    few = (n_in < _min_points(config)) | (fill < config.min_fill_ratio)
     finite = np.all(np.isfinite(pos), axis=1) & np.all(np.isfinite(nrm), axis=1)
-    bad = ~few & ((rms_m > limits.max_rms_m) | (outl > limits.max_outlier_ratio) | ~finite)
+    bad = ~few & ((rms_m > config.max_rms_m) | (outl > config.max_outlier_ratio) | ~finite)
     status[bad] = SurfaceStatus.BAD_FIT
     status[few] = SurfaceStatus.TOO_FEW_POINTS
     have = ~few & finite
@@ -371,14 +380,19 @@ def _store_poses(out: dict, idx: np.ndarray, fit: _InverseDepthFit, camera: Came
     out["status"][idx] = status
 
 
-def estimate_surface_poses_for_matches(matches, depth_m: np.ndarray, camera: CameraModel, **kwargs) -> SurfacePoses:
+def estimate_surface_poses_for_matches(matches, depth_m: np.ndarray, camera: CameraModel,
+                                       config: SurfaceFitConfig = SurfaceFitConfig(), *,
+                                       target_xy_w: np.ndarray | None = None,
+                                       noise: NoiseCorrelation | None = None) -> SurfacePoses:
     """:func:`estimate_surface_poses` on the OK studs of a :class:`stud_planner.matching.matchers.MatchResults`
     (pass ``target_xy_w``, the studs' world XY, to take the poses on their own vertical lines)."""
-    return estimate_surface_poses(matches.point_w, matches.pixel_uv, depth_m, camera, valid=matches.ok, **kwargs)
+    return estimate_surface_poses(matches.point_w, matches.pixel_uv, depth_m, camera, config, valid=matches.ok,
+                                  target_xy_w=target_xy_w, noise=noise)
 
 
 __all__ = [
     "M16X150_TOP_OFFSET_M",
+    "SurfaceFitConfig",
     "SurfacePoses",
     "SurfaceStatus",
     "estimate_surface_poses",

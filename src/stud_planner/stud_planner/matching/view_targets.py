@@ -20,20 +20,21 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from functools import cached_property
 
 import cv2
 import numpy as np
 
 from stud_perception.camera_model import CameraModel
 from stud_perception.registration import local_to_world
-from stud_common.vocabulary import VIEW_DEPENDENT, TargetStatus
+from stud_common.vocabulary import VIEW_DEPENDENT, MatchAlgorithm, TargetStatus, choices
 from stud_planner.matching.gun_clearance import Clearance, GunModel, gun_clearance
 from stud_planner.matching.match_common import observed_heights, z_range_of
 from stud_planner.matching.matchers import MatchResults, MatchStatus, match_batch, match_bfs, match_fpm
 from stud_planner.matching.noise_correlation import NoiseCorrelation
-from stud_planner.matching.surface_pose import (SurfacePoses, SurfaceStatus, estimate_surface_poses_for_matches,
-                                                frame_noise_correlation, offset_along_normal)
+from stud_planner.matching.target_table import STATUS_TEXTS, TargetTable, centre_offset
+from stud_planner.matching.surface_pose import (SurfaceFitConfig, SurfacePoses, SurfaceStatus,
+                                                estimate_surface_poses_for_matches, frame_noise_correlation,
+                                                offset_along_normal)
 
 # The target statuses are stud_common.vocabulary.TargetStatus (the WeldTarget.STATUS_* values); the
 # names below are the arrays' spelling of them.
@@ -41,7 +42,8 @@ from stud_planner.matching.surface_pose import (SurfacePoses, SurfaceStatus, est
  STATUS_NO_NORMAL, STATUS_DEPTH_DISCONTINUITY, STATUS_GUN_BLOCKED) = (int(s) for s in TargetStatus)
 STATUS_TEXT = {int(s): s.text for s in TargetStatus}
 VIEW_DEPENDENT_STATUSES = frozenset(int(s) for s in VIEW_DEPENDENT)
-ALGORITHMS = ("batch", "fpm", "bfs")
+ALGORITHMS = choices(MatchAlgorithm)  # the matcher node's and plan's choices
+_FIT = SurfaceFitConfig()  # the surface fit's defaults are its own; the planner's fields take them
 
 
 @dataclass(frozen=True)
@@ -64,19 +66,19 @@ class PlannerConfig:
     point; the paper's M16x150 stud top is 13 mm -> use the arm driver's tool offset instead).
     """
 
-    algorithm: str = "batch"
+    algorithm: str = MatchAlgorithm.BATCH.value  # a MatchAlgorithm's text
     tol_m: float = 0.001
     fpm_window_px: int = 25
     hole_window_px: int = 7
-    normal_window_m: float = 0.02
-    normal_samples_per_side: int = 81
-    max_normal_rms_m: float = 0.0015
+    normal_window_m: float = _FIT.window_m
+    normal_samples_per_side: int = _FIT.max_samples_per_side
+    max_normal_rms_m: float = _FIT.max_rms_m
     lean_budget_deg: float = 5.0
     arm_orientation_error_deg: float = 0.5
     normal_sigma_k: float = 3.0
     normal_sigma_floor_deg: float = 0.1
-    noise_correlation_max_lag_px: int = 16
-    sample_step_max_loss: float = 0.05
+    noise_correlation_max_lag_px: int = _FIT.noise_correlation_max_lag_px
+    sample_step_max_loss: float = _FIT.sample_step_max_loss
     check_gun_clearance: bool = True
     gun: GunModel = GunModel()
     tool_offset_m: float = 0.0
@@ -90,29 +92,25 @@ class PlannerConfig:
                              f"arm_orientation_error_deg={self.arm_orientation_error_deg} >= 0")
         if not self.normal_sigma_k > 0:
             raise ValueError(f"normal_sigma_k={self.normal_sigma_k} must be positive")
-        if not 0 <= self.noise_correlation_max_lag_px <= 64:
-            raise ValueError(f"noise_correlation_max_lag_px={self.noise_correlation_max_lag_px} must be in [0, 64] px")
-        if not 0 <= self.sample_step_max_loss <= 1:
-            raise ValueError(f"sample_step_max_loss={self.sample_step_max_loss} must be in [0, 1] (a fraction of "
-                             "the normal's 1-sigma)")
+        _ = self.surface_fit  # the surface fit checks its own settings (ValueError)
+
+    @property
+    def surface_fit(self) -> SurfaceFitConfig:
+        """The surface fit's settings (:func:`estimate_surface_poses`): these ``normal_*`` and noise
+        fields, the fit's own defaults for the rest."""
+        return SurfaceFitConfig(window_m=self.normal_window_m, max_samples_per_side=self.normal_samples_per_side,
+                                max_rms_m=self.max_normal_rms_m,
+                                noise_correlation_max_lag_px=self.noise_correlation_max_lag_px,
+                                sample_step_max_loss=self.sample_step_max_loss)
 
 
 @dataclass(frozen=True, eq=False)
-class ViewTargets:
-    """Targets of N studs on one view (arrays in stud order; NaN where there is no value)."""
+class ViewTargets(TargetTable):
+    """The weld targets of one view (a :class:`TargetTable`) and how they came about: where the drawing
+    puts each stud on the world plane (``target_xy_w`` (N, 2)), the matches, the surface poses, the
+    gun's clearance, the settings and the matcher's time."""
 
-    ids: list[str]
-    drawing_xy_m: np.ndarray     # (N, 2)
-    target_xy_w: np.ndarray      # (N, 2) where the drawing puts each stud on the world plane
-    position_w: np.ndarray       # (N, 3)
-    normal_w: np.ndarray         # (N, 3)
-    quat_xyzw: np.ndarray        # (N, 4)
-    inclination_deg: np.ndarray  # (N,) the surface's slope against world z (information)
-    normal_rms_m: np.ndarray     # (N,) RMS of the fit that gave the normal
-    normal_sigma_deg: np.ndarray  # (N,) the normal's 1-sigma uncertainty
-    lean_bound_deg: np.ndarray   # (N,) the worst lean from the true normal the target could give
-    gun_clearance_m: np.ndarray  # (N,) the gun's clearance to the part (negative: it would touch)
-    status: np.ndarray           # (N,) uint8, STATUS_*
+    target_xy_w: np.ndarray
     matches: MatchResults
     poses: SurfacePoses
     clearance: Clearance
@@ -120,45 +118,9 @@ class ViewTargets:
     match_time_s: float
     config: "PlannerConfig"
 
-    @cached_property
-    def status_text(self) -> list[str]:
-        """(N,) status names, built once (read per stud by callers: a property rebuilding the
-        list on each access made a per-stud loop quadratic)."""
-        return [STATUS_TEXT[s] for s in self.status.tolist()]
-
     def reason(self, i: int) -> str:
         """Why stud ``i`` is not usable, with the figure behind it ("" when it is)."""
-        st = int(self.status[i])
-        if st == STATUS_NORMAL_UNCERTAIN:
-            return (f"normal 1-sigma {self.normal_sigma_deg[i]:.2f} deg (fill {self.poses.fill_ratio[i]:.0%} of the "
-                    f"window): the stud could lean up to {self.lean_bound_deg[i]:.1f} deg > "
-                    f"{self.config.lean_budget_deg:g} deg budget")
-        if st == STATUS_GUN_BLOCKED:
-            return (f"the gun ({self.config.gun.radius_m * 1e3:.0f} mm radius) would touch the part "
-                    f"{-self.gun_clearance_m[i] * 1e3:.1f} mm inside it, {self.clearance.along_m[i] * 1e3:.0f} mm "
-                    "up the stud's axis")
-        if st == STATUS_NO_NORMAL:
-            p = self.poses
-            if p.status[i] == SurfaceStatus.BAD_FIT:
-                return (f"no trustworthy normal: the window is not one smooth surface (fit RMS "
-                        f"{p.fit_rms_m[i] * 1e3:.2f} mm, {p.outlier_ratio[i]:.0%} outliers: an edge or a step)")
-            return f"no trustworthy normal: too few depth points (fill {p.fill_ratio[i]:.0%} of the window)"
-        return "" if st == STATUS_OK else STATUS_TEXT[st]
-
-    @property
-    def ok(self) -> np.ndarray:
-        return self.status == STATUS_OK
-
-    @property
-    def message_quat_xyzw(self) -> np.ndarray:
-        """(N, 4) the orientations messages carry: the identity where there is no normal (NaN)."""
-        quat = np.array(self.quat_xyzw, dtype=np.float64).reshape(-1, 4)
-        quat[~np.all(np.isfinite(quat), axis=1)] = (0.0, 0.0, 0.0, 1.0)
-        return quat
-
-    def counts(self) -> dict[str, int]:
-        vals, n = np.unique(self.status, return_counts=True)
-        return {STATUS_TEXT[int(v)]: int(c) for v, c in zip(vals, n)}
+        return str(self.reasons[i])
 
     def sigma_inflation(self) -> float:
         """The median factor the normals' 1-sigma was widened by for the depth noise's correlation
@@ -167,15 +129,39 @@ class ViewTargets:
         return float(np.median(f)) if f.size else 1.0
 
 
+def _reasons(status: np.ndarray, poses: SurfacePoses, clearance: Clearance, lean_bound_deg: np.ndarray,
+             config: PlannerConfig) -> np.ndarray:
+    """(N,) why each target is not usable, with the figure behind it ("" when it is)."""
+    reasons = STATUS_TEXTS[status]
+    reasons[status == STATUS_OK] = ""
+    for i in np.flatnonzero(np.isin(status, (STATUS_NORMAL_UNCERTAIN, STATUS_GUN_BLOCKED, STATUS_NO_NORMAL))).tolist():
+        st = int(status[i])
+        if st == STATUS_NORMAL_UNCERTAIN:
+            reasons[i] = (f"normal 1-sigma {poses.normal_sigma_deg[i]:.2f} deg (fill {poses.fill_ratio[i]:.0%} of the "
+                          f"window): the stud could lean up to {lean_bound_deg[i]:.1f} deg > "
+                          f"{config.lean_budget_deg:g} deg budget")
+        elif st == STATUS_GUN_BLOCKED:
+            reasons[i] = (f"the gun ({config.gun.radius_m * 1e3:.0f} mm radius) would touch the part "
+                          f"{-clearance.clearance_m[i] * 1e3:.1f} mm inside it, {clearance.along_m[i] * 1e3:.0f} mm "
+                          "up the stud's axis")
+        elif poses.status[i] == SurfaceStatus.BAD_FIT:
+            reasons[i] = (f"no trustworthy normal: the window is not one smooth surface (fit RMS "
+                          f"{poses.fit_rms_m[i] * 1e3:.2f} mm, {poses.outlier_ratio[i]:.0%} outliers: an edge or "
+                          "a step)")
+        else:
+            reasons[i] = f"no trustworthy normal: too few depth points (fill {poses.fill_ratio[i]:.0%} of the window)"
+    return reasons
+
+
 def match(algorithm: str, targets_xy_w: np.ndarray, depth_m: np.ndarray, camera: CameraModel,
           config: PlannerConfig, heights: tuple | None | str = "observe") -> MatchResults:
     """Match with ``algorithm``; ``heights``: the view's :func:`observed_heights` if known (batch only)."""
-    if algorithm == "batch":
+    if algorithm == MatchAlgorithm.BATCH:
         z_range = None if isinstance(heights, str) else z_range_of(heights, camera)
         return match_batch(targets_xy_w, depth_m, camera, tol_m=config.tol_m, hole_window_px=config.hole_window_px,
                            z_range_m=None if z_range is None else z_range[:2],
                            z_init_m=None if z_range is None else z_range[2])
-    if algorithm == "fpm":
+    if algorithm == MatchAlgorithm.FPM:
         return match_fpm(targets_xy_w, depth_m, camera, tol_m=config.tol_m, window_px=config.fpm_window_px,
                          hole_window_px=config.hole_window_px)
     return match_bfs(targets_xy_w, depth_m, camera, tol_m=config.tol_m, hole_window_px=config.hole_window_px,
@@ -184,22 +170,20 @@ def match(algorithm: str, targets_xy_w: np.ndarray, depth_m: np.ndarray, camera:
 
 def plan_view(ids: list[str], drawing_xy_m: np.ndarray, M_local2world: np.ndarray, depth_m: np.ndarray,
               camera: CameraModel, config: PlannerConfig = PlannerConfig(),
-              noise: NoiseCorrelation | None = None) -> ViewTargets:
+              noise: NoiseCorrelation | None = None, view_index: int = 0) -> ViewTargets:
     """Match every stud of the drawing on this view and estimate its weld pose (see module doc).
 
     ``noise``: the depth noise's correlation measured on an earlier frame of the same camera
-    (:func:`view_noise_correlation`), to skip measuring it on this one; None: measured here."""
+    (:func:`view_noise_correlation`), to skip measuring it on this one; None: measured here.
+    ``view_index``: the view's number, every target's ``view_index``."""
     drawing_xy_m = np.asarray(drawing_xy_m, dtype=np.float64).reshape(-1, 2)
     target_xy_w = local_to_world(M_local2world, drawing_xy_m)
     t0 = time.perf_counter()
     heights = observed_heights(depth_m, camera)  # once: the matcher's heights and the gun's top
     matches = match(config.algorithm, target_xy_w, depth_m, camera, config, heights)
     match_time = time.perf_counter() - t0
-    poses = estimate_surface_poses_for_matches(matches, depth_m, camera, window_m=config.normal_window_m,
-                                               max_samples_per_side=config.normal_samples_per_side,
-                                               max_rms_m=config.max_normal_rms_m, target_xy_w=target_xy_w,
-                                               noise_correlation_max_lag_px=config.noise_correlation_max_lag_px,
-                                               sample_step_max_loss=config.sample_step_max_loss, noise=noise)
+    poses = estimate_surface_poses_for_matches(matches, depth_m, camera, config.surface_fit, target_xy_w=target_xy_w,
+                                               noise=noise)
     status = matches.status.astype(np.uint8).copy()
     matched = status == MatchStatus.OK
     status[matched & ~poses.ok] = STATUS_NO_NORMAL
@@ -218,20 +202,24 @@ def plan_view(ids: list[str], drawing_xy_m: np.ndarray, M_local2world: np.ndarra
     if config.tool_offset_m:
         position = np.where(poses.ok[:, None], offset_along_normal(position, poses.normal_w, config.tool_offset_m),
                             position)
-    return ViewTargets(ids=list(ids), drawing_xy_m=drawing_xy_m, target_xy_w=target_xy_w, position_w=position,
-                       normal_w=poses.normal_w, quat_xyzw=poses.quat_xyzw, inclination_deg=poses.inclination_deg,
+    lean_bound = np.where(poses.ok, lean_bound, np.nan)
+    return ViewTargets(ids=list(ids), drawing_xy_m=drawing_xy_m, position_w=position, quat_xyzw=poses.quat_xyzw,
+                       normal_w=poses.normal_w, pixel_uv=matches.pixel_uv,
+                       view_index=np.full(len(ids), view_index, np.int64), iterations=matches.iterations,
+                       xy_error_m=matches.xy_residual_m, inclination_deg=poses.inclination_deg,
                        normal_rms_m=poses.fit_rms_m, normal_sigma_deg=poses.normal_sigma_deg,
-                       lean_bound_deg=np.where(poses.ok, lean_bound, np.nan), gun_clearance_m=clearance.clearance_m,
-                       status=status, matches=matches, poses=poses, clearance=clearance, algorithm=config.algorithm,
-                       match_time_s=match_time, config=config)
+                       lean_bound_deg=lean_bound, fill_ratio=poses.fill_ratio, gun_clearance_m=clearance.clearance_m,
+                       status=status, reasons=_reasons(status, poses, clearance, lean_bound, config),
+                       centre_offset=centre_offset(matches.pixel_uv, camera.cx, camera.cy, camera.width, camera.height),
+                       target_xy_w=target_xy_w, matches=matches, poses=poses, clearance=clearance,
+                       algorithm=config.algorithm, match_time_s=match_time, config=config)
 
 
 def view_noise_correlation(targets: ViewTargets, depth_m: np.ndarray, camera: CameraModel) -> NoiseCorrelation:
     """The depth noise's correlation of the frame ``targets`` were planned on, measured as
     :func:`plan_view` measures it, for a later frame of the same camera (``plan_view(noise=...)``)."""
     return frame_noise_correlation(targets.matches.point_w, targets.matches.pixel_uv, depth_m, camera,
-                                   window_m=targets.config.normal_window_m,
-                                   max_lag_px=targets.config.noise_correlation_max_lag_px, valid=targets.matches.ok)
+                                   targets.config.surface_fit, valid=targets.matches.ok)
 
 
 class NoiseMemory:
