@@ -204,8 +204,8 @@ def check_rail_reach(scene: SceneSpec, part: DemoPart) -> list[str]:
     of the cell's plan, a carriage position from which the arm puts the camera there and welds every
     stud of the station (its studs' exact heights and normals). Prints the carriage positions found."""
     seq = _cell_settings(part)
-    limits = SafetyLimits(workspace_min_m=tuple(part.cell_vars["workspace_min_m"]),  # type: ignore[arg-type]
-                          workspace_max_m=tuple(part.cell_vars["workspace_max_m"]))  # type: ignore[arg-type]
+    limits = SafetyLimits(workspace_min_m=tuple(part.cell_vars["workspace_min_m"]),
+                          workspace_max_m=tuple(part.cell_vars["workspace_max_m"]))
     reach = _checker(limits).reach_for(STANDOFF_M)
     xy = scene.studs_world_xy_m
     z = surface_height(scene, xy[:, 0], xy[:, 1])

@@ -148,8 +148,8 @@ def record_girder(out: Path, stations: list[int] | None = None) -> dict:
     settings = {**vars(JobConfig()), **{k: v for k, v in part.cell_vars.items() if k in vars(JobConfig())}}
     xyz = station_cameras(scene, settings, plane_z_m=scene.board.thickness_m)
     picked = [xyz[0]] + [xyz[1 + i] for i in (range(len(xyz) - 1) if stations is None else stations)]
-    deviation = RailDeviation(part.sim_vars["true_rail_scale_ppm"], part.sim_vars["true_rail_offset_m"],  # type: ignore[arg-type]
-                              part.sim_vars["true_rail_yaw_urad_per_m"])  # type: ignore[arg-type]
+    deviation = RailDeviation(part.sim_vars["true_rail_scale_ppm"], part.sim_vars["true_rail_offset_m"],
+                              part.sim_vars["true_rail_yaw_urad_per_m"])
     carriages = [float(np.clip(p[0] - part.mount_xyz_m[0], 0.0, part.rail_length_m)) for p in picked]
     truth = write_sensor_bag(out, scene_file, REPO / "src" / "stud_planner" / part.drawing,
                              [camera_at(p) for p in picked], [true_world_correction(c, deviation) for c in carriages],

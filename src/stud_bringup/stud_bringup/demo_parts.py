@@ -15,7 +15,7 @@ test, the cycle-time bench and the tests read them from here.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Mapping
+from typing import Any, Mapping
 
 #: The girder's rail: travel (m), the arm's base on the carriage (m), the workspace box spanning the rail.
 GIRDER_RAIL_LENGTH_M = 7.0
@@ -35,8 +35,8 @@ class DemoPart:
     drawing: str
     scene: str
     description: str
-    cell_vars: Mapping[str, object] = field(default_factory=dict)
-    sim_vars: Mapping[str, object] = field(default_factory=dict)
+    cell_vars: Mapping[str, Any] = field(default_factory=dict)
+    sim_vars: Mapping[str, float] = field(default_factory=dict)
     time_scale: float = 0.25
     max_xy_error_mm: float = 1.0
     max_z_error_mm: float | None = None       # None: not a pass condition
@@ -46,12 +46,12 @@ class DemoPart:
 
     @property
     def rail_length_m(self) -> float:
-        return float(self.cell_vars.get("rail_length_m", 0.0))  # type: ignore[arg-type]
+        return float(self.cell_vars.get("rail_length_m", 0.0))
 
     @property
     def mount_xyz_m(self) -> tuple[float, float, float]:
-        m = self.cell_vars.get("rail_mount_xyz_m", (0.0, 0.0, 0.0))
-        return tuple(float(v) for v in m)  # type: ignore[return-value, union-attr]
+        x, y, z = (float(v) for v in self.cell_vars.get("rail_mount_xyz_m", (0.0, 0.0, 0.0)))
+        return x, y, z
 
     def var_args(self) -> list[str]:
         """``--var NAME=VALUE`` arguments for ``cell`` (cell vars, then sim-only truth)."""
