@@ -248,3 +248,28 @@ def test_an_empty_registration_station_reaches_the_sequencer_as_an_empty_list(cf
     nodes, _ = plan(cfg, "sim", cli_vars=dict([cell_launch.parse_assignment("registration_station_xyz_m=[]", "--var")]))
     params = yaml.safe_load(write_params_file(nodes["cell_sequencer"], tmp_path).read_text())["/**"]["ros__parameters"]
     assert params["registration_station_xyz_m"] == []
+
+
+def test_the_rail_vars_reach_the_simulator_driver_state_publisher_camera_hmi_and_sequencer(cfg):
+    """rail_length_m 0 (the default): no rail, the arm fixed; every node that knows of the rail gets the same
+    values, the simulated truth only the simulator and the camera (the cell never reads it)."""
+    sim, _ = plan(cfg, "sim")
+    argv = sim["arm_simulator"].argv
+    assert argv[argv.index("--rail-length-m") + 1] == "0.0" and "--rail-mount-xyz-m=[0.0, 0.0, 0.0]" in argv
+    assert argv[-4:] == ["--port", "8080", "--time-scale", "1.0"]
+    driver = sim["arm_driver"].params
+    assert driver["rail_length_m"] == 0.0 and driver["workspace_max_m"] == [0.7, 0.7, 1.1]   # the driver's defaults
+    assert driver["workspace_min_m"] == [-0.7, -0.7, -0.02] and driver["rail_pos_unit_m"] == 1e-6
+    assert not any(k.startswith("true_rail") for k in driver)
+    rail = {"rail_length_m": 2.0, "rail_mount_xyz_m": [0.0, 0.0, 0.1], "true_rail_scale_ppm": 300.0,
+            "workspace_max_m": [2.7, 0.7, 1.1]}
+    nodes, _ = plan(cfg, "sim", cli_vars=rail)
+    argv = nodes["arm_simulator"].argv
+    assert argv[argv.index("--rail-length-m") + 1] == "2.0" and "--rail-mount-xyz-m=[0.0, 0.0, 0.1]" in argv
+    assert argv[argv.index("--true-rail-scale-ppm") + 1] == "300.0"
+    for name in ("arm_driver", "state_publisher", "hmi", "cell_sequencer"):
+        params = nodes[name].params
+        assert params["rail_length_m"] == 2.0 and params["rail_mount_xyz_m"] == [0.0, 0.0, 0.1], name
+        assert not any(k.startswith("true_rail") for k in params), name
+    assert nodes["arm_driver"].params["workspace_max_m"] == [2.7, 0.7, 1.1]
+    assert nodes["camera"].params["true_rail_scale_ppm"] == 300.0 and "rail_length_m" not in nodes["camera"].params

@@ -79,7 +79,7 @@ def test_twenty_mm_window_keeps_normals_under_one_degree_at_half_mm_noise(scenes
     err_narrow = angle_deg(narrow.normal_w, truth)
     assert np.all(wide.ok)
     assert err_wide.max() < 1.0 and err_wide.mean() < 0.4
-    assert err_narrow.mean() > 2 * err_wide.mean()  # why the window is specified in metres (ANCHORS.md)
+    assert err_narrow.mean() > 2 * err_wide.mean()  # why the window is specified in metres (docs/MATCHING.md)
     # The reported uncertainty is the right order of magnitude.
     assert 0.3 < np.median(err_wide / wide.normal_sigma_deg) < 3.0
     # The fitted plane averages the depth noise out of the height.

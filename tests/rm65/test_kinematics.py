@@ -23,7 +23,7 @@ from rm65_driver.kinematics.rm65 import (
 
 KIN = RM65Kinematics()
 
-# RM65_PROTOCOL.md §4.3: official SDK rm_algo_forward_kinematics, flange in base, [m, rad].
+# docs/RM65_PROTOCOL.md §3.3: official SDK rm_algo_forward_kinematics, flange in base, [m, rad].
 FK_VECTORS = [
     ([0, 0, 0, 0, 0, 0], [0, 0, 0.8505, 0, 0, np.pi]),
     ([0, 0, 90, 0, 90, 0], [-0.21, 0, 0.3525, np.pi, 0, 0]),

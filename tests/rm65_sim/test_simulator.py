@@ -62,7 +62,7 @@ def test_handshake_queries_of_the_official_sdk_are_answered(raw):
     for name in P.HANDSHAKE_COMMANDS:
         [reply] = raw.ask({"command": name})
         assert P.reply_tag(reply) in P.expected_reply_tags(name), (name, reply)
-    # fields the SDK requires (RM65_PROTOCOL.md §3)
+    # fields the SDK requires (docs/RM65_PROTOCOL.md §2)
     [info] = raw.ask({"command": "get_arm_software_info"})
     assert info["Product_version"].startswith("RM65-B")
     [push] = raw.ask({"command": "get_realtime_push"})

@@ -1,5 +1,5 @@
 """The simulated controller's state and its non-motion commands: arm state, the SDK's connect-time
-queries, tool and work frames (§1.7), controller and tool-flange IO (§1.8).
+queries, tool and work frames (§1.7), controller and tool-flange IO (§1.8); ``§`` cites docs/RM65_PROTOCOL.md.
 
 :class:`ControllerCommands` is a part of :class:`~rm65_sim.simulator.ArmSimulator` (the state
 lives there, under its lock): one ``_cmd_<command>(msg)`` per command, returning the reply.

@@ -19,7 +19,7 @@ undocumented is chosen and said so):
   halting at either end of the travel; 0 stops the axis at once (a position move so stopped
   reports ``trajectory_state`` false). No arrival message for a jog (none is documented).
 * ``expand_get_state``: ``{"state":"expand_state","pos","current","err_flag","en_flag","mode",
-  "joint_id"}``, every value a number (the keys the official SDK requires, §6.2); ``pos`` is the
+  "joint_id"}``, every value a number (the keys the official SDK requires, docs/RM65_PROTOCOL.md §4.2); ``pos`` is the
   encoder's count -- the commanded position once a move has arrived: the controller does not know
   its rail's scale error. ``mode`` 2 / 4 during a position move toward + / -, 1 / 3 jogging, 0 still.
 * The arm's ``set_arm_stop`` and ``set_arm_slow_stop`` stop the rail too (RealMan leaves open whether
@@ -50,7 +50,7 @@ from rm65_driver.protocol import messages as P
 from rm65_driver.rail.axis import DEVICE_EXPAND, EXPAND_SET_POS, EXPAND_SET_SPEED, RailAxis, RailMode, expand_state_message
 from rm65_sim.motion import SegmentProfile
 
-_log = logging.getLogger("rm65_driver.simulator")  # one logger for all parts of the simulator
+_log = logging.getLogger("rm65_sim.simulator")  # one logger for all parts of the simulator
 
 
 def rail_arrival(success: bool) -> dict[str, Any]:

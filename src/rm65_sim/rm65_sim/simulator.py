@@ -1,6 +1,6 @@
 """A loopback simulator of the RM-65 controller's JSON-over-TCP interface.
 
-Speaks the protocol of RM65_PROTOCOL.md well enough for our driver *and* the official SDK
+Speaks the protocol of docs/RM65_PROTOCOL.md (``§`` cites its sections) well enough for our driver *and* the official SDK
 (robotic-arm 1.1.6) to connect: ``\\r\\n`` framing (pretty-printed requests tolerated), the
 eleven connect-time queries of §1.11, ``movej`` / ``movej_p`` / ``movel`` with the
 acknowledgement followed by the ``current_trajectory_state`` arrival message, stop / slow stop
@@ -14,7 +14,7 @@ as the path needs at ``v`` % of the line and angular limits (:class:`.motion.Mot
 starting and ending at rest; ``time_scale`` multiplies every duration (0.02 makes tests 50x faster). Targets outside
 the joint limits are refused with ``receive_state:false`` and error 0x1002 in the state,
 unreachable poses with 0x1003 (the exact channel is [UNCERTAIN] in the docs; this is the one
-the official SDK reports as "refused", §3). Numbers no arm can reach -- non-finite, too large for
+the official SDK reports as "refused", §2). Numbers no arm can reach -- non-finite, too large for
 a float, a flange beyond the working sphere -- are refused the same way at once, before any IK.
 
 For tests: every received command is recorded with its arrival time (``commands``), every
@@ -505,9 +505,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         _log.warning("binding the simulator to a non-loopback address %s", args.host)
     # SIGINT and SIGTERM are blocked in every thread (the simulator's threads, started below, inherit
     # the mask) and taken synchronously by sigwait: no handler runs at an arbitrary point of this thread.
-    # The handler that was here set a threading.Event, whose lock this thread held for a few bytecodes
-    # of every Event.wait turn: a signal landing then blocked the handler on that lock for ever, and the
-    # simulator outlived its SIGTERM (a cell killed mid-job; its launch test waited 60 s in vain).
+    # Not a Python handler setting a threading.Event: this thread holds that Event's lock for a few
+    # bytecodes of every Event.wait turn, and a signal landing then would block the handler on that lock
+    # for ever, the simulator outliving its SIGTERM.
     stop_signals = {signal.SIGINT, signal.SIGTERM}
     for sig in stop_signals:  # not Python's KeyboardInterrupt either (never ignored: an ignored signal is lost)
         signal.signal(sig, signal.SIG_DFL)

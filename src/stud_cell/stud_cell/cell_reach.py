@@ -72,18 +72,26 @@ class CellReach:
     def camera_ok(self, xyz_w, yaw_rad: float = 0.0) -> bool:
         return self.cameras([(xyz_w, yaw_rad)])[0].ok
 
-    def surely_unreachable(self, xy_w, z_range_m: tuple[float, float]) -> list[str]:
+    def surely_unreachable(self, xy_w, z_range_m: tuple[float, float], bases=None,
+                           base_slack_m: float = 0.0) -> list[str]:
         """Per stud at world ``xy_w`` (N, 2) whose surface lies somewhere in ``z_range_m`` (world z)
         with a normal anywhere within the gun-tilt limit: why the gun cannot weld it whatever height
         and normal it turns out to have ("" when it may be weldable). A lower bound on the flange's
         distance from the shoulder at the approach pose, over every height and normal: beyond the
-        reach sphere, the driver's verdict is "out of reach" for every one of them."""
+        reach sphere, the driver's verdict is "out of reach" for every one of them.
+
+        ``bases`` (K, 4, 4): the arm's base at any of these poses in ``world`` (a rail's carriage
+        positions; default: ``world_T_base``) -- the bound is the least over them, less
+        ``base_slack_m`` (the bound moves by at most as much as the base does: sampled carriage
+        positions ``h`` apart leave ``h / 2`` between them)."""
         c = self.config
         xy = np.asarray(xy_w, dtype=np.float64).reshape(-1, 2)
         z_lo, z_hi = (float(v) for v in z_range_m)
         zs = np.arange(z_lo, z_hi + _PRIOR_DZ_M, _PRIOR_DZ_M)
-        B_inv = np.eye(4) if self.world_T_base is None else np.linalg.inv(np.asarray(self.world_T_base, float))
-        axis = B_inv[:3, :3] @ np.array([0.0, 0.0, 1.0])  # world up, in the base frame
+        if bases is None:
+            bases = [np.eye(4) if self.world_T_base is None else self.world_T_base]
+        B_inv = np.linalg.inv(np.asarray(bases, dtype=np.float64).reshape(-1, 4, 4))     # (K, 4, 4)
+        axis = B_inv[:, :3, :3] @ np.array([0.0, 0.0, 1.0])  # world up, in each base frame (K, 3)
         tool = c.tool_matrix
         if np.allclose(tool[:3, :3], np.eye(3)):   # the flange is on the tool's axis but for t_xy
             lever, slack = c.standoff_m + float(tool[2, 3]), float(np.hypot(tool[0, 3], tool[1, 3]))
@@ -92,13 +100,14 @@ class CellReach:
         theta = math.radians(c.max_tool_tilt_deg)
         out = []
         for x, y in xy:
-            P = np.column_stack([np.full(len(zs), x), np.full(len(zs), y), zs, np.ones(len(zs))]) @ B_inv.T
-            d = SHOULDER_M - P[:, :3]                        # surface point -> shoulder
-            dn = np.linalg.norm(d, axis=1)
-            phi = np.arccos(np.clip((d @ axis) / np.maximum(dn, 1e-12), -1.0, 1.0))
+            P_w = np.column_stack([np.full(len(zs), x), np.full(len(zs), y), zs, np.ones(len(zs))])
+            P = np.einsum("kij,zj->kzi", B_inv, P_w)[..., :3]   # (K, Z, 3) in each base frame
+            d = SHOULDER_M - P                               # surface point -> shoulder
+            dn = np.linalg.norm(d, axis=-1)
+            phi = np.arccos(np.clip(np.einsum("kzi,ki->kz", d, axis) / np.maximum(dn, 1e-12), -1.0, 1.0))
             gap = np.maximum(phi - theta, 0.0)               # the normal can lean toward d by theta at most
             dist = np.sqrt(np.maximum(lever ** 2 + dn ** 2 - 2 * lever * dn * np.cos(gap), 0.0))
-            bound = float(dist.min()) - _PRIOR_DZ_M / 2 - slack  # 1-Lipschitz in z: between the samples
+            bound = float(dist.min()) - _PRIOR_DZ_M / 2 - slack - base_slack_m  # 1-Lipschitz in z: between the samples
             if bound > WORKING_RADIUS_M:
                 out.append(f"approach pose out of reach at any height {z_lo:.3f}..{z_hi:.3f} m and gun tilt up to "
                            f"{c.max_tool_tilt_deg:g} deg (flange at least {bound:.3f} m from the shoulder > "
@@ -112,6 +121,5 @@ class CellReach:
                 continue
             out.append("")
         return out
-
 
 __all__ = ["CellReach", "camera_pose_as_sent"]

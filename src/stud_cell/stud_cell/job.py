@@ -114,6 +114,11 @@ class Registration:
     message: str
     m_local2world: np.ndarray   # (3, 3), Eq. 2
     plane_z_m: float            # world z of the marks (the working plane)
+    # Along a part with reference marks (Registration.msg): how well the marks fitted and how far it reached
+    residual_m: float = math.nan            # RMS of the marks' fit
+    residual_max_m: float = math.nan        # the largest mark's distance from the fit
+    labels_used: tuple[str, ...] = ()       # the marks the fit used ("O", "A", "B", "M3", ...)
+    extrapolated_m: float = 0.0             # > 0: too few marks in view, the nearest registration's, this far away
 
 
 @dataclass(frozen=True)
@@ -123,6 +128,7 @@ class Layout:
     source_file: str = ""
     marks_m: np.ndarray | None = None   # (3, 2) O, A, B, drawing frame (the board's size, for its search)
     mark_diameter_m: float = 0.0
+    reference_marks_m: dict = field(default_factory=dict)   # "M1" -> (2,) drawing frame: marks along a long part
 
 
 @dataclass(frozen=True)
@@ -157,6 +163,10 @@ class CellPorts(Protocol):
                 after_ns: int) -> InspectionOutcome: ...                # InspectionUnavailable
     def status(self, state: str, message: str, **fields) -> None: ...
     def checkpoint(self) -> None: ...                                    # honours pause and stop
+    # With a rail (JobConfig.rail_length_m > 0; rail_job.RailJob) -- a cell without one need not have these:
+    def move_rail(self, position_m: float) -> float: ...                 # carriage there, the arm still; where it
+                                                                         # arrived (m). MoveRefused: refused
+    def rail_position_m(self) -> float: ...                              # where the carriage is (m)
     def stopped(self) -> bool: ...
     def info(self, text: str) -> None: ...
     def warn(self, text: str) -> None: ...
@@ -199,6 +209,13 @@ class JobConfig:
                                                     # (an inspection's own limits replace these)
     job_id: str = ""
     part: str = ""
+    # The rail (rail_job.RailJob, rail_plan.py): the arm's base on a linear axis; 0: none, the arm fixed
+    rail_length_m: float = 0.0
+    rail_mount_xyz_m: tuple = (0.0, 0.0, 0.0)
+    rail_coarse_step_m: float = 0.05     # carriage positions a station is reached from: sampled this far apart,
+    rail_tolerance_m: float = 0.005      # the ends found to within this
+    rail_stud_height_m: float = math.nan  # the studs' height above the plane the stops are planned for (NaN: half
+                                          # part_height_m); their weld reach, normal up, is the plan's prior
 
     @classmethod
     def from_params(cls, p: dict) -> "JobConfig":
@@ -262,21 +279,32 @@ class CellJob:
                    f"{len(layout.ids)} studs, {len(self.unreachable)} unreachable"
                    + "".join(f"\n  {sid}: {why}" for sid, why in self.named.reasons.items()))
 
-        for station in plan.stations:
-            self._station = station.index
-            try:
-                self._run_station(station, layout.ids)
-            except MoveRefused as exc:  # a controller that disagrees: the station is lost, not the job
-                ports.warn(f"station {station.index}: skipped, {exc}")
-                for i in station.stud_indices:
-                    if not self.stud_report[layout.ids[i]]["welded"] and layout.ids[i] not in self.named.reasons:
-                        self.named.name(layout.ids[i], f"camera station {station.index} refused by the arm: {exc}")
-        self._weld_leftovers()
-        self._reshoot(studs_w, layout.ids, plane_z)
+        self._work(plan, studs_w, layout.ids, plane_z)
         welded = self.welded_count()
         failed = len(layout.ids) - welded
         return DONE, (f"job done: {welded}/{len(layout.ids)} studs welded"
-                      + (f", {failed} not welded (see report)" if failed else ""))
+                      + (f", {failed} not welded (see report)" if failed else "") + self._done_note())
+
+    def _work(self, plan: StationPlan, studs_w: np.ndarray, ids: list[str], plane_z: float) -> None:
+        """The stations in order, then the leftovers and the re-shoots (a rail's job: per carriage position)."""
+        for station in plan.stations:
+            self._run_station_or_skip(station, ids)
+        self._weld_leftovers()
+        self._reshoot(studs_w, ids, plane_z)
+        self._reshoot_reasons()
+
+    def _run_station_or_skip(self, station: Station, ids: list[str]) -> None:
+        self._station = station.index
+        try:
+            self._run_station(station, ids)
+        except MoveRefused as exc:  # a controller that disagrees: the station is lost, not the job
+            self.ports.warn(f"station {station.index}: skipped, {exc}")
+            for i in station.stud_indices:
+                if not self.stud_report[ids[i]]["welded"] and ids[i] not in self.named.reasons:
+                    self.named.name(ids[i], f"camera station {station.index} refused by the arm: {exc}")
+
+    def _done_note(self) -> str:
+        return ""
 
     # -- registration and the plan -----------------------------------------------------------------
     def _register(self, layout: Layout) -> Registration:
@@ -288,9 +316,11 @@ class CellJob:
         if station:
             ports.checkpoint()
             try:
+                self._reach_pose(station, 0.0)
                 self._move(station, 0.0)
                 registration = ports.register()
                 if registration.valid:
+                    self._registered_at(station, 0.0, registration)
                     return registration
                 looked.append(f"the registration station {np.round(station, 3).tolist()} m: {registration.message}")
             except MoveRefused as exc:
@@ -304,17 +334,19 @@ class CellJob:
         except BoardSearchError as exc:
             raise JobAborted(f"no valid registration ({'; '.join(looked) or 'no registration station'}): {exc}") from None
         last = ""
-        for k, (xyz, yaw) in enumerate(search.poses, 1):
+        for k, (xyz, yaw) in enumerate(self._search_order(search.poses), 1):
             self._status(REGISTERING, f"searching for the marking board: view {k}/{len(search.poses)} from "
                                       f"{np.round(xyz, 3).tolist()} m")
             ports.checkpoint()
             try:
+                self._reach_pose(xyz, yaw)
                 self._move(xyz, yaw)
             except MoveRefused as exc:
                 last = str(exc)
                 continue
             registration = ports.register(attempts=1)
             if registration.valid:
+                self._registered_at(xyz, yaw, registration)
                 ports.info(f"marking board found from the camera at {np.round(xyz, 3).tolist()} m (search view {k}); "
                            "set registration_station_xyz_m to look there first")
                 return registration
@@ -324,15 +356,29 @@ class CellJob:
                          + ". Put the camera over the board with registration_station_xyz_m: [x, y, z] (cell.yaml "
                          "vars, world m), or set board_search_area_xy_m to where the board lies")
 
+    def _reach_pose(self, xyz, yaw: float) -> None:
+        """Before the camera goes to a registration pose (a rail: the carriage to where the arm reaches it)."""
+
+    def _registered_at(self, xyz, yaw: float, registration: Registration) -> None:
+        """A valid registration was made with the camera there."""
+
+    def _search_order(self, poses) -> list:
+        """The board search's poses in the order shot."""
+        return list(poses)
+
     def _cameras_ok(self, poses) -> list[bool]:
         assert self.reach is not None
         return [v.ok for v in self.reach.cameras(poses)]
+
+    def _surely_unreachable(self, studs_w: np.ndarray, z_range: tuple[float, float]) -> list[str]:
+        assert self.reach is not None
+        return self.reach.surely_unreachable(studs_w, z_range)
 
     def _plan(self, studs_w: np.ndarray, plane_z: float, ids: list[str]) -> StationPlan:
         """Stations for every stud not already ruled out; each at a pose the arm reaches."""
         c = self.c
         if self.reach is not None:  # the drawing's place and the plane rule these out, whatever the part
-            for sid, why in zip(ids, self.reach.surely_unreachable(studs_w, (plane_z, plane_z + c.part_height_m))):
+            for sid, why in zip(ids, self._surely_unreachable(studs_w, (plane_z, plane_z + c.part_height_m))):
                 if why:
                     self.named.name(sid, why)
         todo = [i for i, sid in enumerate(ids) if sid not in self.named.reasons]
@@ -405,7 +451,11 @@ class CellJob:
             r = self.stud_report.get(t.stud_id)
             if t.ok and r is not None and not r["welded"] and t.stud_id not in own and t.stud_id not in self._seen:
                 self._seen.add(t.stud_id)
-                self._weldable(t)
+                self._check_seen(t)
+
+    def _check_seen(self, t: Target) -> None:
+        """A stud of a later station seen on a view: named now when the arm cannot weld its target."""
+        self._weldable(t)
 
     def _remember_best(self, view: View) -> None:
         """Keep, per stud, its best usable target over all views by the rule ``plan`` keeps its views by
@@ -427,7 +477,7 @@ class CellJob:
     def _weld_leftovers(self) -> None:
         """Studs their own station gave no usable target for, but another view did."""
         left = [sid for sid, r in self.stud_report.items()
-                if not r["welded"] and sid in self.best and self._weldable(self.best[sid][1])]
+                if not r["welded"] and sid in self.best and self._due(sid) and self._weldable(self.best[sid][1])]
         if not left:
             return
         self.ports.info(f"welding {len(left)} stud(s) matched on another station's view: {', '.join(left)}")
@@ -446,7 +496,7 @@ class CellJob:
         index = {sid: i for i, sid in enumerate(ids)}
         for attempt in range(c.reshoot_attempts):
             pending = [sid for sid, r in self.stud_report.items() if not r["welded"] and sid not in self.named.reasons
-                       and r["status"] in RESHOOT_STATUS_TEXTS and sid not in self.best]
+                       and r["status"] in RESHOOT_STATUS_TEXTS and sid not in self.best and self._due(sid, here=True)]
             if not pending:
                 return
             for sid in pending:
@@ -479,6 +529,15 @@ class CellJob:
                         self._take_entry(t, v)
                     self._status(WELDING, f"welding {len(batch)} stud(s) usable after a re-shoot")
                     self._weld_and_inspect([(t, v) for _score, t, v in batch])
+
+    def _due(self, stud_id: str, here: bool = False) -> bool:
+        """The stud is to be welded now (a rail: at this carriage position -- ``here`` -- or, not welded
+        at an earlier one, here too)."""
+        return True
+
+    def _reshoot_reasons(self) -> None:
+        """At the end: why each stud no view could use, re-shoots included, was not welded."""
+        c = self.c
         for sid, r in self.stud_report.items():
             if not r["welded"] and r["status"] in RESHOOT_STATUS_TEXTS and sid not in self.best and c.reshoot_attempts:
                 r["reason"] = (f"{r['status']} on every view, {c.reshoot_attempts} re-shoot(s) included: "
@@ -501,6 +560,7 @@ class CellJob:
         if not batch:
             return
         welded = self._weld([t for t, _v in batch])
+        self._record_welded(welded)
         for t, view in batch:
             if t.stud_id in welded:
                 row = self.qa[t.stud_id]
@@ -508,6 +568,9 @@ class CellJob:
                 row["station"] = self._view_station.get(view.index, self._station)
         if self.c.inspect and welded:
             self._inspect(batch, welded)
+
+    def _record_welded(self, welded: set[str]) -> None:
+        """Studs just welded (a rail: where the carriage stood)."""
 
     def _weld(self, targets: list[Target]) -> set[str]:
         """Weld ``targets``; returns the ids welded. Should the driver lose the job, the same targets go
@@ -610,6 +673,10 @@ class CellJob:
             rows.append(row)
         return rows
 
+    def _report_extras(self, qa: bool = False) -> dict:
+        """Fields the weld report (and, ``qa``, the QA record's job) add (a rail: the carriage positions)."""
+        return {}
+
     def _rework_decisions(self) -> dict[str, dict]:
         """Decisions the operator took during the job (on studs already inspected), for the QA record."""
         if not self.c.rework_file:
@@ -660,10 +727,10 @@ class CellJob:
             write_json(c.report_file, {"state": state, "message": message, "stations": int(self.stations_total),
                                        "unreachable": list(self.unreachable),
                                        "unreachable_reasons": dict(self.named.reasons),
-                                       "targets": list(self.stud_report.values())})
+                                       "targets": list(self.stud_report.values()), **self._report_extras()})
         if c.qa_dir and self.qa:
             job = {"id": c.job_id, "part": c.part, "drawing": self.layout.source_file if self.layout else "",
-                   "state": state, "message": message}
+                   "state": state, "message": message, **self._report_extras(qa=True)}
             with qa_report.locked(Path(c.qa_dir)):
                 doc = qa_report.write_qa_report(Path(c.qa_dir), job, c.qa_limits, self.qa_rows(state == DONE),
                                                 self.unexpected, [Path(f) for f in self.overlays],

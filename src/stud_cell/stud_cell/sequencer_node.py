@@ -13,6 +13,9 @@ leftovers, re-shoots, the reports); this node is its adapter to the cell:
   (``weld_resends``), and the journal skips what is welded and holds back what the crash left uncertain;
 - inspection: a shot of the same pose after the welds (``/camera/trigger_inspection``: published on
   topics of its own, so the matcher never takes it for a view) and ``/inspection/inspect``.
+- with a rail (``rail_length_m`` > 0, the arm driver's): the carriage through ``/arm/rail_move`` (the arm
+  still; returns on arrival), then two ``/arm/state`` from after it at the new position; the job is
+  stud_cell.rail_job's (carriage positions planned, a registration at each).
 
 The reach test is the arm driver's own (``/arm/reach_config``, latched: stud_cell.cell_reach):
 stations are planned at poses it accepts, and every target is checked before it is sent.
@@ -41,17 +44,18 @@ from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
 from std_msgs.msg import String
 from stud_welding_msgs.msg import ArmState, CellStatus, Registration, StudLayout, WeldRecord, WeldTargetArray
-from stud_welding_msgs.srv import Inspect, MoveTo
+from stud_welding_msgs.srv import Inspect, MoveTo, RailMove
 
 from stud_common import ros_io
 from stud_common.stacks import dump_stacks_on_signal
 from stud_perception.camera_model import nadir_rotation
-from stud_common.ros_io import Param
+from stud_common.ros_io import Param, three_numbers
 from stud_common.vocabulary import CellState
 from rm65_driver.weld.reach import ReachConfig, ReachConfigError
 from stud_cell import job as cell_job
 from stud_cell.cell_reach import CellReach
 from stud_cell.job import DriverLost, InspectionUnavailable, JobAborted, MoveRefused
+from stud_cell.rail_job import RailJob
 from stud_cell.stations import StationPlanningError, footprint_m
 from stud_inspection.qa_params import QA_CODE_PARAM, SAMPLING_PARAMS, overrides
 from stud_planner.msg_convert import (inspection_extras, inspection_rows, layout_from_msg, registration_from_msg,
@@ -124,6 +128,22 @@ PARAMS = [
     *SAMPLING_PARAMS,
     Param("sample_seed", 0, "the seed of the lot's bend-test sample, stored in the QA record (0: a random one)",
           min=0, max=2**31 - 1),
+    # The rail (stud_cell.rail_job, rail_plan): pass the arm driver's values (cell.yaml does)
+    Param("rail_length_m", _JOB.rail_length_m, "the rail's travel, as the arm driver's rail_length_m [m]: > 0, the "
+          "job plans the fewest carriage positions along it and registers at each; 0: no rail, the arm fixed",
+          min=0.0, max=100.0),
+    Param("rail_mount_xyz_m", list(_JOB.rail_mount_xyz_m), "the arm's base on the carriage, as the arm driver's "
+          "rail_mount_xyz_m [m]", validate=three_numbers("rail_mount_xyz_m")),
+    Param("rail_coarse_step_m", _JOB.rail_coarse_step_m, "the carriage positions a camera station is reached from "
+          "are sampled this far apart, then bisected [m]", min=0.005, max=0.5),
+    Param("rail_tolerance_m", _JOB.rail_tolerance_m, "... to within this [m]", min=0.0005, max=0.5),
+    Param("rail_stud_height_m", _JOB.rail_stud_height_m, "the studs' height above the working plane the carriage "
+          "positions are planned for: where the arm welds a stud there, normal up, is the plan's prior [m]; NaN: "
+          "half part_height_m", nan_means="half part_height_m",
+          validate=lambda v: None if math.isnan(v) or 0.0 <= v <= 2.0
+          else f"rail_stud_height_m={v}: expected 0.0 .. 2.0 m, or NaN (half part_height_m)"),
+    Param("rail_move_timeout_s", 300.0, "longest wait for the carriage to arrive at a carriage position [s]",
+          min=1.0, max=3600.0),
 ]
 
 #: /arm/welds: every weld of the session, also for a sequencer started late.
@@ -173,6 +193,7 @@ class CellSequencer(Node):
         self.create_subscription(CameraInfo, names.CAMERA_INFO, self._on_camera_info, ros_io.SENSOR_QOS,
                                  callback_group=cb)
         self.cli_move = self.create_client(MoveTo, names.ARM_MOVE_TO, callback_group=cb)
+        self.cli_rail = self.create_client(RailMove, names.ARM_RAIL_MOVE, callback_group=cb)
         self.cli_shot = self.create_client(Trigger, names.CAMERA_TRIGGER, callback_group=cb)
         self.cli_inspection_shot = self.create_client(Trigger, names.CAMERA_TRIGGER_INSPECTION, callback_group=cb)
         self.cli_register = self.create_client(Trigger, names.REGISTRATION_TRIGGER, callback_group=cb)
@@ -284,7 +305,8 @@ class CellSequencer(Node):
         config.job_id = time.strftime("%Y%m%d-%H%M%S")
         config.part = p["part_name"]
         config.qa_overrides = overrides(p, SAMPLING_PARAMS)
-        self.job = cell_job.CellJob(self, config, reach=self.cell_reach())
+        job_class = RailJob if config.rail_length_m > 0 else cell_job.CellJob
+        self.job = job_class(self, config, reach=self.cell_reach())
         _state, self.exit_code = self.job.run()
 
     # -- cell_job.CellPorts ---------------------------------------------------------------------
@@ -328,7 +350,7 @@ class CellSequencer(Node):
         msg = self._wait_for(lambda: self.layout, self.p["step_timeout_s"], names.DRAWING_LAYOUT)
         layout = layout_from_msg(msg)
         return cell_job.Layout(ids=layout.ids, xy_m=layout.xy_m, source_file=layout.source_file, marks_m=layout.marks_m,
-                               mark_diameter_m=layout.mark_diameter_m)
+                               mark_diameter_m=layout.mark_diameter_m, reference_marks_m=layout.reference_marks_m)
 
     def move_camera(self, xyz, yaw_rad: float) -> None:
         pose = ros_io.rt_to_pose(nadir_rotation(yaw_rad), np.asarray(xyz, dtype=float))
@@ -352,6 +374,33 @@ class CellSequencer(Node):
             return len(seen) >= 2
 
         self._wait_for(settled, self.p["step_timeout_s"], "/arm/state after the move")
+
+    def move_rail(self, position_m: float) -> float:
+        """The carriage to ``position_m`` along the rail (the arm still); returns where it arrived (m),
+        once two /arm/state from after the arrival show it there (the camera is posed from them)."""
+        reply = self._call(self.cli_rail, RailMove.Request(position_m=float(position_m), speed_pct=0),
+                           self.p["rail_move_timeout_s"])
+        if not reply.success:
+            text = f"carriage move to {position_m:.4f} m refused: {reply.message}"
+            if reply.message.startswith(("e-stop", "a weld job is running")):
+                raise JobAborted(text)
+            raise MoveRefused(text)
+        arrived, reached = self.get_clock().now().nanoseconds, float(reply.position_m)
+        seen: set[int] = set()
+
+        def settled():
+            st = self.arm_state
+            if (st is not None and ros_io.stamp_to_ns(st.header.stamp) > arrived and not st.rail_moving
+                    and abs(st.rail_position_m - reached) <= 1e-6):
+                seen.add(ros_io.stamp_to_ns(st.header.stamp))
+            return len(seen) >= 2
+
+        self._wait_for(settled, self.p["step_timeout_s"], f"/arm/state with the carriage at {reached:.4f} m")
+        return reached
+
+    def rail_position_m(self) -> float:
+        st = self._wait_for(lambda: self.arm_state, self.p["step_timeout_s"], names.ARM_STATE)
+        return float(st.rail_position_m)
 
     def _camera_status(self, xyz, yaw_rad: float) -> None:
         """Where the camera now looks, for /cell/status (the HMI's plan draws the footprint): the
@@ -413,7 +462,11 @@ class CellSequencer(Node):
             return cell_job.Registration(False, f"no registration result for {attempts or p['shot_retries']} shot(s)",
                                          np.eye(3), math.nan)
         return cell_job.Registration(bool(registration.valid), registration.message,
-                                     registration_from_msg(registration), float(registration.mark_o.z))
+                                     registration_from_msg(registration), float(registration.mark_o.z),
+                                     residual_m=float(registration.residual),
+                                     residual_max_m=float(registration.residual_max),
+                                     labels_used=tuple(registration.labels_used),
+                                     extrapolated_m=float(registration.extrapolated_distance))
 
     def shoot_view(self, what: str, camera_xyz_w, yaw_rad: float) -> cell_job.View | None:
         """Shoot (up to ``shot_retries`` times) and return the targets of the shot (None: none came)."""

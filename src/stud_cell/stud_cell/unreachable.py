@@ -13,10 +13,19 @@ from __future__ import annotations
 import math
 from typing import Callable
 
+import numpy as np
+
 from stud_cell.cell_reach import CellReach
 
 #: The prefix of every reason here (report status "unreachable").
 PREFIX = "unreachable: "
+
+
+def _usable(position_m, normal) -> bool:
+    """A target the reach test can be asked about: position and normal given, all finite."""
+    if position_m is None or normal is None:
+        return False
+    return all(math.isfinite(float(v)) for v in (*position_m, *normal))
 
 
 class UnreachableStuds:
@@ -42,23 +51,29 @@ class UnreachableStuds:
         if self.reasons.pop(stud_id, None) is not None:
             self.on_change()
 
-    def target_problem(self, stud_id: str, position_m, normal) -> str:
-        """Why the driver would refuse this target ("" when it would weld it, or no reach test is
-        known). Names the stud, or takes it off the list, accordingly."""
-        if self.reach is None or position_m is None or normal is None:
+    def verdict(self, position_m, normal, reach: CellReach | None = None) -> str:
+        """Why the driver's reach test (``reach``, default the job's) refuses this target, as a reason
+        (``"unreachable: ..."``; "" when it accepts it, or no test is known). Names nobody. Cached by
+        the target's values and the arm base's pose (on a rail, each carriage position's own)."""
+        reach = self.reach if reach is None else reach
+        if reach is None or not _usable(position_m, normal):
             return ""
         p = tuple(float(v) for v in position_m)
         n = tuple(float(v) for v in normal)
-        if not all(math.isfinite(v) for v in p + n):
-            return ""
-        key = (p, n)
+        base = None if reach.world_T_base is None else tuple(float(v) for v in np.asarray(reach.world_T_base).ravel())
+        key = (p, n, base)
         if key not in self._verdicts:
-            verdict = self.reach.stud(p, n)
+            verdict = reach.stud(p, n)
             self._verdicts[key] = "" if verdict.ok else PREFIX + verdict.reason
-        why = self._verdicts[key]
+        return self._verdicts[key]
+
+    def target_problem(self, stud_id: str, position_m, normal) -> str:
+        """Why the driver would refuse this target ("" when it would weld it, or no reach test is
+        known). Names the stud, or takes it off the list, accordingly."""
+        why = self.verdict(position_m, normal)
         if why:
             self.name(stud_id, why)
-        else:
+        elif self.reach is not None and _usable(position_m, normal):
             self.withdraw(stud_id)
         return why
 

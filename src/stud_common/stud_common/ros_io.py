@@ -319,9 +319,8 @@ def keep_freed_memory(max_block_bytes: int = 32 << 20) -> bool:
     Every frame allocates and frees image-sized arrays (depth in metres, window point clouds: 1-10
     MB). By default glibc maps each with mmap and unmaps it on free, so every frame touches fresh
     pages: thousands of page faults per frame, which on a virtual machine cost as much as the
-    matching itself (bench/bench_latency.py, A/B here: matcher p50 24-27 -> 18-21 ms, p99 33-38 ->
-    25-29 ms). The price is that the process keeps its peak heap. Returns False where there is no
-    glibc or it refuses a setting.
+    matching itself (bench/RESULTS.md, *Latency*). The price is that the process keeps its peak heap.
+    Returns False where there is no glibc or it refuses a setting.
     """
     import ctypes
 
@@ -352,7 +351,7 @@ def init_node_process(args: list[str] | None = None) -> None:
     rclpy's handler shuts the context down from its signal thread while the executor may be in the
     middle of taking a message: the take then raises (RuntimeError "Unable to convert call argument")
     or crashes the process (SIGSEGV), and the launch reports the node FAILED after a job that went
-    well (state_publisher, 2 launches in 8 on a loaded 2-core machine). Ours only asks the spin loop
+    well. Ours only asks the spin loop
     to end; it ends between turns and the node is torn down in order, its context still valid.
     Further SIGINTs (Ctrl-C pressed twice) are ignored from then on: the teardown is bounded anyway
     (:func:`teardown_within`). A second SIGTERM (the launcher escalating, the teardown stuck) ends
@@ -464,14 +463,14 @@ TEARDOWN_BACKSTOP_S = 1.0
 def teardown_within(timeout_s: float, code: int, steps: list[Callable[[], object]]) -> None:
     """Run ``steps``; if they are still running after ``timeout_s``, end the process with ``code``.
 
-    Seen about once in six CI runs: ``destroy_node`` of an idle node never returned after Ctrl-C
-    (inside rclpy's node destruction, the DDS participant's teardown), so the launcher killed the
-    node and the cell reported a failure. Everything the node owes is done before its teardown (its
+    ``destroy_node`` of an idle node can fail to return after Ctrl-C (inside rclpy's node
+    destruction, the DDS participant's teardown); the launcher then kills the node and the cell
+    reports a failure. Everything the node owes is done before its teardown (its
     ``shutdown()`` hook, its callbacks drained; journal records are synced as they are written), so
     leaving then loses nothing, and the process stops as asked.
 
     The timer is Python and needs the GIL, which a hang inside a C call may hold: the node then
-    outlived the timer and the launcher's grace period both (a CI run, 2026-12-03). A backstop
+    outlives the timer and the launcher's grace period both. A backstop
     process therefore sends SIGTERM ``TEARDOWN_BACKSTOP_S`` later, SIGTERM's default action
     restored: the kernel ends the process, no Python code needs to run, and the launcher counts
     a SIGTERM as a clean stop."""

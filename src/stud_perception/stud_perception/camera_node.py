@@ -20,7 +20,7 @@ is, with the rail's TRUE deviation (``true_rail_*``, sim-only: scale, offset, ya
 truly are the same way.
 
 With a real camera, run the vendor's ROS 2 driver instead and remap its topics onto the
-four above (see the package README); nothing downstream depends on this node.
+four above (docs/LAUNCH.md, *Hardware mode: the camera*); nothing downstream depends on this node.
 """
 from __future__ import annotations
 

@@ -90,7 +90,7 @@ def sensor_depth_mm(depth_exact_m: np.ndarray, depth_noise_m: float, rng_depth: 
     depth_noisy = depth_exact_m
     if depth_noise_m > 0 and noise_correlation_px > 0:
         depth_noisy = depth_exact_m + depth_noise(depth_exact_m.shape, depth_noise_m, noise_correlation_px, rng_depth)
-    elif depth_noise_m > 0:  # the same draws as before correlated noise existed: old seeds give old frames
+    elif depth_noise_m > 0:  # drawn directly, not through depth_noise: a seed keeps giving the same frames
         depth_noisy = depth_exact_m + rng_depth.normal(0.0, depth_noise_m, depth_exact_m.shape)
     depth_mm = depth_m_to_mm(depth_noisy)
     holes = hole_mask(depth_exact_m.shape, hole_fraction, hole_blob_px, rng_holes)

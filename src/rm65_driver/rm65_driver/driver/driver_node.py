@@ -43,7 +43,7 @@ controller's expansion joint. ``world`` is then the rail's frame; the weld targe
 arrive in it and are converted to the arm's base with the carriage's position
 (:func:`stud_common.frames.world_T_base`); /arm/state, /joint_states (``rail_joint``, m) and /arm/welds
 carry the carriage. The carriage moves only while the arm is still and never during a weld job; stop
-and e-stop stop it too. With ``rail_length_m`` 0 nothing of this exists and the driver is what it was.
+and e-stop stop it too. With ``rail_length_m`` 0 there is no rail and ``world`` is the arm's base frame.
 
 Addresses: ``arm_ip`` defaults to 127.0.0.1 (the simulator, ``ros2 run rm65_driver simulator``)
 so nothing in this repository reaches for real hardware by default; the factory address of a
@@ -254,7 +254,7 @@ class DriverNode(Node):
         text = (f"weld job ended: {res.message}; welded {len(out.welded)}, skipped {len(out.skipped)}, "
                 f"failed {len(out.failed)}")
         # Two call sites: rclpy refuses one call site logging at two severities (ValueError), which
-        # used to lose the result of every job that ended otherwise than the one before it.
+        # would lose the result of a job that ended otherwise than the one before it.
         if res.success:
             self.get_logger().info(text)
         else:

@@ -3,12 +3,12 @@
 Units: radians and metres throughout (the controller's millidegrees / micrometres /
 milliradians are converted in :mod:`rm65_driver.protocol.messages`, never here).
 
-Model (RM65_PROTOCOL.md §4.2, RealMan "RM65 ontology parameters"; identical to the values the
+Model (docs/RM65_PROTOCOL.md §3.2, RealMan "RM65 ontology parameters"; identical to the values the
 official SDK's ``rm_algo_get_dh()`` returns): modified (Craig) DH, per link
 ``T_i = RotX(alpha_{i-1}) · TransX(a_{i-1}) · RotZ(q_i + offset_i) · TransZ(d_i)``,
 flange pose = ``T_1 · … · T_6`` in the base frame, no extra base rotation.
 
-Orientation convention (RM65_PROTOCOL.md §1.3): Euler ``[rx, ry, rz]`` are roll-pitch-yaw,
+Orientation convention (docs/RM65_PROTOCOL.md §1.3): Euler ``[rx, ry, rz]`` are roll-pitch-yaw,
 ZYX intrinsic, ``R = Rz(rz) · Ry(ry) · Rx(rx)``. Quaternions here are ROS order ``(x, y, z, w)``
 (the RealMan SDK uses ``[w, x, y, z]``).
 """
@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike
 from stud_common.rotations import rpy_to_matrix
 
 # --------------------------------------------------------------------------------------------
-# Model data (RM65_PROTOCOL.md §4.1 / §4.2)
+# Model data (docs/RM65_PROTOCOL.md §3.1 / §3.2)
 # --------------------------------------------------------------------------------------------
 
 #: d6 (flange distance, m) per RM65 variant (WEB-PARAM).
@@ -63,7 +63,7 @@ class DHModel:
 
     @classmethod
     def rm65(cls, d6_m: float = D6_BY_VARIANT["RM65-B"]) -> "DHModel":
-        """The RM65 table (§4.2) with the variant's flange distance ``d6_m``."""
+        """The RM65 table (docs/RM65_PROTOCOL.md §3.2) with the variant's flange distance ``d6_m``."""
         return cls(
             a=np.array([0.0, 0.0, 0.256, 0.0, 0.0, 0.0]),
             alpha=np.radians([0.0, 90.0, 0.0, 90.0, -90.0, 90.0]),
@@ -320,7 +320,7 @@ class RM65Kinematics:
 
     @staticmethod
     def in_reach(position_flange_m) -> bool:
-        """Coarse reach test: the flange point lies in the 610 mm sphere around the shoulder (§4.1).
+        """Coarse reach test: the flange point lies in the 610 mm sphere around the shoulder (docs/RM65_PROTOCOL.md §3.1).
 
         Necessary, not sufficient (the cylinder above/below the base and orientation are not
         checked): the IK is the real test.

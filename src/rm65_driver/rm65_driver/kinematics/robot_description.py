@@ -12,8 +12,8 @@ driver's ``tool_offset_m``), and ``weld_tool -> camera_color_optical_frame`` (th
 On a rail (``rail_length_m`` > 0) ``world`` is the rail's frame and the arm rides it: a prismatic
 ``rail_joint`` ``world -> carriage`` along x (0 .. ``rail_length_m``, metres) and a fixed
 ``rail_mount_joint`` ``carriage -> base_link`` (``rail_mount_xyz_m``) replace the fixed
-``world_joint``; a ``rail`` link fixed to ``world`` shows the rail. Without one the document is what
-it always was.
+``world_joint``; a ``rail`` link fixed to ``world`` shows the rail. Without a rail the fixed
+``world_joint`` places ``base_link`` in ``world``.
 
 The shapes are plain cylinders and spheres along the links, enough to see the arm's pose in a
 viewer; no meshes, no inertia (RealMan publishes masses, not inertia tensors we could check).

@@ -11,7 +11,7 @@ so :meth:`ArmClient.stop` reaches the controller within milliseconds even while 
 blocks in :meth:`ArmClient.move_joints_and_wait` (the e-stop latency test measures this). A stop
 also wakes every motion waiter at once with :class:`ArmStopped`.
 
-Units are SI (rad, m) on this API; :mod:`.messages` converts at the wire.
+Units are SI (rad, m) on this API; :mod:`.messages` converts at the wire. ``§`` cites docs/RM65_PROTOCOL.md.
 """
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """RealMan RM-65 JSON-over-TCP protocol: framing, command builders, reply parsing, units, error text.
 
-Everything here follows /work/shared/RM65_PROTOCOL.md (RealMan JSON protocol v3.7.4, the
-official SDK robotic-arm 1.1.6 as observed on the wire, the official ROS1 driver). No I/O and
+Everything here follows docs/RM65_PROTOCOL.md (RealMan JSON protocol v3.7.4, the official SDK
+robotic-arm 1.1.6 as observed on the wire, the official ROS1 driver); ``§`` cites its sections. No I/O and
 no ROS: the client, the simulator and the tests all use this one module.
 
 Framing (§1.1): every message, in both directions, is one JSON object followed by ``\\r\\n``.

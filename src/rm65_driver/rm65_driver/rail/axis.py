@@ -43,7 +43,7 @@ STATE_KEYS = ("pos", "current", "err_flag", "mode")
 
 
 class RailMode(enum.IntEnum):
-    """``mode`` of the expansion joint's (and the lift's) state (§6.1)."""
+    """``mode`` of the expansion joint's (and the lift's) state (docs/RM65_PROTOCOL.md §4.1)."""
 
     IDLE = 0
     SPEED_POSITIVE = 1      # jog (expand_set_speed) toward +

@@ -22,7 +22,7 @@ sequencer builds the same :class:`Reach` from that message. Whatever set the dri
 (cell.yaml, ``--set``, ``ros2 param set``), the planner checks against what the driver checks.
 
 Frames: stud positions, normals and camera poses are in ``world``; ``world_T_base`` (4x4, the arm
-base's pose in ``world``, identity by default: the fixed arm of today; a carriage's pose on a rail)
+base's pose in ``world``, identity by default: a fixed arm; a carriage's pose on a rail)
 maps them into the arm's base frame, where the kinematics and the plans (``T_approach``,
 ``T_contact``, joint solutions) are. The cell's limits are in ``world``: the workspace box (tool tip
 and flange) and the gun's tilt from world +z. Lengths m, angles rad unless named ``_deg``. Pure

@@ -16,7 +16,7 @@ and what the journal already settles. Once a stud has passed its safety check, i
    speed instead of stopping at the short standoff; a stop or cancel during it acts as during
    either move;
 5. ``weld``: journal ``started`` (fsync'ed), digital output ``trigger_io`` high for ``pulse_s``,
-   then low. **The controller's outputs source at most 2 mA (RM65_PROTOCOL.md §1.8): a real
+   then low. **The controller's outputs source at most 2 mA (docs/RM65_PROTOCOL.md §1.8): a real
    stud-welding gun must be triggered through an external relay / opto-coupled FET module on
    that output, never wired to it directly.**
 6. ``dwell`` ``dwell_s`` (the gun completes its cycle), journal ``welded``;

@@ -115,8 +115,8 @@ Warnings (``DrawingLayout.warnings``, one line each) and errors
     truncated/corrupt file, no studs (listing the layers with entity and circle counts), marks
     missing or ambiguous (how many circles on which layer), collinear or coincident marks.
     The duplicate and spacing checks use a grid hash (:func:`close_pairs`), O(N) for sane
-    spacing. Reading is linear in the number of studs: 250,000 in about 4 s on the project's
-    2-core machine (``bench/bench_plan_scaling.py``).
+    spacing. Reading is linear in the number of studs (bench/RESULTS.md, *Offline planning at
+    bridge scale*).
 """
 from stud_planner.drawing.circles import collect_circles, read_circles
 from stud_planner.drawing.dxf_file import load_document

@@ -174,7 +174,7 @@ def read_circles(path: str | Path, *, units_if_unitless: str = "mm", include_hid
     """Open ``path`` and return every usable circle (INSERTs expanded); no stud/mark logic.
 
     ``plain_circles``: read the modelspace's plain CIRCLE entities of an ASCII file with
-    :mod:`~stud_planner.drawing.plain_circles` (arrays, ~20x faster than ezdxf's objects: a 250,000-stud drawing
+    :mod:`~stud_planner.drawing.plain_circles` (arrays instead of ezdxf's objects: a 250,000-stud drawing
     in seconds) and the rest with ezdxf; False: everything with ezdxf. The result is the same."""
     path = Path(path)
     opened = open_drawing(path, plain_circles=plain_circles)

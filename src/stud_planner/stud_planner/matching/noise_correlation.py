@@ -9,10 +9,9 @@ by the square root of the variance inflation factor
 
     VIF = sum over all lags (k, l) of rho(k, l),
 
-rho the noise's autocorrelation (for a window much larger than the correlation length). On
-issue 19's dome scene with 0.5 mm noise blurred over 3 px (Gaussian sigma), the fits reported a
-normal 1-sigma of 0.08 deg against true errors of up to 2.2 deg: 20 sigma, and every stud was
-judged well inside the 5 deg lean budget.
+rho the noise's autocorrelation (for a window much larger than the correlation length). Left out,
+the reported 1-sigma can be many times smaller than the normal's true error, and a stud beyond the
+lean budget passes (bench/RESULTS.md, *Correlated depth noise*).
 
 The autocorrelation is measured on the frame, on rows and columns of pixels beside the studs (the
 surface where it matters; not through them, where a painted stud mark may return no depth), by the
@@ -31,8 +30,8 @@ Correlated samples are also redundant: where rho(1) is high, a window sampled ev
 third pixel holds nearly as many independent samples as one sampled at every pixel.
 :meth:`NoiseCorrelation.redundant_step` picks the sample step that costs the normal at most a
 given fraction of its 1-sigma, sigma(s) / sigma(1) = sqrt(s^2 VIF(s) / VIF(1)); on independent
-noise that is every pixel. On issue 19's scenes with 0.5 mm noise blurred over 1.5 px (and 1 mm
-quantisation, which adds an independent part) the ratio is 1.01-1.05 at s = 2 and 1.06-1.11 at 3.
+noise that is every pixel (the ratios on the benchmark scenes: bench/RESULTS.md, *Correlated pixels
+sampled sparsely*).
 
 Limits: a correlation longer than about ``max_lag_px`` / 3 (Gaussian sigma) is underestimated, and
 the factor is for windows much wider than the correlation; it is capped at the window's sample

@@ -1,7 +1,7 @@
 """The matcher's weld targets as RViz/Foxglove markers: an arrow along each normal and the stud id.
 
 Colours say the state, one palette with the overlay (:data:`stud_planner.matching.view_targets.STATUS_BGR`):
-green ``ok`` (planned, to be welded), and a colour per refusal (``no_depth``, ``inclination_exceeded``,
+green ``ok`` (planned, to be welded), and a colour per refusal (``no_depth``, ``normal_uncertain``,
 ``no_normal``, ...). The matcher cannot know what was welded: :data:`WELDED_RGBA` is the colour a later
 node (one that follows the weld job) gives a stud once it is welded, re-publishing the same
 namespaces and ids so its markers replace the matcher's. Out-of-view studs get no marker.
