@@ -4,11 +4,11 @@
 A demo run on the girder (``ros2 run stud_planner demo --part girder --out OUT``) leaves ``OUT/sensor_bag``
 (every view the registration and the matcher saw, with its ``/camera/pose`` in world: the carriage is in it)
 and ``OUT/cell_bag`` (the job's own ``/weld_targets``, one message per view, stamped with the view). This
-runs, as a user would,
+runs, as a user would, with the job's matcher settings (its ``normal_window_m``, from ``OUT/params``),
 
-* ``ros2 run stud_planner plan --drawing D --bag OUT/sensor_bag --out OUT/replay/plan.json`` and
-* ``ros2 run stud_planner cell --mode replay --bag OUT/sensor_bag --drawing D --no-hmi`` (listening to its
-  ``/weld_targets`` here until every view's came, then Ctrl-C),
+* ``ros2 run stud_planner plan --drawing D --bag OUT/sensor_bag --out OUT/replay/plan.json --normal-window-m W`` and
+* ``ros2 run stud_planner cell --mode replay --bag OUT/sensor_bag --drawing D --no-hmi --var normal_window_m=W``
+  (listening to its ``/weld_targets`` here until every view's came, then Ctrl-C),
 
 and prints, per pair, the largest distance between the targets of the same stud from the same view (stamp)
 where both are ``ok``: the job against the replay, the job against ``plan`` (at the view ``plan`` kept for
@@ -69,9 +69,10 @@ def compare(a: Targets, b: Targets) -> tuple[int, float]:
     return n, worst
 
 
-def run_replay(bag: Path, drawing: Path, out: Path, stamps: set[int], timeout_s: float) -> Targets:
-    """``cell --mode replay`` on ``bag``; its /weld_targets until every stamp of ``stamps`` came (or the time-out
-    after the bag ended), then Ctrl-C."""
+def run_replay(bag: Path, drawing: Path, out: Path, stamps: set[int], timeout_s: float,
+               normal_window_m: float) -> Targets:
+    """``cell --mode replay`` on ``bag`` (the job's ``normal_window_m``); its /weld_targets until every stamp of
+    ``stamps`` came (or the time-out after the bag ended), then Ctrl-C."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from stud_welding_msgs.msg import WeldTargetArray
@@ -94,7 +95,7 @@ def run_replay(bag: Path, drawing: Path, out: Path, stamps: set[int], timeout_s:
     out.mkdir(parents=True, exist_ok=True)
     log = out / "replay.out"
     cmd = ["ros2", "run", "stud_planner", "cell", "--mode", "replay", "--bag", str(bag), "--drawing", str(drawing),
-           "--out", str(out / "cell"), "--no-hmi"]
+           "--out", str(out / "cell"), "--no-hmi", "--var", f"normal_window_m={normal_window_m}"]
     print("replay_check: " + " ".join(cmd), flush=True)
     with open(log, "w") as f:
         cell = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, start_new_session=True)
@@ -139,16 +140,21 @@ def main(argv: list[str] | None = None) -> int:
         print(f"replay_check: {args.out} has no cell_bag /weld_targets or no sensor_bag", file=sys.stderr)
         return 2
     work.mkdir(parents=True, exist_ok=True)
+    # the matcher's settings of the job (its parameters file): the replay matches as the job did
+    from stud_bringup.demo import run_params
+
+    window = float(run_params(args.out, "matcher").get("normal_window_m", 0.02))
     t0 = time.monotonic()
     cmd = ["ros2", "run", "stud_planner", "plan", "--drawing", str(args.drawing), "--bag", str(sensor_bag),
-           "--out", str(work / "plan.json")]
+           "--out", str(work / "plan.json"), "--normal-window-m", str(window)]
     print("replay_check: " + " ".join(cmd), flush=True)
     if subprocess.call(cmd) != 0:
         return 1
     report = json.loads((work / "plan.json").read_text())
     planned = plan_targets(report)
     print(f"replay_check: plan took {time.monotonic() - t0:.0f} s for {report['views']} views")
-    replayed = run_replay(sensor_bag, args.drawing, work, set(report["view_stamps_ns"]) & set(job), args.timeout_s)
+    replayed = run_replay(sensor_bag, args.drawing, work, set(report["view_stamps_ns"]) & set(job), args.timeout_s,
+                          window)
     rows = [("job vs --mode replay", compare(job, replayed)), ("job vs plan", compare(planned, job)),
             ("plan vs --mode replay", compare(planned, replayed))]
     tol = args.tol_mm * 1e-3

@@ -64,6 +64,8 @@ def test_the_bundled_girder_is_the_issues_part():
     centre_y = g.start_xy_m[1]
     assert len(marks) >= 30 and (marks[:, 1] > centre_y).any() and (marks[:, 1] < centre_y).any()
     assert np.all(np.diff(marks[:, 0]) > 0) and marks[:, 0].max() - marks[:, 0].min() > 5.5  # along the whole part
+    assert scene.stud_length_m == pytest.approx(0.05)  # M16x50, the cell's stud_length_mm (as the dome's)
+    assert np.all(np.asarray(scene.studs_drawing_m) > 0)  # the drawing check's quadrant: no warning at load
     board = scene.marks_world_m
     assert board[:, 0].max() < g.start_xy_m[0]  # the board beside (before) its start, on the table
     assert np.all(board[:, 2] < 0.01)

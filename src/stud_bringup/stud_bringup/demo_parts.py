@@ -43,6 +43,9 @@ class DemoPart:
     max_normal_error_deg: float = 1.0
     max_gun_axis_error_deg: float = 1.5
     record_sensors: bool = False               # record the camera's views too (sensor_bag/, for replay)
+    # The post-weld QA verdicts a pass condition (the dome and the shell); the girder's are issue 35's "Done
+    # means" -- every stud welded once, the weld points and the gun's axis at both ends --, its QA reported
+    qa_must_pass: bool = True
 
     @property
     def rail_length_m(self) -> float:
@@ -77,10 +80,13 @@ PARTS: dict[str, DemoPart] = {
         cell_vars={"rail_length_m": GIRDER_RAIL_LENGTH_M, "rail_mount_xyz_m": GIRDER_MOUNT_XYZ_M,
                    "workspace_min_m": (-0.70, -0.70, -0.02),
                    "workspace_max_m": (GIRDER_RAIL_LENGTH_M + 0.70, 0.70, 1.10),
-                   # the camera 0.42 m above the flange's crown: a view 0.39 x 0.29 m holds two reference marks
+                   # the camera 0.42 m above the flange's crown: a view 0.39 x 0.29 m holds three or four reference marks
                    # and the studs between them; the registration view over the board before the girder
                    "camera_height_m": 0.58, "part_height_m": 0.17,
-                   "registration_station_xyz_m": (0.315, 0.30, 0.35)},
+                   "registration_station_xyz_m": (0.315, 0.25, 0.35),
+                   # from 0.43 m a 20 mm patch holds a third of the pixels it holds over the dome: its normals
+                   # scattered to 1.6 deg; the flange is flat over 40 mm to 1.3 um (camber radius 150 m)
+                   "normal_window_m": 0.04},
         sim_vars=GIRDER_RAIL_ERROR, time_scale=0.2, max_z_error_mm=1.0, max_gun_axis_error_deg=1.0,
-        record_sensors=True),
+        record_sensors=True, qa_must_pass=False),
 }

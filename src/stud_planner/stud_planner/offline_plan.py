@@ -445,6 +445,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="the most a welded stud may lean from the true normal (default: the code's "
                              f"{defaults.lean_budget_deg:g} deg); a target whose normal is too uncertain for it "
                              "is normal_uncertain. The surface's slope never refuses a stud")
+    parser.add_argument("--normal-window-m", type=float, default=defaults.normal_window_m,
+                        help="side of the surface patch each stud's normal is fitted on [m] (the matcher node's "
+                             f"normal_window_m, cell.yaml's var; default {defaults.normal_window_m:g})")
     parser.add_argument("--arm-orientation-error-deg", type=float, default=defaults.arm_orientation_error_deg,
                         help="the arm's share of the lean budget [deg]")
     parser.add_argument("--gun-radius-m", type=float, default=gun.radius_m,
@@ -461,6 +464,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     try:
         config = PlannerConfig(algorithm=args.algorithm, lean_budget_deg=args.lean_budget_deg,
+                               normal_window_m=args.normal_window_m,
                                arm_orientation_error_deg=args.arm_orientation_error_deg,
                                gun=GunModel(radius_m=args.gun_radius_m, length_m=args.gun_length_m))
         drawing_limits = limits_from_args(args)
