@@ -312,12 +312,16 @@ def _print_rail(summary: dict) -> None:
     regs = summary["registrations"]
     extrapolated = sum(r["extrapolated_m"] > 0 for r in regs)
     print(f"   registrations       {len(regs)} valid ({extrapolated} extrapolated, {summary['registrations_invalid']} "
-          f"refused): residual per carriage position (RMS / largest mark)")
+          f"refused): per carriage position, each view's marks and residual (RMS / largest mark, mm)")
+    by_carriage: dict[str, list[str]] = {}
     for r in regs:
         where = f"{r['carriage_m']:.3f} m" if r["carriage_m"] is not None else "?"
         note = f", extrapolated {r['extrapolated_m']:.3f} m" if r["extrapolated_m"] > 0 else ""
-        print(f"     carriage {where:>9}  {r['residual_mm']:.3f} / {r['residual_max_mm']:.3f} mm on {len(r['marks'])} marks "
-              f"({', '.join(r['marks'])}){note}")
+        marks = ", ".join(r["marks"]) if len(r["marks"]) <= 3 else f"{r['marks'][0]}..{r['marks'][-1]}"
+        by_carriage.setdefault(where, []).append(
+            f"{len(r['marks'])} ({marks}) {r['residual_mm']:.3f} / {r['residual_max_mm']:.3f}{note}")
+    for where, views in by_carriage.items():
+        print(f"     carriage {where:>9}  " + "; ".join(views))
     print(f"   rail moves          {rail['moves']} moves, {rail['distance_m']:.2f} m travelled")
     rate = summary.get("studs_per_hour")
     print("   throughput          " + (f"{summary['studs_welded']} studs in {summary['job_s']:.0f} s of job: {rate:.0f} studs/h "

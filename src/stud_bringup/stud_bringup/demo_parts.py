@@ -65,6 +65,8 @@ class DemoPart:
 
 
 def _yaml_value(value: object) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_yaml_value(v) for v in value) + "]"
     return repr(float(value)) if isinstance(value, float) else str(value)
@@ -86,7 +88,10 @@ PARTS: dict[str, DemoPart] = {
                    "registration_station_xyz_m": (0.315, 0.25, 0.35),
                    # from 0.43 m a 20 mm patch holds a third of the pixels it holds over the dome: its normals
                    # scattered to 1.6 deg; the flange is flat over 40 mm to 1.3 um (camber radius 150 m)
-                   "normal_window_m": 0.04},
+                   "normal_window_m": 0.04,
+                   # each view matched with its own registration: a station's view holds four marks, the stop's
+                   # registration view two; and the job's recorded views replay to its targets
+                   "per_view_registration": True},
         sim_vars=GIRDER_RAIL_ERROR, time_scale=0.2, max_z_error_mm=1.0, max_gun_axis_error_deg=1.0,
         record_sensors=True, qa_must_pass=False),
 }
