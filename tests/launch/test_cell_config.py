@@ -211,7 +211,7 @@ def test_main_dry_run_prints_commands_with_params_files(capsys, tmp_path):
     code, out, err = run_main(capsys, "--mode", "sim", "--dry-run", "--params", str(CELL_YAML), "--out",
                               str(tmp_path), "--no-hmi", "--set", "matcher.algorithm=bfs")
     assert code == 0, err
-    assert f"--params-file {tmp_path}/params/matcher.yaml" in out and "{sensor_qos: reliable, algorithm: bfs}" in out
+    assert f"--params-file {tmp_path}/params/matcher.yaml" in out and "{sensor_qos: reliable, algorithm: bfs, normal_window_m: 0.02, per_view_registration: false}" in out
     assert "# hmi" not in out and "--port 8080" in out
     assert not (tmp_path / "params").exists()  # a dry run writes nothing
 

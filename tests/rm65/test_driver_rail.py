@@ -124,6 +124,7 @@ def test_rail_move_joint_states_and_a_weld_job_in_world_at_one_metre(rail_sim, p
         started = {r["stud"]: r for r in started if r["event"] == "started"}
         for t in targets:
             np.testing.assert_allclose(started[t.stud_id]["position"], t.position, atol=1e-9)
+            assert started[t.stud_id]["rail_position_m"] == pytest.approx(1.0)  # the carriage of the weld
         spin_until(probe, lambda: len(welds) == len(targets), 10, "/arm/welds", proc)
         for w in welds:
             t = next(x for x in targets if x.stud_id == w.stud_id)

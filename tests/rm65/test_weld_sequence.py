@@ -393,6 +393,7 @@ def test_fast_approach_stops_short_and_the_last_stretch_is_slow(client, sim, tmp
     started = [json.loads(x) for x in (tmp_path / "weld.jsonl").read_text().splitlines()]
     motion = [r["motion_s"] for r in started if r["event"] == "started"]
     assert all(set(m) == {"move", "approach", "descend"} and min(m.values()) > 0 for m in motion)
+    assert not any("rail_position_m" in r for r in started)  # a fixed arm's journal: no carriage
 
 
 def test_a_connected_approach_goes_on_to_the_slow_final_move_without_a_stop_and_welds_at_the_contact(

@@ -22,7 +22,9 @@ LIMITS = SafetyLimits(workspace_min_m=(-0.7, -0.7, -0.02), workspace_max_m=(6.7,
 
 def job(client, journal, carriage_m):
     W = world_T_base(carriage_m, MOUNT)
-    return WeldSequence(client, journal, SafetyChecker(RM65Kinematics(), LIMITS, PARAMS.tool_T, W), PARAMS), W
+    seq = WeldSequence(client, journal, SafetyChecker(RM65Kinematics(), LIMITS, PARAMS.tool_T, W), PARAMS)
+    seq.cycle.rail_position_m = carriage_m  # as the driver sets it on a rail
+    return seq, W
 
 
 def test_a_stud_welded_from_one_carriage_position_blocks_its_neighbour_welded_from_another(client, sim, tmp_path):
@@ -37,6 +39,10 @@ def test_a_stud_welded_from_one_carriage_position_blocks_its_neighbour_welded_fr
     np.testing.assert_allclose(edge.position, [0.30, 0.0, -0.02], atol=1e-4)  # in the base frame, 1 m back
     started = [json.loads(x) for x in (tmp_path / "weld.jsonl").read_text().splitlines() if '"started"' in x]
     np.testing.assert_allclose(started[0]["position"], a.position, atol=1e-12)  # the journal: world
+    # ... with the carriage: the weld's world pose is the carriage's base times the joints' forward kinematics
+    assert started[0]["rail_position_m"] == 1.0
+    T = W1 @ RM65Kinematics().fk(np.asarray(started[0]["joints_at_weld"])) @ PARAMS.tool_T
+    np.testing.assert_allclose(T[:3, 3], a.position, atol=1e-4)
     seq2, W2 = job(client, journal, 1.1)  # the carriage moved on by 0.1 m
     res = seq2.run([target_in_base(b, W2), target_in_base(c, W2)])
     assert res.skipped == ["B"] and res.welded == ["C"], res.messages

@@ -84,3 +84,36 @@ def test_a_stop_between_the_fast_and_the_slow_move_costs_time():
     apart = stud_time_floor(dataclasses.replace(CELL, connected_approach=False))
     assert apart.approach_s > joined.approach_s + 0.1
     assert apart.retract_s == joined.retract_s and apart.blended_s == joined.blended_s
+
+
+def test_the_rail_floor_is_the_travel_between_the_first_and_last_studs_ranges_in_one_move():
+    from rm65_driver.rail.axis import RailAxis
+    from rm65_sim.cycle_floor import rail_floor
+
+    axis = RailAxis(length_m=7.0, pos_unit_m=1e-6, max_speed_m_s=0.5, accel_m_s2=0.5)
+    ranges = [(0.2, 0.9), (0.3, 1.0), (5.6, 6.3), (5.7, 6.4)]  # two studs near each end of a 6 m part
+    floor = rail_floor(ranges, axis, 30)
+    assert floor.travel_m == pytest.approx(5.7 - 0.9)
+    # 4.8 m at 30 %: 0.15 m/s, 0.15 m/s^2 -> 1 s up, 31 s cruise, 1 s down
+    assert floor.move_s == pytest.approx(4.8 / 0.15 + 1.0)
+    # split in two moves it takes longer: one move is the floor
+    assert floor.move_s < axis.move_time_s(2.4, 30) * 2
+    # studs all reachable from one carriage position: no travel
+    assert rail_floor([(0.2, 0.9), (0.5, 1.2)], axis, 30).move_s == 0.0
+
+
+def test_a_studs_carriage_range_is_where_the_reach_test_welds_it_from():
+    from rm65_driver.weld.safety import SafetyChecker, SafetyLimits
+    from rm65_sim.cycle_floor import carriage_range
+    from stud_common.frames import world_T_base
+
+    tool = np.eye(4)
+    tool[2, 3] = 0.15
+    limits = SafetyLimits(workspace_min_m=(-0.7, -0.7, -0.02), workspace_max_m=(7.7, 0.7, 1.1))
+    reach = SafetyChecker(RM65Kinematics(), limits, tool, prefer_signs=(0, 0, -1, 0, -1, 0)).reach_for(0.06)
+    mount, stud, up = (0.0, 0.0, 0.2), np.array([3.0, 0.3, 0.15]), np.array([0.0, 0.0, 1.0])
+    lo, hi = carriage_range(reach, stud, up, mount, 7.0, step_m=0.02)
+    assert 2.5 < lo < 3.0 < hi < 3.5  # the arm reaches a patch a few decimetres along the rail
+    for c, ok in ((lo, True), (hi, True), (lo - 0.02, False), (hi + 0.02, False)):
+        assert reach.stud(stud, up, world_T_base(c, mount)).ok == ok, c
+    assert carriage_range(reach, np.array([3.0, 0.9, 0.15]), up, mount, 7.0, step_m=0.05) is None  # too far across

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 from geometry_msgs.msg import Point, PoseStamped
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from stud_welding_msgs.msg import Registration, Stud, StudLayout, WeldTargetArray
 
@@ -166,3 +167,76 @@ def test_a_steady_camera_reuses_its_noise_measurement_and_a_moved_one_measures_a
     moved = shot["pose"]
     moved.pose.position.x += 0.01
     assert "noise correlation of a frame" not in view_line(_shoot(pubs, shot, 3, ("depth", "info", "pose")))
+
+
+def test_per_view_registration_matches_each_view_with_the_registration_of_its_own_stamp(ros_node, procs, tmp_path):
+    """A long part's replay: the registration of a later view may arrive first, and a view may come before its
+    own; each is matched with its own (a layout with reference marks), and a view whose registration failed is
+    not matched."""
+    procs.append(ros2_run("stud_planner", "matcher", tmp_path / "matcher.log", params={"per_view_registration": True}))
+    scene = load_scene(DEMO_SCENE)
+    layout = _layout()
+    layout.reference_mark_labels, layout.reference_marks = ["M1"], [Point(x=0.3, y=0.2)]
+    ros_node.create_publisher(StudLayout, "/drawing/layout", ros_io.LATCHED_QOS).publish(layout)
+    # latched, and deep enough that a registration is never replaced before the matcher took it
+    reg_pub = ros_node.create_publisher(Registration, "/registration/result", QoSProfile(
+        depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    shifted = scene.M_local2world.copy()
+    shifted[0, 2] += 0.005  # a neighbour's registration, 5 mm off here
+    pubs = {k: ros_node.create_publisher(t, topic, ros_io.CAMERA_PUB_QOS) for k, t, topic in (
+        ("depth", Image, "/camera/depth/image_raw"), ("info", CameraInfo, "/camera/color/camera_info"),
+        ("pose", PoseStamped, "/camera/pose"))}
+    cam = view_camera((0, 0, 0), 1.0)
+    shot = shot_messages(render(scene, cam.with_pose(cam.R_wc, np.array([0.28, 0.10, 0.5])), seed=1), "16UC1",
+                         ros_io.ns_to_stamp(0))
+    targets = []
+    ros_node.create_subscription(WeldTargetArray, "/weld_targets", targets.append, ros_io.RESULT_QOS)
+    wait_for(lambda: all(p.get_subscription_count() >= 1 for p in pubs.values())
+             and reg_pub.get_subscription_count() >= 1, 30, spin=ros_node.spin, what="the matcher's subscriptions")
+
+    def registration(sec: int, M: np.ndarray, valid: bool = True) -> None:
+        msg = Registration(valid=valid, message="test", m_local2world=[float(v) for v in M.ravel()])
+        msg.header.stamp = ros_io.ns_to_stamp(sec * 1_000_000_000)
+        reg_pub.publish(msg)
+
+    def shot_at(sec: int) -> None:
+        stamp = ros_io.ns_to_stamp(sec * 1_000_000_000)
+        for key in pubs:
+            shot[key].header.stamp = stamp
+            pubs[key].publish(shot[key])
+
+    def targets_at(sec: int):
+        return [a for a in targets if ros_io.stamp_to_ns(a.header.stamp) == sec * 1_000_000_000]
+
+    def max_error_mm(arr) -> float:
+        truth = dict(zip(scene.stud_ids, scene.studs_world_xy_m))
+        return max(1e3 * np.hypot(t.pose.position.x - truth[t.stud_id][0], t.pose.position.y - truth[t.stud_id][1])
+                   for t in arr.targets if t.status_text == "ok")
+
+    def shoot_until_matched(sec: int):
+        """Shoot the view stamped ``sec`` until its targets come (the first shots may precede the matcher's side
+        of the discovery, and best-effort samples to an unmatched reader are lost)."""
+        for _ in range(10):
+            shot_at(sec)
+            try:
+                wait_for(lambda: targets_at(sec), 3, spin=ros_node.spin, what=f"targets of the view at {sec} s")
+                return targets_at(sec)[0]
+            except AssertionError:
+                continue
+        raise AssertionError(f"the view at {sec} s was never matched")
+
+    registration(12, shifted)          # the next view's registration comes first
+    for _ in range(3):                 # this view waits for its own (the latest would be matched at once)
+        shot_at(11)
+        for _ in range(30):            # pacing (not a condition): time for the view to reach the matcher
+            ros_node.spin()
+    assert not targets_at(11)
+    registration(11, scene.M_local2world)
+    assert max_error_mm(shoot_until_matched(11)) < 1.0
+    assert 4.0 < max_error_mm(shoot_until_matched(12)) < 6.0  # its own registration, not the latest one
+    registration(13, scene.M_local2world, valid=False)
+    for _ in range(3):
+        shot_at(13)
+    registration(14, scene.M_local2world)
+    shoot_until_matched(14)
+    assert not targets_at(13)          # its registration failed: not matched

@@ -18,15 +18,25 @@ cycle time can be set against what no planner could beat at the same settings:
 
 Both are lower bounds under the controller's limits given (:class:`.motion.MotionLimits`: the
 documentation's example values unless the arm's own are read); a measured figure above them is
-what the moves between studs and the per-job work cost. Pure Python; no ROS.
+what the moves between studs and the per-job work cost.
+
+A part longer than the arm's reach adds the carriage's travel along the rail (:func:`rail_floor`):
+each stud is weldable only from a range of carriage positions (the driver's reach test,
+:func:`carriage_range`), so the carriage must travel at least from where the first stud can be
+welded to where the last one can -- ``max(lo) - min(hi)`` over the studs' ranges -- and however that
+travel is split, it takes no less than one rest-to-rest move over it at the rail's speed
+(:meth:`rm65_driver.rail.axis.RailAxis.move_time_s`, the time law the simulated expansion joint
+moves by: ``v`` % scales the speed and the acceleration alike). Pure Python; no ROS.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Iterable
 
 import numpy as np
 
 from rm65_driver.kinematics.rm65 import trapezoid_profile
+from rm65_driver.rail.axis import RailAxis
 from rm65_driver.weld.weld_job import WeldParams
 from rm65_sim.motion import LineSegment, MotionLimits, SegmentProfile, junction_speed
 
@@ -92,4 +102,35 @@ def stud_time_floor(params: WeldParams, limits: MotionLimits = MotionLimits()) -
     return StudTimeFloor(approach_s=approach_s, weld_s=weld_s, retract_s=retract_s, blended_s=blended + weld_s)
 
 
-__all__ = ["StudTimeFloor", "stud_time_floor"]
+def carriage_range(reach, position_w, normal_w, mount_xyz_m, rail_length_m: float,
+                   step_m: float = 0.01) -> tuple[float, float] | None:
+    """(lowest, highest) carriage position (m, sampled every ``step_m`` along the rail) from which
+    ``reach`` (:class:`rm65_driver.weld.reach.Reach`) welds the stud at ``position_w`` with
+    ``normal_w`` (world); None when no position on the rail does."""
+    from stud_common.frames import world_T_base
+
+    p = np.asarray(position_w, dtype=np.float64)
+    centre = float(p[0]) - float(np.asarray(mount_xyz_m, dtype=np.float64)[0])
+    cs = np.arange(max(0.0, centre - 1.0), min(rail_length_m, centre + 1.0) + 1e-9, step_m)
+    ok = [c for c in cs if reach.stud(p, normal_w, world_T_base(float(c), mount_xyz_m)).ok]
+    return (float(min(ok)), float(max(ok))) if ok else None
+
+
+@dataclass(frozen=True)
+class RailFloor:
+    """The least carriage travel a part needs (m) and the least time it takes (s), whatever the plan."""
+
+    travel_m: float
+    move_s: float
+
+
+def rail_floor(ranges: Iterable[tuple[float, float]], axis: RailAxis, speed_pct: float) -> RailFloor:
+    """From the studs' carriage ranges (:func:`carriage_range`; the first and last studs along the rail
+    decide it): the carriage travels at least ``max(lo) - min(hi)``, in no less than one move's time
+    on ``axis`` at ``speed_pct`` %."""
+    r = list(ranges)
+    travel = max(0.0, max(lo for lo, _ in r) - min(hi for _, hi in r)) if r else 0.0
+    return RailFloor(travel, axis.move_time_s(travel, speed_pct) if travel > 0 else 0.0)
+
+
+__all__ = ["RailFloor", "StudTimeFloor", "carriage_range", "rail_floor", "stud_time_floor"]

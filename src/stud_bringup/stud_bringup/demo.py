@@ -1,8 +1,9 @@
-"""The one-command demo: `ros2 run stud_planner demo [--part dome|shell] [--out DIR]` (`bash demo.sh`).
+"""The one-command demo: `ros2 run stud_planner demo [--part dome|shell|girder] [--out DIR]` (`bash demo.sh`).
 
 Runs the whole weld cell in simulation on a bundled curved part -- the dome (slopes over 20 deg at
-its outer studs) or a tank-shell section (a horizontal cylinder) -- (`ros2 run stud_planner cell
---mode sim`, the sequencer starting the job by itself and ending the launch when done):
+its outer studs), a tank-shell section (a horizontal cylinder) or a 6 m bridge girder welded from a rail
+(``stud_bringup.demo_parts``) -- (`ros2 run stud_planner cell --mode sim`, the sequencer starting the job
+by itself and ending the launch when done):
 registration over the marking board, camera stations, matching, simulated welding of every
 stud through the RM-65 controller simulator over TCP, with the topics recorded to an MCAP bag.
 Then it scores the result against the scene's exact truth and prints a summary: the weld points
@@ -21,6 +22,14 @@ The simulated camera is not mounted exactly where the cell believes: it renders 
 hand-eye moved by :data:`CALIBRATION_RESIDUAL`, the error a good calibration leaves, so the weld
 points carry what a calibrated real cell's carry (``--var true_hand_eye_*`` or ``hand_eye_*`` set up
 a case of one's own instead).
+
+The girder rides a rail whose simulated truth differs from the straight, exact one the cell believes
+in (``demo_parts.GIRDER_RAIL_ERROR``): there the weld points and gun axes are judged where the gun
+truly was (``demo_score.welds_from_journal``: the rail's true pose times the forward kinematics of the
+journal's joints), at both ends of the part too, and the summary adds the registration residual per
+station and the carriage positions (from the cell bag), the rail moves and the studs per hour. Its run
+also records the camera's views (``sensor_bag/``: every station's shot with its pose in world, the
+carriage in it) for ``--mode replay`` and ``plan`` (``tools/replay_check.py`` compares them).
 """
 from __future__ import annotations
 
@@ -34,8 +43,10 @@ from pathlib import Path
 
 import numpy as np
 
-from stud_perception.scene import surface_height, surface_normal
-from stud_perception.scene_file import load_scene
+from stud_bringup.demo_parts import PARTS, DemoPart
+from stud_bringup.demo_score import (accuracy_at_ends, cell_bag_summary, gun_axes_at_weld, score,  # noqa: F401
+                                     welds_from_journal)
+from stud_common.frames import RailDeviation
 from stud_common.strict_json import write_json
 from stud_common import names
 
@@ -86,61 +97,6 @@ def share_file(package: str, relative: str) -> Path:
     return Path(get_package_share_directory(package)) / relative
 
 
-#: The bundled parts: (drawing in stud_planner's share, scene in stud_perception's share).
-PARTS = {"dome": ("data/dome_demo.dxf", "config/dome_scene.json"),
-         "shell": ("data/shell_demo.dxf", "config/shell_scene.json")}
-
-
-def gun_axes_at_weld(journal_file: Path) -> dict[str, np.ndarray]:
-    """Per welded stud, the gun's axis at the weld (unit, world, pointing into the part): forward
-    kinematics of the joints the controller reported at the contact pose (the journal's
-    ``started`` record); the gun lies along the flange's z axis, whatever its length."""
-    from rm65_driver.journal.scan import read_records
-    from rm65_driver.kinematics.rm65 import RM65Kinematics
-
-    if not journal_file.exists():
-        return {}
-    kin = RM65Kinematics()
-    welded, axes = set(), {}
-    for rec in read_records(journal_file):
-        if rec.get("event") == "started" and rec.get("joints_at_weld") is not None:
-            axes[rec["stud"]] = kin.fk(np.asarray(rec["joints_at_weld"], dtype=np.float64))[:3, 2]
-        elif rec.get("event") == "welded":
-            welded.add(rec["stud"])
-    return {sid: a for sid, a in axes.items() if sid in welded}
-
-
-def score(report: dict, scene_file: Path, gun_axes: dict[str, np.ndarray] | None = None) -> dict:
-    """Per-stud errors of the welded targets against the scene truth (metres, degrees)."""
-    scene = load_scene(scene_file)
-    truth_xy = dict(zip(scene.stud_ids, scene.studs_world_xy_m))
-    rows = []
-    for t in report["targets"]:
-        if t.get("position_m") is None or t["stud_id"] not in truth_xy:
-            continue
-        x, y = truth_xy[t["stud_id"]]
-        true_p = np.array([x, y, float(surface_height(scene, np.array([x]), np.array([y]))[0])])
-        true_n = np.asarray(surface_normal(scene, np.array([x]), np.array([y]))).reshape(-1, 3)[0]
-        p, n = np.asarray(t["position_m"], float), np.asarray(t["normal"], float)
-        row = {"stud_id": t["stud_id"], "xy_error_m": float(np.linalg.norm(p[:2] - true_p[:2])),
-               "z_error_m": float(abs(p[2] - true_p[2])),
-               "normal_error_deg": float(np.degrees(np.arccos(np.clip(n @ true_n, -1, 1)))),
-               "slope_deg": float(np.degrees(np.arccos(np.clip(true_n[2], -1, 1)))), "welded": bool(t.get("welded"))}
-        axis = (gun_axes or {}).get(t["stud_id"])
-        if axis is not None:
-            row["gun_axis_error_deg"] = float(np.degrees(np.arccos(np.clip(-axis @ true_n, -1, 1))))
-        rows.append(row)
-    welded = [r for r in rows if r["welded"]]
-    gun = [r["gun_axis_error_deg"] for r in rows if "gun_axis_error_deg" in r]
-    return {"studs": rows,
-            "steepest_welded_slope_deg": max((r["slope_deg"] for r in welded), default=float("nan")),
-            "max_gun_axis_error_deg": max(gun, default=float("nan")), "gun_axes_checked": len(gun),
-            "max_xy_error_mm": 1e3 * max((r["xy_error_m"] for r in rows), default=float("nan")),
-            "mean_xy_error_mm": 1e3 * float(np.mean([r["xy_error_m"] for r in rows])) if rows else float("nan"),
-            "max_z_error_mm": 1e3 * max((r["z_error_m"] for r in rows), default=float("nan")),
-            "max_normal_error_deg": max((r["normal_error_deg"] for r in rows), default=float("nan"))}
-
-
 def export_overlays(bag_dir: Path, out_dir: Path) -> int:
     """The matcher's overlay images from the recorded bag as PNG files."""
     import cv2
@@ -189,20 +145,29 @@ def last_weld_targets(bag_dir: Path) -> dict | None:
 def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog="demo", description="Run the simulated weld cell on a bundled curved part.")
     ap.add_argument("--part", choices=sorted(PARTS), default="dome",
-                    help="the dome (default; outer studs on 20+ deg slopes) or a tank-shell section")
+                    help="; ".join(f"{name}: {part.description}" for name, part in PARTS.items()))
     ap.add_argument("--out", type=Path, default=Path("out") / "demo", help="output folder (default: out/demo)")
     ap.add_argument("--no-hmi", action="store_true", help="do not start the web HMI")
-    ap.add_argument("--time-scale", type=float, default=0.25, help="arm simulator motion time factor (1 = real time)")
-    ap.add_argument("--max-xy-error-mm", type=float, default=1.0, help="accuracy limit on the weld points")
-    ap.add_argument("--max-normal-error-deg", type=float, default=1.0, help="accuracy limit on the normals")
-    ap.add_argument("--max-gun-axis-error-deg", type=float, default=1.5,
-                    help="limit on the gun's axis at each weld (forward kinematics) against the true normal")
+    ap.add_argument("--time-scale", type=float, default=None,
+                    help="arm simulator motion time factor (1 = real time; default: the part's, 0.25 for the dome)")
+    ap.add_argument("--max-xy-error-mm", type=float, default=None, help="accuracy limit on the weld points (default 1.0)")
+    ap.add_argument("--max-z-error-mm", type=float, default=None,
+                    help="limit on the weld points' height (default: the girder's 1.0; none for the dome and shell)")
+    ap.add_argument("--max-normal-error-deg", type=float, default=None, help="accuracy limit on the normals (default 1.0)")
+    ap.add_argument("--max-gun-axis-error-deg", type=float, default=None,
+                    help="limit on the gun's axis at each weld (forward kinematics) against the true normal "
+                         "(default 1.5, the girder's 1.0)")
     ap.add_argument("--var", dest="vars", action="append", default=[], metavar="NAME=VALUE",
                     help="passed on to `cell` (a ${NAME} of cell.yaml), e.g. hand_eye_file=PATH or "
                          "'true_hand_eye_xyz_m=[0.056, -0.004, -0.097]' (docs/CALIBRATION.md)")
     ap.add_argument("--arm-port", type=int, default=8080, help="TCP port of the arm simulator (default: 8080)")
     ap.add_argument("--hmi-port", type=int, default=8090, help="port of the operator page (default: 8090)")
-    return ap.parse_args(argv)
+    args = ap.parse_args(argv)
+    part = PARTS[args.part]
+    for name in ("time_scale", "max_xy_error_mm", "max_z_error_mm", "max_normal_error_deg", "max_gun_axis_error_deg"):
+        if getattr(args, name) is None:
+            setattr(args, name, getattr(part, name))
+    return args
 
 
 def _clear_previous_run(out: Path) -> None:
@@ -214,19 +179,22 @@ def _clear_previous_run(out: Path) -> None:
         (out / stale).unlink(missing_ok=True)
     import shutil
 
-    shutil.rmtree(out / "cell_bag", ignore_errors=True)
-    shutil.rmtree(out / "overlays", ignore_errors=True)
-    shutil.rmtree(out / "qa", ignore_errors=True)
+    for folder in ("cell_bag", "sensor_bag", "overlays", "qa"):
+        shutil.rmtree(out / folder, ignore_errors=True)
 
 
 def _cell_command(args: argparse.Namespace, out: Path) -> list[str]:
     """`ros2 run stud_planner cell --mode sim ...` for this demo (the sequencer starts and ends the job)."""
+    part = PARTS[args.part]
     cmd = ["ros2", "run", "stud_planner", "cell", "--mode", "sim", "--out", str(out),
            "--set", "cell_sequencer.auto_start=true", "--set", "cell_sequencer.exit_when_done=true",
            "--var", f"arm_time_scale={args.time_scale}", "--var", f"arm_port={args.arm_port}",
            "--var", f"hmi_port={args.hmi_port}", "--var", f"part={args.part}", "--with", "bag_record",
-           "--var", f"drawing={share_file('stud_planner', PARTS[args.part][0])}",
-           "--var", f"scene={share_file('stud_perception', PARTS[args.part][1])}"]
+           "--var", f"drawing={share_file('stud_planner', part.drawing)}",
+           "--var", f"scene={share_file('stud_perception', part.scene)}"]
+    if part.record_sensors:
+        cmd += ["--with", "sensor_bag_record"]
+    cmd += part.var_args()
     cmd += calibration_residual_vars(args.vars)
     for var in args.vars:
         cmd += ["--var", var]
@@ -235,10 +203,57 @@ def _cell_command(args: argparse.Namespace, out: Path) -> list[str]:
     return cmd
 
 
+def run_params(out: Path, node: str) -> dict:
+    """The ROS parameters a node of this run had (``<out>/params/<node>.yaml``, the launcher writes it); {}
+    when the file is missing."""
+    import yaml
+
+    f = out / "params" / f"{node}.yaml"
+    if not f.exists():
+        return {}
+    return (yaml.safe_load(f.read_text()) or {}).get("/**", {}).get("ros__parameters", {}) or {}
+
+
+def rail_of_run(out: Path, part: DemoPart, user_vars: list[str]) -> tuple[float, tuple[float, ...], RailDeviation]:
+    """(rail length m, the base's mount on the carriage, the simulated rail's true deviation) of a run: the
+    driver's and the camera's parameters of the run when written, else the part's and the user's vars."""
+    import yaml
+
+    driver, camera = run_params(out, "arm_driver"), run_params(out, "camera")
+    given = {**part.cell_vars, **part.sim_vars,
+             **{k.strip(): yaml.safe_load(v) for k, v in (u.split("=", 1) for u in user_vars if "=" in u)}}
+
+    def value(name: str, params: dict, default):
+        return params.get(name, given.get(name, default))
+
+    length = float(value("rail_length_m", driver, 0.0))
+    mount = tuple(float(v) for v in value("rail_mount_xyz_m", driver, (0.0, 0.0, 0.0))) if length > 0 else (0.0, 0.0, 0.0)
+    deviation = RailDeviation(float(value("true_rail_scale_ppm", camera, 0.0)), float(value("true_rail_offset_m", camera, 0.0)),
+                              float(value("true_rail_yaw_urad_per_m", camera, 0.0))) if length > 0 else RailDeviation()
+    return length, mount, deviation
+
+
+def _welded_once(journal_file: Path) -> dict[str, int]:
+    """Welded events per stud in the journal (every stud once, in a good run)."""
+    from rm65_driver.journal.scan import read_records
+
+    counts: dict[str, int] = {}
+    if journal_file.exists():
+        for rec in read_records(journal_file):
+            if rec.get("event") == "welded":
+                counts[str(rec["stud"])] = counts.get(str(rec["stud"]), 0) + 1
+    return counts
+
+
 def _evaluate(args: argparse.Namespace, out: Path, report: dict, code: int, elapsed: float) -> dict:
     """The run judged: ``summary`` (``summary.json`` without ``per_stud``) and what the printout
     needs (``acc`` with the per-stud rows, ``qa`` the QA record or None, ``qa_file``, ``elapsed_s``)."""
-    acc = score(report, share_file("stud_perception", PARTS[args.part][1]), gun_axes_at_weld(out / "weld_journal.jsonl"))
+    part = PARTS[args.part]
+    driver = run_params(out, "arm_driver")
+    rail_m, mount, deviation = rail_of_run(out, part, args.vars)
+    welds = welds_from_journal(out / "weld_journal.jsonl", float(driver.get("tool_offset_m", 0.15)), mount, deviation)
+    acc = score(report, share_file("stud_perception", part.scene), welds=welds,
+                plunge_m=float(driver.get("plunge_m", 0.0)))
     overlays = export_overlays(out / "cell_bag", out / "overlays")
     welded = sum(bool(t.get("welded")) for t in report["targets"])
     total = len(report["targets"])
@@ -249,18 +264,69 @@ def _evaluate(args: argparse.Namespace, out: Path, report: dict, code: int, elap
     welded_ids = {t["stud_id"] for t in report["targets"] if t.get("welded")}
     matched_clean = (last is not None and last["inspection_shots_matched"] == 0
                      and not welded_ids & set(last["gun_blocked"]))
-    ok = (code == 0 and welded == total and qa_counts.get("pass") == welded and matched_clean
+    per_stud = _welded_once(out / "weld_journal.jsonl")
+    welded_once = set(per_stud) == welded_ids and all(n == 1 for n in per_stud.values())
+    qa_ok = qa_counts.get("pass") == welded
+    ok = (code == 0 and welded == total and welded_once and (qa_ok or not part.qa_must_pass) and matched_clean
           and acc["max_xy_error_mm"] <= args.max_xy_error_mm
+          and (args.max_z_error_mm is None or acc["max_z_error_mm"] <= args.max_z_error_mm)
           and acc["max_normal_error_deg"] <= args.max_normal_error_deg and acc["gun_axes_checked"] == welded
           and acc["max_gun_axis_error_deg"] <= args.max_gun_axis_error_deg)
     summary = {"ok": ok, "part": args.part, "cell_exit_code": code, "studs_total": total, "studs_welded": welded,
-               "stations": report.get("stations"), "unreachable": report.get("unreachable", []),
+               "welded_once": welded_once, "stations": report.get("stations"), "unreachable": report.get("unreachable", []),
                "unreachable_reasons": report.get("unreachable_reasons", {}),
                "time_s": round(elapsed, 1), "accuracy": {k: v for k, v in acc.items() if k != "studs"},
                "overlays": overlays, "qa_summary": qa_counts, "last_weld_targets": last,
-               "qa_code": (qa.get("code") or {}).get("profile") if qa else None,
+               "qa_code": (qa.get("code") or {}).get("profile") if qa else None, "qa_all_pass": qa_ok,
+               "qa_must_pass": part.qa_must_pass,
                "bend_tests": ((qa.get("sampling") or {}).get("counts") if qa else None)}
+    if rail_m > 0:
+        job = cell_bag_summary(out / "cell_bag")
+        summary["rail"] = {"length_m": rail_m, "mount_xyz_m": list(mount), "true_scale_ppm": deviation.scale_ppm,
+                           "true_offset_m": deviation.offset_m, "true_yaw_urad_per_m": deviation.yaw_urad_per_m,
+                           **job["rail"]}
+        summary["accuracy_at_ends"] = accuracy_at_ends(acc["studs"])
+        summary["registrations"] = job["registrations"]
+        summary["registrations_invalid"] = job["registrations_invalid"]
+        summary["job_s"] = job["job_s"]
+        summary["studs_per_hour"] = 3600.0 * welded / job["job_s"] if job["job_s"] else None
+        summary["time_scale"] = args.time_scale
     return {"summary": summary, "acc": acc, "qa": qa, "qa_file": qa_file, "elapsed_s": elapsed}
+
+
+#: Per-stud lines of the summary's gun-axis table: every stud of a bundled part up to this many, else the worst.
+PER_STUD_LINES = 20
+
+
+def _print_rail(summary: dict) -> None:
+    """The summary's lines of a part welded from a rail: the rail and its simulated error, the accuracy at
+    both ends of the part, the registration at each carriage position, the rail moves, the studs per hour."""
+    rail = summary["rail"]
+    print(f"   rail                {rail['length_m']:g} m, the arm's base {rail['mount_xyz_m']} m on the carriage; simulated "
+          f"error {rail['true_scale_ppm']:g} ppm scale, {1e3 * rail['true_offset_m']:.2f} mm at zero, "
+          f"{rail['true_yaw_urad_per_m']:g} urad/m bend (sim-only truth: the weld points above are where the gun truly was)")
+    for name, end in summary["accuracy_at_ends"].items():
+        print(f"   {name.replace('_', ' '):<20}x {end['x_m'][0]:.2f}-{end['x_m'][1]:.2f} m, {end['studs']} studs: max "
+              f"{end['max_xy_error_mm']:.2f} mm XY, {end['max_z_error_mm']:.2f} mm Z, gun axis "
+              f"{end['max_gun_axis_error_deg']:.2f} deg")
+    regs = summary["registrations"]
+    extrapolated = sum(r["extrapolated_m"] > 0 for r in regs)
+    print(f"   registrations       {len(regs)} valid ({extrapolated} extrapolated, {summary['registrations_invalid']} "
+          f"refused): per carriage position, each view's marks and residual (RMS / largest mark, mm)")
+    by_carriage: dict[str, list[str]] = {}
+    for r in regs:
+        where = f"{r['carriage_m']:.3f} m" if r["carriage_m"] is not None else "?"
+        note = f", extrapolated {r['extrapolated_m']:.3f} m" if r["extrapolated_m"] > 0 else ""
+        marks = ", ".join(r["marks"]) if len(r["marks"]) <= 3 else f"{r['marks'][0]}..{r['marks'][-1]}"
+        by_carriage.setdefault(where, []).append(
+            f"{len(r['marks'])} ({marks}) {r['residual_mm']:.3f} / {r['residual_max_mm']:.3f}{note}")
+    for where, views in by_carriage.items():
+        print(f"     carriage {where:>9}  " + "; ".join(views))
+    print(f"   rail moves          {rail['moves']} moves, {rail['distance_m']:.2f} m travelled")
+    rate = summary.get("studs_per_hour")
+    print("   throughput          " + (f"{summary['studs_welded']} studs in {summary['job_s']:.0f} s of job: {rate:.0f} studs/h "
+                                       f"at {summary['time_scale']:g}x motion time (real time: bench/bench_cycle_time.py "
+                                       f"--part {summary['part']})" if rate else "the job's span is not in the cell bag"))
 
 
 def _print_summary(args: argparse.Namespace, out: Path, report: dict, result: dict) -> None:
@@ -283,16 +349,25 @@ def _print_summary(args: argparse.Namespace, out: Path, report: dict, result: di
           f"{acc['steepest_welded_slope_deg']:.1f} deg (the gun follows the normal)")
     print(f"   gun axis at weld    max {acc['max_gun_axis_error_deg']:.2f} deg from the true normal "
           f"(forward kinematics of the controller's joints, {acc['gun_axes_checked']} welds)")
-    for r in acc["studs"]:
-        if "gun_axis_error_deg" in r:
-            print(f"     {r['stud_id']:>8}  slope {r['slope_deg']:5.1f} deg   gun axis {r['gun_axis_error_deg']:.2f} deg   "
-                  f"point {1e3 * r['xy_error_m']:.2f} mm XY, {1e3 * r['z_error_m']:.2f} mm Z")
+    rows = [r for r in acc["studs"] if "gun_axis_error_deg" in r]
+    if len(rows) > PER_STUD_LINES:  # a long part: its worst studs (summary.json has every one)
+        rows = sorted(rows, key=lambda r: -max(r["xy_error_m"] * 1e3, r["z_error_m"] * 1e3, r["gun_axis_error_deg"]))
+        print(f"     the {PER_STUD_LINES} worst of {len(acc['studs'])} (summary.json per_stud has every one):")
+        rows = rows[:PER_STUD_LINES]
+    for r in rows:
+        print(f"     {r['stud_id']:>8}  slope {r['slope_deg']:5.1f} deg   gun axis {r['gun_axis_error_deg']:.2f} deg   "
+              f"point {1e3 * r['xy_error_m']:.2f} mm XY, {1e3 * r['z_error_m']:.2f} mm Z")
+    if "rail" in summary:
+        _print_rail(summary)
     if qa:
         lim = qa["limits"]
         qa_counts = summary["qa_summary"]
         print("   QA (post-weld)      " + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in qa_counts.items() if v)
               + f"  [lean <= {lim['max_lean_deg']:g} deg, base within {lim['position_tol_mm']:g} mm, "
               f"height {lim['nominal_length_mm']:g} +- {lim['height_tol_mm']:g} mm]")
+        if not summary["qa_must_pass"]:
+            print("                       (reported; this part's pass conditions are every stud welded once and the "
+                  "weld points and the gun's axis against the truth)")
         for r in qa["studs"]:
             if r["verdict"] != "pass":
                 print(f"     {r['stud_id']:>8}  {r['verdict']}: {'; '.join(r['reasons'])}")
@@ -312,7 +387,8 @@ def _print_summary(args: argparse.Namespace, out: Path, report: dict, result: di
               + (f"; gun_blocked: {', '.join(last['gun_blocked'])}" if last["gun_blocked"] else ""))
     print(f"   time                {result['elapsed_s']:.0f} s (arm simulator at {args.time_scale:g}x real motion time)")
     print(f"   output              {out}/  (weld_report.json, qa_report.json/.csv/.html, summary.json, "
-          f"overlays/ [{overlays}], qa/, cell_bag/, logs)")
+          f"overlays/ [{overlays}], qa/, cell_bag/, " + ("sensor_bag/, " if PARTS[args.part].record_sensors else "")
+          + "logs)")
     print("=" * 72)
 
 

@@ -17,6 +17,9 @@ stations stays within ``gate_m``), and a view with too few marks publishes the n
 with ``extrapolated_distance`` set (valid, the message says how far). ``labels_used``,
 ``mark_residuals`` and ``residual_max`` say which marks the fit used and how well each agreed; a
 new layout starts the trail afresh. Without reference marks the node behaves as before.
+With ``per_view_registration`` and such a layout every view is registered (as ``continuous``, for long
+parts only), each result stamped with its view: the matcher's parameter of the same name matches every
+view with its own registration (a long part's bag replayed: ``--mode replay`` sets both).
 """
 from __future__ import annotations
 
@@ -58,6 +61,8 @@ PARAMS = [
           "marks seen [m]; beyond it the registration is refused (a wrong association)", min=1e-4, max=0.05),
     Param("min_marks", 2, "with reference marks: the fewest marks a registration uses (2: the plane is known)",
           min=2, max=20),
+    Param("per_view_registration", False, "with reference marks: register every view (the trail), each result "
+          "stamped with its view, for the matcher's per_view_registration; without them, as before"),
     image_io.IMAGES_RECTIFIED_PARAM,
 ]
 
@@ -105,7 +110,8 @@ class RegistrationNode(Node):
             self.get_logger().info("view received, waiting for /drawing/layout", throttle_duration_sec=10.0)
             self._pending = view
             return
-        if not (self.armed or self.p["continuous"]):
+        every_view = self.p["per_view_registration"] and len(self.layout.reference_mark_labels) > 0
+        if not (self.armed or self.p["continuous"] or every_view):
             return
         stamp = view["color"].header.stamp
         try:

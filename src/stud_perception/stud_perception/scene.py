@@ -302,6 +302,7 @@ def girder_scene(
     mark_pitch_m: float = 0.2,
     mark_offset_m: float = 0.13,
     start_xy_m: tuple[float, float] = (0.3, 0.0),
+    board_origin_xy_m: tuple[float, float] | None = None,
 ) -> SceneSpec:
     """A long part along the rail (world x): a cambered, cross-sloped girder flange
     (:class:`~stud_perception.scene_solids.Girder`, heading +X from ``start_xy_m``) with rows of
@@ -310,14 +311,17 @@ def girder_scene(
     reference marks ``M1``, ``M2``, ... every ``mark_pitch_m`` along it, alternately ``mark_offset_m``
     right and left of its centreline (with the default pitches half a row pitch from the stud rows), so a camera view of the
     demo's field (0.46 x 0.345 m, the long side along the rail) sees two or three of them anywhere
-    along the part.
+    along the part. ``board_origin_xy_m``: where the board's O lies in world (A along +X, B along +Y);
+    default 0.1 m before the start, 0.15 m beside the girder's right edge.
 
     The drawing frame is the board's: x along the rail, y across; the studs' and marks' drawing
     positions are their plan positions."""
     girder = Girder(start_xy_m, 0.0, length_m, width_m, camber_m, math.radians(cross_slope_deg), height_m)
     board = MarkingBoard()
     # O on the table beside the girder's start, the board 28 mm clear of its edge: one view sees O, A, B and M1
-    pose = Pose2D(x_m=start_xy_m[0] - 0.1, y_m=start_xy_m[1] - width_m / 2 - 0.15, yaw_rad=0.0)
+    if board_origin_xy_m is None:
+        board_origin_xy_m = (start_xy_m[0] - 0.1, start_xy_m[1] - width_m / 2 - 0.15)
+    pose = Pose2D(x_m=float(board_origin_xy_m[0]), y_m=float(board_origin_xy_m[1]), yaw_rad=0.0)
     u_rows = np.arange(row_pitch_m / 2, length_m - row_pitch_m / 4, row_pitch_m)
     v_studs = (np.arange(studs_per_row) - (studs_per_row - 1) / 2) * stud_spacing_m
     uu, vv = np.meshgrid(u_rows, v_studs, indexing="ij")

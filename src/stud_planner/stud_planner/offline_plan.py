@@ -7,6 +7,15 @@ view (matching/target_table.choose_best, the cell's rule too: the usable target 
 lean bound), and writes the JSON report of docs/INTERFACES.md (one entry per drawing stud, in
 drawing order), optionally overlay PNGs and a CSV. Errors are one line on stderr and exit code 2.
 
+A drawing with reference marks (M1, M2, ... beside O, A, B: a long part, welded along a rail)
+registers *every* view on the marks it sees, as the registration node does
+(stud_perception.mark_registration.RegistrationTrail, in the bag's order: the first view needs O,
+A, B, each later one names its marks by the nearest registration made before it, and a view with
+too few marks takes the nearest registration, saying how far it extrapolates), and matches each
+view with its own registration: the rail's error between two stations never reaches a target.
+The report then lists every view's registration (``registrations``) besides the first
+(``registration``). ``view_stamps_ns`` gives each view's stamp (a target's ``view`` indexes it).
+
 Memory stays flat with the bag's length: a first pass keeps only stamps of the images (read from
 their CDR headers) and the small camera-info and pose messages; a second pass deserialises each
 view's images while it is processed (views before the registration view take a third).
@@ -16,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import math
 import struct
 import sys
 import time
@@ -28,7 +38,9 @@ import numpy as np
 from stud_common import ros_io
 from stud_perception import image_io
 from stud_common.strict_json import write_json
+from stud_perception.mark_registration import MarkFitConfig, RegistrationTrail
 from stud_perception.markers import MarkDetectorConfig
+from stud_perception.registration import MarkRegistration
 from stud_perception.view_registration import config_for_layout, register_view
 from stud_planner.drawing import DrawingError, DrawingLimits, read_layout
 from stud_planner.drawing.limits import add_limit_arguments, cli_hint, limits_from_args
@@ -287,9 +299,8 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
     totals = {"iterations": 0, "views": 0}
     match_time = 0.0
 
-    def match_view(v: View, camera, color, depth) -> None:
+    def match_view(v: View, camera, color, depth, registration: MarkRegistration) -> None:
         nonlocal match_time, chosen
-        assert registration is not None  # matching starts once a view is registered
         _progress(totals["views"], len(views), quiet, "matching")
         t = plan_view(ids, xy, registration.M_local2world, depth, camera, config, view_index=v.index)
         totals["iterations"] += t.matches.total_iterations
@@ -302,9 +313,39 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
             cv2.imwrite(str(overlay_dir / f"view_{v.index:03d}.png"), draw_targets_overlay(color, t, camera))
         chosen = chosen.merge(t)
 
-    # One pass over the bag: register on the first view (in logged order) where the marks are found,
-    # then match it and every later view; the views before it take a second pass.
-    registration, reg_view, reasons, before = None, None, [], []
+    references = layout.reference_marks_xy_m()
+    if references:
+        registrations = _register_every_view(bag, topics, views, images_rectified, marks, references, det_config,
+                                             match_view, warnings)
+        first = min(registrations)
+        registration, reg_view = registrations[first], first
+    else:
+        registration, reg_view = _register_once(drawing, bag, topics, views, images_rectified, marks, det_config,
+                                                match_view)
+        registrations = {}
+        if totals["views"] != len(views):
+            raise PlanError(f"{bag}: {len(views) - totals['views']} of {len(views)} views lost their images between "
+                            "two reads of the bag (was it written to meanwhile?)")
+    iterations_total = totals["iterations"]
+    _progress(len(views), len(views), quiet, "matching")
+    targets = chosen.report_entries()
+    report = {
+        "drawing": str(drawing), "bag": str(bag), "algorithm": config.algorithm,
+        "registration": {"M_local2world": registration.M_local2world.tolist(),
+                         "residual_mm": registration.residual_m * 1e3, "view": reg_view},
+        "views": len(views), "total_iterations": int(iterations_total), "match_time_s": match_time,
+        "targets": targets, "warnings": warnings, "view_stamps_ns": [v.stamp_ns for v in views],
+    }
+    if references:
+        report["registrations"] = [_registration_entry(i, views[i].stamp_ns, r) for i, r in sorted(registrations.items())]
+    return report
+
+
+def _register_once(drawing: Path, bag: Path, topics: dict[str, str], views: list[View], images_rectified: bool,
+                   marks: np.ndarray, det_config: MarkDetectorConfig, match_view) -> tuple[MarkRegistration, int]:
+    """A drawing with O, A, B only: register on the first view (in logged order) where the marks are
+    found, match it and every later view, then the views before it (a second pass over the bag)."""
+    registration, reg_view, reasons, before = None, -1, [], []
     for v in views_with_images(bag, topics, views):
         camera, color, depth = _decode(v, bag, images_rectified, topics)
         if registration is None:
@@ -314,25 +355,59 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
                 before.append(replace(v, color=None, depth=None))  # its images are read again
                 continue
             registration, reg_view = result.registration, v.index
-        match_view(v, camera, color, depth)
+        match_view(v, camera, color, depth, registration)
     if registration is None:
         raise PlanError(f"the marks O, A, B of {drawing} were found on none of the {len(views)} views of {bag} "
                         f"(drawing and bag do not match?): " + "; ".join(reasons[:3]))
     for v in views_with_images(bag, topics, before):
-        match_view(v, *_decode(v, bag, images_rectified, topics))
-    if totals["views"] != len(views):
-        raise PlanError(f"{bag}: {len(views) - totals['views']} of {len(views)} views lost their images between "
-                        "two reads of the bag (was it written to meanwhile?)")
-    iterations_total = totals["iterations"]
-    _progress(len(views), len(views), quiet, "matching")
-    targets = chosen.report_entries()
-    return {
-        "drawing": str(drawing), "bag": str(bag), "algorithm": config.algorithm,
-        "registration": {"M_local2world": registration.M_local2world.tolist(),
-                         "residual_mm": registration.residual_m * 1e3, "view": reg_view},
-        "views": len(views), "total_iterations": int(iterations_total), "match_time_s": match_time,
-        "targets": targets, "warnings": warnings,
-    }
+        match_view(v, *_decode(v, bag, images_rectified, topics), registration)
+    return registration, reg_view
+
+
+def _register_every_view(bag: Path, topics: dict[str, str], views: list[View], images_rectified: bool,
+                         marks: np.ndarray, references: dict, det_config: MarkDetectorConfig, match_view,
+                         warnings: list[str]) -> dict[int, MarkRegistration]:
+    """A drawing with reference marks: every view registered on the marks it sees, in the bag's order
+    (:class:`RegistrationTrail`, as the registration node), and matched with its own registration. Views
+    before the first registration (no prior to name their marks by) are registered in a second pass; a
+    view that cannot be registered at all is left out, with a warning. Returns view index -> registration."""
+    trail = RegistrationTrail()
+    all_marks = {**dict(zip(("O", "A", "B"), marks)), **references}
+    fit = MarkFitConfig()
+    done: dict[int, MarkRegistration] = {}
+    failed: dict[int, str] = {}
+    before: list[View] = []
+
+    def register(v: View, camera, color, depth) -> bool:
+        result = trail.register(color, depth, camera, all_marks, det_config, fit)
+        if not result.ok or result.registration is None:
+            failed[v.index] = result.message
+            return False
+        failed.pop(v.index, None)
+        done[v.index] = result.registration
+        match_view(v, camera, color, depth, result.registration)
+        return True
+
+    for v in views_with_images(bag, topics, views):
+        camera, color, depth = _decode(v, bag, images_rectified, topics)
+        if not register(v, camera, color, depth) and not trail.stations:
+            before.append(replace(v, color=None, depth=None))  # no prior yet: again once one is known
+    if not done:
+        raise PlanError(f"no view of {bag} could be registered on the drawing's marks (the first needs O, A, B): "
+                        + "; ".join(f"view {i}: {why}" for i, why in list(failed.items())[:3]))
+    for v in views_with_images(bag, topics, before):
+        register(v, *_decode(v, bag, images_rectified, topics))
+    for i, why in sorted(failed.items()):
+        warnings.append(f"{bag}: view {i} could not be registered and was not matched: {why}")
+    return done
+
+
+def _registration_entry(view: int, stamp_ns: int, r: MarkRegistration) -> dict:
+    """A view's registration in the report: the marks used, the residuals (mm), how far it extrapolates (m)."""
+    return {"view": view, "stamp_ns": int(stamp_ns), "M_local2world": r.M_local2world.tolist(),
+            "marks": list(r.labels_used), "residual_mm": r.residual_m * 1e3,
+            "residual_max_mm": r.residual_max_m * 1e3 if math.isfinite(r.residual_max_m) else None,
+            "extrapolated_m": r.extrapolated_m}
 
 
 def write_csv(report: dict, path: Path) -> None:
@@ -370,6 +445,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="the most a welded stud may lean from the true normal (default: the code's "
                              f"{defaults.lean_budget_deg:g} deg); a target whose normal is too uncertain for it "
                              "is normal_uncertain. The surface's slope never refuses a stud")
+    parser.add_argument("--normal-window-m", type=float, default=defaults.normal_window_m,
+                        help="side of the surface patch each stud's normal is fitted on [m] (the matcher node's "
+                             f"normal_window_m, cell.yaml's var; default {defaults.normal_window_m:g})")
     parser.add_argument("--arm-orientation-error-deg", type=float, default=defaults.arm_orientation_error_deg,
                         help="the arm's share of the lean budget [deg]")
     parser.add_argument("--gun-radius-m", type=float, default=gun.radius_m,
@@ -386,6 +464,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     try:
         config = PlannerConfig(algorithm=args.algorithm, lean_budget_deg=args.lean_budget_deg,
+                               normal_window_m=args.normal_window_m,
                                arm_orientation_error_deg=args.arm_orientation_error_deg,
                                gun=GunModel(radius_m=args.gun_radius_m, length_m=args.gun_length_m))
         drawing_limits = limits_from_args(args)
@@ -417,8 +496,10 @@ def main(argv: list[str] | None = None) -> int:
     if not args.quiet:
         print(f"{len(report['targets'])} studs over {report['views']} views ({report['algorithm']}): "
               + ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
-              + f"; registration residual {report['registration']['residual_mm']:.2f} mm; "
-              f"{time.perf_counter() - t0:.1f} s" + (f"; report {args.out}" if args.out else ""))
+              + (f"; {len(report['registrations'])} views registered on their own marks, residual up to "
+                 f"{max(r['residual_mm'] for r in report['registrations']):.2f} mm RMS; " if "registrations" in report
+                 else f"; registration residual {report['registration']['residual_mm']:.2f} mm; ")
+              + f"{time.perf_counter() - t0:.1f} s" + (f"; report {args.out}" if args.out else ""))
     return 0
 
 

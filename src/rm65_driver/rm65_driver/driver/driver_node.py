@@ -221,6 +221,8 @@ class DriverNode(Node):
             if s.rail.present:
                 targets = [target_in_base(t, W) for t in targets]
             seq = self._make_sequence(W)
+            if s.rail.present:  # journalled with each weld: its world pose is the carriage's x the joints'
+                seq.cycle.rail_position_m = carriage_m
             total = len(goal.targets)
 
             def feedback(stud_id: str, phase: WeldPhase, done: int, _total: int) -> None:

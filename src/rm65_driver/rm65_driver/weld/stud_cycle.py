@@ -115,6 +115,9 @@ class StudCycle:
         self.lookahead = LookAhead(safety, params)
         self.job_targets: list[StudTarget] = []  # where the job's studs stand once welded (min_stud_spacing_m)
         self.below_clearance = False  # the tool is nearer the surface than the standoff (fast approach on)
+        # On a rail: the carriage's position (m, the encoder's) for this job, journalled with each weld so
+        # the weld's world pose can be rebuilt from its joints (stud_common.frames.world_T_base); None: no rail.
+        self.rail_position_m: float | None = None
 
     def start_job(self, targets: list[StudTarget]) -> None:
         """Forget the last job: a new one welds ``targets``."""
@@ -285,9 +288,11 @@ class StudCycle:
         q_at_weld = self.client.get_state().joints_rad
         # Durable *before* the trigger: after a crash this stud reads "uncertain", never "not welded".
         W = self.safety.world_T_base
+        extra: dict = {"motion_s": motion_s} if motion_s else {}
+        if self.rail_position_m is not None:
+            extra["rail_position_m"] = float(self.rail_position_m)
         self.journal.started(t.stud_id, job=c.job_id, position=W[:3, :3] @ t.position + W[:3, 3],
-                             normal=W[:3, :3] @ t.normal, joints=plan.q_contact,
-                             joints_at_weld=q_at_weld, **({"motion_s": motion_s} if motion_s else {}))
+                             normal=W[:3, :3] @ t.normal, joints=plan.q_contact, joints_at_weld=q_at_weld, **extra)
         try:
             self.client.set_do(p.trigger_io, True, tool=p.trigger_on_tool)
             c.sleep(p.pulse_s, interruptible=True)

@@ -43,6 +43,13 @@ a shot from a new pose is measured on itself.
 Missing inputs give a throttled "waiting for ..." log; a registration older than
 ``max_registration_age_s`` (measured between stamps) is stale: nothing is published and
 the reason is logged.
+
+A long part (a layout with reference marks, welded from a rail) may be registered view by view: with
+``per_view_registration`` (the registration node's parameter of the same name registers every view on
+the marks it sees, its result stamped with the view), each view is matched with the registration of
+its own stamp -- never with a neighbour's, whichever arrives first -- and waits for it; a view whose
+registration failed is not matched. Replaying such a part's bag (``--mode replay``) gives the targets
+``ros2 run stud_planner plan`` gives. Without reference marks the latest registration is used, as ever.
 """
 from __future__ import annotations
 
@@ -53,6 +60,7 @@ from collections import OrderedDict, deque
 from geometry_msgs.msg import Point, Pose, PoseArray, PoseStamped, Quaternion
 from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.subscription import Subscription
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Header
@@ -112,6 +120,9 @@ PARAMS = [
     Param("max_registration_age_s", 0.0, "a registration older than this (stamps) is stale [s]; 0: never",
           min=0.0, max=1e6),
     Param("sync_slop_s", 0.0, "stamps closer than this belong to one view [s] (0: equal stamps)", min=0.0, max=1.0),
+    Param("per_view_registration", False, "with a layout that has reference marks (a long part): match each view "
+          "with the registration of its own stamp (the registration node's per_view_registration registers every "
+          "view), waiting for it, instead of the latest registration"),
     Param("publish_overlay", True, "publish /weld_targets/overlay (and /weld_targets/overlay/compressed)"),
     Param("overlay_jpeg_quality", 80, "JPEG quality of /weld_targets/overlay/compressed", min=1, max=100),
     image_io.IMAGES_RECTIFIED_PARAM,
@@ -143,6 +154,9 @@ class MatcherNode(Node):
         self.registration: Registration | None = None
         self.view_index = 0
         self._pending: dict | None = None  # the last view that came before the layout or registration
+        # per_view_registration: registrations by their view's stamp (ns), and views waiting for theirs
+        self._view_registrations: OrderedDict[int, Registration] = OrderedDict()
+        self._views_waiting: OrderedDict[int, dict] = OrderedDict()
         self._arrivals: dict[str, deque] = {k: deque(maxlen=20) for k in ("color", "depth", "info", "pose")}
         self._color_sub: Subscription | None = None  # only while the overlay has a subscriber
         self._colors: OrderedDict[int, Image] = OrderedDict()  # stamp ns -> colour image, newest last
@@ -160,7 +174,11 @@ class MatcherNode(Node):
         self.diag.set(self.diag.OK, "waiting for inputs")  # idle is normal: not a warning on the operator's HMI
         self.create_timer(1.0, self._publish_diagnostics)
         self.create_subscription(StudLayout, names.DRAWING_LAYOUT, self._on_layout, ros_io.LATCHED_QOS)
-        self.create_subscription(Registration, names.REGISTRATION_RESULT, self._on_registration, ros_io.LATCHED_QOS)
+        # latched on the publisher's side; a deeper reader history so that a registration per view is never
+        # replaced by the next before it is taken
+        self.create_subscription(Registration, names.REGISTRATION_RESULT, self._on_registration,
+                                 QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                                            durability=DurabilityPolicy.TRANSIENT_LOCAL))
         self.sync = ros_io.StampSync(["depth", "info", "pose"], self._on_view, slop_ns=int(self.p["sync_slop_s"] * 1e9), on_drop=ros_io.warn_dropped(self, "view"))
         for name, topic, typ in (("depth", names.DEPTH_IMAGE, Image),
                                  ("info", names.CAMERA_INFO, CameraInfo), ("pose", names.CAMERA_POSE, PoseStamped)):
@@ -178,10 +196,24 @@ class MatcherNode(Node):
 
     def _on_registration(self, msg: Registration) -> None:
         self.registration = msg
+        if self.p["per_view_registration"]:  # kept by stamp even before the layout says whether it is needed
+            stamp = ros_io.stamp_to_ns(msg.header.stamp)
+            view = self._pop_near(self._views_waiting, stamp) if self._per_view() else None
+            if view is not None:
+                self._match_with(view, msg)
+                return
+            _put_bounded(self._view_registrations, stamp, msg, limit=20)
+            if self._per_view():
+                return
         if not msg.valid:
             self.get_logger().warn(f"registration not valid: {msg.message}", throttle_duration_sec=10.0)
             return
         self._retry_pending()
+
+    def _per_view(self) -> bool:
+        """Each view with the registration of its own stamp: asked for, and a layout with reference marks."""
+        return bool(self.p["per_view_registration"] and self.layout is not None
+                    and len(self.layout.reference_mark_labels))
 
     def _retry_pending(self) -> None:
         """A view that came just before the layout or its registration: match it now (it may be the
@@ -258,6 +290,13 @@ class MatcherNode(Node):
     # -- one view ------------------------------------------------------------------------------------
     def _on_view(self, view: dict) -> None:
         stamp = view["depth"].header.stamp
+        if self._per_view():
+            registration = self._pop_near(self._view_registrations, ros_io.stamp_to_ns(stamp))
+            if registration is None:  # its registration is still on its way
+                _put_bounded(self._views_waiting, ros_io.stamp_to_ns(stamp), view)
+            else:
+                self._match_with(view, registration)
+            return
         reason = self._not_ready(stamp)
         if reason:
             self.get_logger().info(reason, throttle_duration_sec=5.0)
@@ -265,6 +304,21 @@ class MatcherNode(Node):
             self._pending = view
             return
         self._pending = None
+        assert self.registration is not None  # views wait for it
+        self._match(view, self.registration)
+
+    def _match_with(self, view: dict, registration: Registration) -> None:
+        """per_view_registration: a view and the registration of its stamp met; an invalid one is no match."""
+        if not registration.valid:
+            why = f"view not matched: its registration failed: {registration.message}"
+            self.get_logger().warn(why, throttle_duration_sec=5.0)
+            self.diag.set(self.diag.WARN, why)
+            return
+        self._match(view, registration)
+
+    def _match(self, view: dict, registration: Registration) -> None:
+        """One view's targets with ``registration``, published."""
+        stamp = view["depth"].header.stamp
         try:
             decoded = image_io.decode_depth_view(view["info"], view["pose"].pose, view["depth"],
                                                  self.p["images_rectified"], image_io.view_topics(self))
@@ -276,10 +330,10 @@ class MatcherNode(Node):
             self.get_logger().info(image_io.rectification_note(view["info"]), once=True)
         camera, depth = decoded.camera, decoded.depth_m
         layout = self._layout_view
-        assert layout is not None and self.registration is not None  # views wait for both
+        assert layout is not None  # views wait for it
         now = time.monotonic()
         reused = self._noise.recall(camera, now)
-        targets = plan_view(layout.ids, layout.xy_m, registration_from_msg(self.registration), depth, camera,
+        targets = plan_view(layout.ids, layout.xy_m, registration_from_msg(registration), depth, camera,
                             self.planner_config(), noise=reused, view_index=self.view_index)
         self._publish(targets, decoded, stamp,
                       noise_age_s=None if reused is None else now - self._noise.measured_at_s)
