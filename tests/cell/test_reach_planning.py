@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from rm65_driver.weld.reach import Reach, ReachConfig
-from stud_cell.board_search import BoardSearchError, board_radius_m, search_plan
+from stud_cell.board_search import ARM_TABLE_XY_M, BoardSearchError, board_radius_m, search_area, search_plan
 from stud_cell.cell_reach import CellReach, camera_pose_as_sent
 from stud_cell.station_reach import StationGeometry, candidate_poses, reachable_stations
 from stud_cell.stations import footprint_m, plan_stations
@@ -83,6 +83,13 @@ def test_the_board_search_starts_at_the_highest_reachable_view_and_only_sends_re
     assert "search pose(s) over x 0.00..0.65 m, y -0.55..0.55 m" in plan.describe()
     with pytest.raises(BoardSearchError, match=r"board_search_area_xy_m=\[0.5, 0.0, 0.2, 1.0\]"):
         search_plan((0.5, 0.0, 0.2, 1.0), 0.0, (0.4,), 0.46, 0.5, 0.75, r, cameras_ok, 5)
+
+
+def test_without_a_search_area_the_arms_table_is_searched_stretched_along_the_rails_travel():
+    assert search_area((), 16) == (ARM_TABLE_XY_M, 16)   # a fixed arm: its own table
+    area, shots = search_area([], 16, rail_length_m=2.5)
+    assert area == (0.0, -0.55, 3.15, 0.55) and shots == math.ceil(16 * 3.15 / 0.65)
+    assert search_area((1.2, -0.6, 1.9, -0.1), 16, rail_length_m=2.5) == ((1.2, -0.6, 1.9, -0.1), 16)   # given: as is
 
 
 def test_the_camera_pose_checked_is_the_one_the_driver_reads_from_the_move_request():

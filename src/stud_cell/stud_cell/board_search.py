@@ -24,6 +24,10 @@ import numpy as np
 GRID_M = 0.075
 RASTER_M = 0.01
 
+#: The table the arm reaches from a fixed base (world x_min, y_min, x_max, y_max, m): the search's area
+#: when none is given; on a rail it stretches along the rail's travel (:func:`search_area`).
+ARM_TABLE_XY_M = (0.0, -0.55, 0.65, 0.55)
+
 
 class BoardSearchError(ValueError):
     """Search settings no pose can come from (named value)."""
@@ -59,6 +63,20 @@ def board_radius_m(marks_xy_m: np.ndarray | None, mark_diameter_m: float, margin
         u, v = m[1] - m[0], m[2] - m[0]
         r = a * b * c / (2 * abs(u[0] * v[1] - u[1] * v[0]))   # abc / (4 x area)
     return float(r) + mark_diameter_m / 2 + margin_m
+
+
+def search_area(area_xy_m: Sequence[float], max_shots: int, rail_length_m: float = 0.0
+                ) -> tuple[tuple[float, float, float, float], int]:
+    """The area to search and the most shots for it: ``area_xy_m`` when given (4 numbers) with
+    ``max_shots``; empty -- none given -- the arm's table (:data:`ARM_TABLE_XY_M`) stretched by the
+    rail's travel ``rail_length_m`` along world x, with ``max_shots`` for each table length of it (a part
+    laid anywhere along the rail is found without the operator saying where)."""
+    if len(area_xy_m):
+        x0, y0, x1, y1 = (float(v) for v in area_xy_m)
+        return (x0, y0, x1, y1), int(max_shots)
+    x0, y0, x1, y1 = ARM_TABLE_XY_M
+    x1 += max(float(rail_length_m), 0.0)
+    return (x0, y0, x1, y1), int(math.ceil(max_shots * (x1 - x0) / (ARM_TABLE_XY_M[2] - ARM_TABLE_XY_M[0]) - 1e-9))
 
 
 def search_plan(area_xy_m: Sequence[float], plane_z_m: float, heights_m: Sequence[float], fov_width_m: float,
@@ -125,4 +143,4 @@ def search_plan(area_xy_m: Sequence[float], plane_z_m: float, heights_m: Sequenc
     return SearchPlan(shots, float(seen.mean()) if len(cells) else 0.0, (x0, y0, x1, y1), tuple(heights))
 
 
-__all__ = ["BoardSearchError", "SearchPlan", "board_radius_m", "search_plan"]
+__all__ = ["ARM_TABLE_XY_M", "BoardSearchError", "SearchPlan", "board_radius_m", "search_area", "search_plan"]

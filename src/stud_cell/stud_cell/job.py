@@ -40,7 +40,7 @@ from stud_common.vocabulary import TargetStatus
 from stud_perception.registration import local_to_world
 from stud_common.strict_json import write_json
 from stud_inspection import bend, qa_codes, qa_report, rework
-from stud_cell.board_search import BoardSearchError, board_radius_m, search_plan
+from stud_cell.board_search import BoardSearchError, board_radius_m, search_area, search_plan
 from stud_cell.cell_reach import CellReach
 from stud_cell.station_reach import StationGeometry, reachable_stations
 from stud_cell.stations import Station, StationPlan, footprint_m, plan_stations, reshoot_station
@@ -157,10 +157,11 @@ class CellJob:
                 looked.append(f"the registration station: {exc}")
             ports.warn(f"no valid registration at {looked[-1]}; searching for the marking board")
         try:
-            search = search_plan(c.board_search_area_xy_m, c.board_search_plane_z_m, c.board_search_heights_m,
+            area, max_shots = search_area(c.board_search_area_xy_m or (), c.board_search_max_shots, c.rail_length_m)
+            search = search_plan(area, c.board_search_plane_z_m, c.board_search_heights_m,
                                  c.fov_width_m, c.fov_distance_m, c.image_aspect,
                                  board_radius_m(layout.marks_m, layout.mark_diameter_m or 0.02),
-                                 None if self.reach is None else self._cameras_ok, c.board_search_max_shots)
+                                 None if self.reach is None else self._cameras_ok, max_shots)
         except BoardSearchError as exc:
             raise JobAborted(f"no valid registration ({'; '.join(looked) or 'no registration station'}): {exc}") from None
         last = ""

@@ -149,7 +149,7 @@ class JobConfig:
     (``dataclasses.replace``)."""
 
     registration_station_xyz_m: tuple = (0.225, -0.29, 0.285)   # (): no station, search the board
-    board_search_area_xy_m: tuple = (0.0, -0.55, 0.65, 0.55)      # x_min, y_min, x_max, y_max (world)
+    board_search_area_xy_m: tuple = ()   # x_min, y_min, x_max, y_max (world); (): the arm's table along the rail
     board_search_plane_z_m: float = 0.0                           # the table the board lies on (world z)
     board_search_heights_m: tuple = (0.45, 0.425, 0.40, 0.375, 0.35, 0.325, 0.30, 0.275)  # camera above that table
     board_search_max_shots: int = 16

@@ -18,17 +18,18 @@ PARAMS = [
           "is searched for over board_search_area_xy_m", validate=lambda v: None if v is None or len(v) in (0, 3)
           else f"registration_station_xyz_m needs 3 numbers (x, y, z) or [] (search for the board), got {list(v)}"),
     Param("board_search_area_xy_m", list(_JOB.board_search_area_xy_m), "where the board may lie: [x_min, y_min, "
-          "x_max, y_max] in world [m], searched when the registration station shows no marks",
-          validate=lambda v: None if len(v) == 4 and v[2] > v[0] and v[3] > v[1]
-          else f"board_search_area_xy_m needs [x_min, y_min, x_max, y_max] with max > min, got {list(v)}"),
+          "x_max, y_max] in world [m], searched when the registration station shows no marks; [] (default): the "
+          "arm's table, x 0..0.65 m and y -0.55..0.55 m, stretched along the rail's travel",
+          validate=lambda v: None if v is None or len(v) == 0 or (len(v) == 4 and v[2] > v[0] and v[3] > v[1])
+          else f"board_search_area_xy_m needs [x_min, y_min, x_max, y_max] with max > min, or [], got {list(v)}"),
     Param("board_search_plane_z_m", _JOB.board_search_plane_z_m, "world height of the table the board lies on [m]",
           min=-2.0, max=2.0),
     Param("board_search_heights_m", list(_JOB.board_search_heights_m), "camera heights above that table the search "
           "tries, the highest the arm reaches at each place is used [m]",
           validate=lambda v: None if len(v) > 0 and min(v) > 0 else f"board_search_heights_m needs positive heights, "
           f"got {list(v)}"),
-    Param("board_search_max_shots", _JOB.board_search_max_shots, "views the board search takes at most", min=1,
-          max=200),
+    Param("board_search_max_shots", _JOB.board_search_max_shots, "views the board search takes at most (with the "
+          "default area: per 0.65 m of it along the rail)", min=1, max=200),
     Param("station_height_steps_m", list(_JOB.station_height_steps_m), "camera height changes tried, in order, "
           "for a station the arm cannot reach (it is also slid within its studs' room and its image turned) [m]",
           validate=lambda v: None if len(v) > 0 else "station_height_steps_m needs at least one value (0.0)"),

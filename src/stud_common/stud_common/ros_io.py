@@ -185,7 +185,9 @@ def declare_params(node: Node, params: list[Param], on_change: Callable[[dict], 
     by_name = {p.name: p for p in params}
     problems = []
     for p in params:
-        desc = ParameterDescriptor(description=p.description, read_only=p.read_only)
+        # an empty list default has no element type (rclpy takes it for bytes): any list may replace it
+        desc = ParameterDescriptor(description=p.description, read_only=p.read_only,
+                                   dynamic_typing=isinstance(p.default, list) and not p.default)
         # (rclpy's range refuses NaN: a parameter whose NaN means "not set" is range-checked by Param.check alone)
         if p.min is not None and p.max is not None and isinstance(p.default, float) and p.nan_means is None:
             desc.floating_point_range = [FloatingPointRange(from_value=float(p.min), to_value=float(p.max))]
