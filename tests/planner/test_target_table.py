@@ -17,9 +17,11 @@ from stud_planner.matching.target_table import BestViewKey, TargetTable, choose_
 from stud_planner.matching.view_targets import PlannerConfig, plan_view
 
 REPO = Path(__file__).resolve().parents[2]
-#: The report's keys, in their order (docs/INTERFACES.md): the file's, and each target's.
+#: The report's keys, in their order (docs/INTERFACES.md): the file's, and each target's. Fields are only ever
+#: added at the end (view_stamps_ns: each view's stamp, for replay); a drawing with reference marks adds
+#: "registrations" after them.
 REPORT_KEYS = ["drawing", "bag", "algorithm", "registration", "views", "total_iterations", "match_time_s", "targets",
-               "warnings"]
+               "warnings", "view_stamps_ns"]
 TARGET_KEYS = ["stud_id", "drawing_xy_mm", "status", "position_m", "normal", "pixel", "view", "iterations",
                "xy_error_mm", "inclination_deg", "normal_sigma_deg", "lean_bound_deg", "fill_ratio", "gun_clearance_mm"]
 
