@@ -24,7 +24,8 @@ def hand_eye_text(s: dict) -> str:
     if s.get("source") == "file":
         rms = s.get("position_rms_mm")
         extra = f", residual {rms:.2f} mm" if isinstance(rms, (int, float)) and math.isfinite(rms) else ""
-        return f"file {os.path.basename(s.get('path') or '')} ({s.get('date') or 'undated'}{extra}): xyz [{xyz}] mm, rpy [{rpy}]°"
+        return (f"file {os.path.basename(s.get('path') or '')} ({s.get('date') or 'undated'}{extra}): "
+                f"xyz [{xyz}] mm, rpy [{rpy}]°")
     return f"typed values: xyz [{xyz}] mm, rpy [{rpy}]°"
 
 

@@ -122,7 +122,8 @@ def _depth_to_metres(msg: Image) -> np.ndarray:
     try:  # the one mm -> m conversion (depth_image), at the message edge
         return depth_image_to_m(image_to_numpy(msg), msg.encoding)
     except DepthImageError:
-        raise MessageError(f"depth encoding '{msg.encoding}' is not supported; expected 16UC1 (mm) or 32FC1 (m)") from None
+        raise MessageError(f"depth encoding '{msg.encoding}' is not supported; "
+                           "expected 16UC1 (mm) or 32FC1 (m)") from None
 
 
 def camera_info_to_K(msg: CameraInfo) -> np.ndarray:

@@ -328,7 +328,8 @@ def plan_open(path: Path) -> OpenPlan:
             why = f"the journal has {len(pk) - len(mk)} record(s) more than its mirror (from journal line {where_p})"
             backup = p.path
         else:
-            why = f"journal and mirror disagree from record {common + 1} (journal line {where_p}, mirror line {where_m})"
+            why = (f"journal and mirror disagree from record {common + 1} "
+                   f"(journal line {where_p}, mirror line {where_m})")
             backup = None
         dmg = [Damage(p.path, where_p if isinstance(where_p, int) else len(p.data.split(b"\n")), why)]
         raise _report(p, m, f"{p.path}: {why}", backup=backup, keep=common, damage=dmg)
