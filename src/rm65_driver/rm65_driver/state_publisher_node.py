@@ -144,6 +144,7 @@ class StatePublisherNode(Node):
 
 
 def main(args=None) -> int:
+    """`ros2 run rm65_driver state_publisher`: spin until Ctrl-C; the process exit code."""
     return ros_io.spin_node(StatePublisherNode, args)
 
 

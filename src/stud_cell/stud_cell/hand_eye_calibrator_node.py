@@ -367,6 +367,7 @@ class HandEyeCalibrator(Node):
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_cell hand_eye_calibrator`: spin until Ctrl-C or (``exit_when_done``) the verdict: 0 accepted."""
     return ros_io.spin_node(HandEyeCalibrator, args, multithreaded=True,
                             until=lambda node: node.exit_code if node.p["exit_when_done"] else None)
 

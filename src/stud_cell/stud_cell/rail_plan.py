@@ -122,6 +122,7 @@ class RailPlanConfig:
 
 # -- intervals ------------------------------------------------------------------------------------
 def intersect(a: Intervals, b: Intervals) -> Intervals:
+    """The intersection of two sets of closed intervals (lo, hi) [m], sorted (empty when they do not overlap)."""
     out = []
     for lo1, hi1 in a:
         for lo2, hi2 in b:

@@ -553,6 +553,7 @@ class CellSequencer(Node):
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_cell cell_sequencer`: spin until Ctrl-C or (``exit_when_done``) the job's end: 0 if all welded."""
     dump_stacks_on_signal()
     ros_io.init_node_process(args)
     node = CellSequencer()

@@ -565,6 +565,7 @@ class HmiNode(Node):
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_hmi hmi`: spin until Ctrl-C; the process exit code."""
     return ros_io.spin_node(HmiNode, args)
 
 

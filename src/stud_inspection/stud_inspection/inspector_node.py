@@ -81,6 +81,7 @@ REWORK_QOS = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE,
 
 
 def rework_path(p: dict) -> Path:
+    """The rework decisions file: ``rework_file``, else in ``overlay_dir``, else in $ROS_HOME (~/.ros)/stud_welding."""
     if p["rework_file"]:
         return Path(p["rework_file"]).expanduser()
     if p["overlay_dir"]:
@@ -90,6 +91,7 @@ def rework_path(p: dict) -> Path:
 
 
 def bend_path(p: dict) -> Path:
+    """The bend-test file: ``bend_file``, else beside the rework decisions file (:func:`rework_path`)."""
     return Path(p["bend_file"]).expanduser() if p["bend_file"] else rework_path(p).with_name(bend.FILE_NAME)
 
 
@@ -349,6 +351,7 @@ def bend_plan_msg(doc: dict, stamp) -> BendTestPlan:
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_inspection inspector`: spin until Ctrl-C; the process exit code."""
     return ros_io.spin_node(InspectorNode, args, multithreaded=True)
 
 

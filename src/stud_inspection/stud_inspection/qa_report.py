@@ -68,6 +68,7 @@ def empty_row(stud_id: str, drawing_xy_mm) -> dict:
 
 
 def summary_of(rows: list[dict]) -> dict:
+    """The number of studs per verdict, every verdict of :data:`VERDICTS` listed (0 included)."""
     counts = {v: 0 for v in VERDICTS}
     for r in rows:
         counts[r["verdict"]] += 1

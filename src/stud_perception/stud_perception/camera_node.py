@@ -313,6 +313,7 @@ class CameraNode(Node):
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_perception camera`: spin until Ctrl-C; the process exit code."""
     return ros_io.spin_node(CameraNode, args)
 
 

@@ -127,6 +127,7 @@ def _depth_to_metres(msg: Image) -> np.ndarray:
 
 
 def camera_info_to_K(msg: CameraInfo) -> np.ndarray:
+    """The intrinsic matrix K (3, 3) [px] of a CameraInfo; MessageError when fx or fy is not positive."""
     K = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
     if K[0, 0] <= 0 or K[1, 1] <= 0:
         raise MessageError(f"camera_info K has fx={K[0, 0]}, fy={K[1, 1]}: not calibrated?")

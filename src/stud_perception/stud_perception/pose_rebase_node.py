@@ -67,6 +67,7 @@ class PoseRebaseNode(Node):
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_perception pose_rebase`: spin until Ctrl-C; the process exit code."""
     return ros_io.spin_node(PoseRebaseNode, args)
 
 

@@ -124,6 +124,7 @@ class ShotNode(Node):
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_perception shot`: spin until Ctrl-C; the process exit code."""
     return ros_io.spin_node(ShotNode, args, multithreaded=True)
 
 

@@ -134,6 +134,7 @@ def record_key(ln: ScanLine) -> tuple[Any, ...]:
 
 
 def scan_file(path: Path) -> FileScan:
+    """A journal file checked line by line: intact records, damage, a tolerated torn tail (``exists``: file found)."""
     s = FileScan(path)
     try:
         s.data = path.read_bytes()
@@ -251,6 +252,7 @@ class OpenPlan:
 
 
 def uncertain_from_torn(s: FileScan) -> tuple[str, ...]:
+    """The studs a torn last line leaves uncertain: those it names, else the last stud started if still uncertain."""
     assert s.torn is not None
     named = studs_in(s.torn.raw)
     if named:
