@@ -265,7 +265,8 @@ def scaling_table(view, camera: CameraModel, s_px: float, args) -> None:
         t_bfs = Timing(bfs_iters_mean * s_px * n, estimated=True)
         rows.append([
             f"{n:,}",
-            Timing(t_b).fmt(), Timing(t_b).fmt(n), f"{batch.iterations[batch.ok].mean():.1f}" if batch.ok.any() else "-",
+            Timing(t_b).fmt(), Timing(t_b).fmt(n),
+            f"{batch.iterations[batch.ok].mean():.1f}" if batch.ok.any() else "-",
             f"{batch.ok.mean():.0%}",
             Timing(t_bp).fmt(), t_fpm.fmt(), t_fpm.fmt(n), t_bfs.fmt(), t_bfs.fmt(n),
         ])

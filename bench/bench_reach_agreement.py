@@ -41,7 +41,8 @@ def main(argv: list[str] | None = None) -> int:
     p.update(standoff_m=v["standoff_m"], stud_length_mm=v["stud_length_mm"], min_stud_spacing_m=v["min_stud_spacing_m"],
              preferred_joint_signs=node["preferred_joint_signs"])
     driver = safety_checker(p, resolve_hand_eye("", v["hand_eye_xyz_m"], v["hand_eye_rpy_deg"]).T_tool_cam)
-    planner = CellReach.from_config(ReachConfig.from_json(driver.reach_for(p["standoff_m"], p["plunge_m"]).config.to_json()))
+    planner = CellReach.from_config(
+        ReachConfig.from_json(driver.reach_for(p["standoff_m"], p["plunge_m"]).config.to_json()))
     kin = driver.kin
     rng = np.random.default_rng(args.seed)
     lo, hi = kin.limits_rad[:, 0], kin.limits_rad[:, 1]

@@ -179,7 +179,8 @@ def test_along_the_rail_every_station_cancels_the_rail_error_and_a_blind_one_say
     assert result.ok and result.registration.extrapolated
     nearest = trail.stations[-1]
     assert result.registration.M_local2world is nearest.registration.M_local2world
-    assert result.registration.extrapolated_m == pytest.approx(np.linalg.norm(nearest.position_xy_m - cam.position_w[:2]))
+    assert result.registration.extrapolated_m == pytest.approx(
+        np.linalg.norm(nearest.position_xy_m - cam.position_w[:2]))
     assert 0.5 < result.registration.extrapolated_m < 0.7
     assert f"extrapolated {result.registration.extrapolated_m:.3f} m" in result.message
     assert "marks not found" in result.message

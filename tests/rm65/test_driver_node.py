@@ -198,7 +198,8 @@ def test_estop_stop_latency_and_resolve_over_ros(sim, probe, tmp_path):
         probe.create_subscription(ArmState, "/arm/state", states.append, RELIABLE_10)
         spin_until(probe, lambda: states and states[-1].connected, 30, "/arm/state", proc)
         resolve = probe.create_client(ResolveStud, "/arm/resolve_stud")
-        r = call(probe, resolve, ResolveStud.Request(stud_id="U1", decision=ResolveStud.Request.DECISION_NOT_WELDED), proc)
+        r = call(probe, resolve,
+                 ResolveStud.Request(stud_id="U1", decision=ResolveStud.Request.DECISION_NOT_WELDED), proc)
         assert r.success, r.message
         r = call(probe, resolve, ResolveStud.Request(stud_id="U1", decision=ResolveStud.Request.DECISION_WELDED), proc)
         assert not r.success and "not uncertain" in r.message

@@ -116,7 +116,8 @@ def test_the_configuration_goes_over_the_wire_exactly_and_bad_ones_are_named():
 def test_the_safety_checkers_reach_is_the_one_it_applies():
     tool = np.eye(4)
     tool[2, 3] = 0.15
-    checker = SafetyChecker(RM65Kinematics(), SafetyLimits(max_tool_tilt_deg=40.0), tool, prefer_signs=(0, 0, -1, 0, -1, 0))
+    checker = SafetyChecker(RM65Kinematics(), SafetyLimits(max_tool_tilt_deg=40.0), tool,
+                            prefer_signs=(0, 0, -1, 0, -1, 0))
     reach = checker.reach_for(0.06)
     assert reach.config.max_tool_tilt_deg == 40.0 and reach.config.standoff_m == 0.06
     p, n = [0.30, 0.0, 0.02], tilted(45, 90)

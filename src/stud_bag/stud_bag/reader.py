@@ -179,7 +179,8 @@ class BagReader:
         except BagError:
             raise
         except READ_ERRORS as exc:
-            raise BagError(f"'{label}': corrupt MCAP file, not readable as MCAP ({type(exc).__name__}: {exc})") from None
+            raise BagError(f"'{label}': corrupt MCAP file, not readable as MCAP "
+                           f"({type(exc).__name__}: {exc})") from None
         except OSError as exc:
             raise BagError(f"'{label}': cannot read ({exc.strerror or exc})") from None
         return scan

@@ -7,10 +7,11 @@ and counted): the first through the believed hand-eye (camera frame), the rest, 
 agree on one, through the estimate so far (tool frame;
 :class:`~stud_cell.hand_eye_views.ViewAimer`, so a camera mounted degrees off its believed
 pose still sees the board in the tilted views). At each view it waits for the arm to settle, takes
-the weld-tool pose from ``/arm/state``, shoots (``/camera/trigger``), finds O, A, B (sub-pixel, ``markers.py``) and lifts
-them with Eq. 1 into the camera frame. :func:`~stud_perception.hand_eye.calibrate_hand_eye` solves
-the camera-to-tool transform; ``<output_dir>/hand_eye.yaml`` gets the result, accepted or refused
-with the reasons (:mod:`stud_perception.hand_eye_file`).
+the weld-tool pose from ``/arm/state``, shoots (``/camera/trigger``), finds O, A, B (sub-pixel,
+``markers.py``) and lifts them with Eq. 1 into the camera frame.
+:func:`~stud_perception.hand_eye.calibrate_hand_eye` solves the camera-to-tool transform;
+``<output_dir>/hand_eye.yaml`` gets the result, accepted or refused with the reasons
+(:mod:`stud_perception.hand_eye_file`).
 
 ``task:=verify``: a few views (:func:`~stud_cell.hand_eye_views.plan_check_views`), the residual
 of the hand-eye in use (``hand_eye_file`` or the typed value) with
@@ -118,11 +119,12 @@ class HandEyeCalibrator(Node):
         self.create_subscription(ArmState, names.ARM_STATE, self._keep("arm_state"), ros_io.RESULT_QOS,
                                  callback_group=cb)
         self.sync = ros_io.StampSync(["color", "depth", "info", "pose"], self._keep("view"),
-                                     slop_ns=int(self.p["sync_slop_s"] * 1e9), on_drop=ros_io.warn_dropped(self, "view"))
+                                     slop_ns=int(self.p["sync_slop_s"] * 1e9),
+                                     on_drop=ros_io.warn_dropped(self, "view"))
         for name, topic, typ in (("color", names.COLOR_IMAGE, Image), ("depth", names.DEPTH_IMAGE, Image),
                                  ("info", names.CAMERA_INFO, CameraInfo), ("pose", names.CAMERA_POSE, PoseStamped)):
-            self.create_subscription(typ, topic, functools.partial(self._add, name), ros_io.sensor_qos(self.p["sensor_qos"]),
-                                     callback_group=cb)
+            self.create_subscription(typ, topic, functools.partial(self._add, name),
+                                     ros_io.sensor_qos(self.p["sensor_qos"]), callback_group=cb)
         self.cli_move = self.create_client(MoveTo, names.ARM_MOVE_TO, callback_group=cb)
         self.cli_shot = self.create_client(Trigger, names.CAMERA_TRIGGER, callback_group=cb)
         self.diag = ros_io.Diagnostics(self)
@@ -365,6 +367,7 @@ class HandEyeCalibrator(Node):
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_cell hand_eye_calibrator`: spin until Ctrl-C or (``exit_when_done``) the verdict: 0 accepted."""
     return ros_io.spin_node(HandEyeCalibrator, args, multithreaded=True,
                             until=lambda node: node.exit_code if node.p["exit_when_done"] else None)
 

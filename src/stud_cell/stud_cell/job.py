@@ -162,7 +162,8 @@ class CellJob:
                                  board_radius_m(layout.marks_m, layout.mark_diameter_m or 0.02),
                                  None if self.reach is None else self._cameras_ok, c.board_search_max_shots)
         except BoardSearchError as exc:
-            raise JobAborted(f"no valid registration ({'; '.join(looked) or 'no registration station'}): {exc}") from None
+            raise JobAborted(f"no valid registration ({'; '.join(looked) or 'no registration station'}): "
+                             f"{exc}") from None
         last = ""
         for k, (xyz, yaw) in enumerate(self._search_order(search.poses), 1):
             self._status(REGISTERING, f"searching for the marking board: view {k}/{len(search.poses)} from "
@@ -249,7 +250,8 @@ class CellJob:
         self.ports.checkpoint()
         self._move(station.camera_xyz_w, station.yaw_rad)
         wanted = {ids[i] for i in station.stud_indices}
-        view = self._shoot_view(f"station {station.index}/{n}", station.camera_xyz_w, station.yaw_rad, frozenset(wanted))
+        view = self._shoot_view(f"station {station.index}/{n}", station.camera_xyz_w, station.yaw_rad,
+                                frozenset(wanted))
         if view is None:
             raise JobAborted(f"station {station.index}: no weld targets for any of its shots")
         usable = []
@@ -335,7 +337,8 @@ class CellJob:
                 self._station += 1
                 station = self._reshoot_station(studs_w[index[sid]], attempt, plane_z, index[sid])
                 if station is None:
-                    self.ports.warn(f"re-shoot {attempt + 1} of {sid} skipped: no camera pose beside it the arm reaches")
+                    self.ports.warn(f"re-shoot {attempt + 1} of {sid} skipped: "
+                                    "no camera pose beside it the arm reaches")
                     continue
                 self._status(MOVING, f"re-shoot {attempt + 1}/{c.reshoot_attempts} of {sid} "
                              f"({self.stud_report[sid]['status']}): camera to "
@@ -534,7 +537,8 @@ class CellJob:
         try:
             code = qa_codes.profile(c.qa_code, c.qa_overrides)
             judged = {n: float(c.qa_limits[n]) for n in qa_codes.LIMIT_NAMES
-                      if self._judged and isinstance(c.qa_limits.get(n), (int, float)) and c.qa_limits[n] != code.value(n)}
+                      if self._judged and isinstance(c.qa_limits.get(n), (int, float))
+                      and c.qa_limits[n] != code.value(n)}
             if self._judged and c.qa_limits.get("qa_code") not in (None, "", c.qa_code):
                 self.ports.warn(f"the inspector judged by qa_code {c.qa_limits['qa_code']!r}, the cell samples by "
                                 f"{c.qa_code!r}: the record lists the inspector's limits as overrides")
@@ -550,7 +554,8 @@ class CellJob:
         self.named.apply(self.stud_report, self.qa)
         self._status(state, message, studs_welded=welded,
                      studs_failed=max(0, len(self.stud_report) - welded) if self.stud_report else 0,
-                     unreachable=self.unreachable, unreachable_reasons=[self.named.reasons[s] for s in self.unreachable])
+                     unreachable=self.unreachable,
+                     unreachable_reasons=[self.named.reasons[s] for s in self.unreachable])
         c = self.c
         if c.report_file:
             # strict JSON: an unmatched stud's NaN position is null (RFC 8259 has no NaN)
@@ -574,5 +579,6 @@ class CellJob:
         return 0 if state == DONE and all_welded else 1
 
 
-__all__ = ["CellJob", "CellPorts", "DriverLost", "InspectionOutcome", "InspectionUnavailable", "JobAborted", "JobConfig",
-           "Layout", "MoveRefused", "RESHOOT_STATUS_TEXTS", "Registration", "Target", "View", "WeldOutcome"]
+__all__ = ["CellJob", "CellPorts", "DriverLost", "InspectionOutcome", "InspectionUnavailable", "JobAborted",
+           "JobConfig", "Layout", "MoveRefused", "RESHOOT_STATUS_TEXTS", "Registration", "Target", "View",
+           "WeldOutcome"]

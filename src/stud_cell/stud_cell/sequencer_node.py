@@ -20,11 +20,11 @@ leftovers, re-shoots, the reports); this node is its adapter to the cell:
 The reach test is the arm driver's own (``/arm/reach_config``, latched: stud_cell.cell_reach):
 stations are planned at poses it accepts, and every target is checked before it is sent.
 
-Progress goes to ``/cell/status`` (CellStatus, with the studs the cell cannot weld and why); ``/cell/start|pause|resume|stop`` (Trigger)
-drive it (``auto_start`` starts at once). With ``report_file`` a JSON report of every stud
-(the offline report's fields plus ``welded``) and with ``qa_dir`` the QA record are written at the
-end, also of a job stopped early; ``exit_when_done`` ends the process (exit 0 only when every stud
-was welded).
+Progress goes to ``/cell/status`` (CellStatus, with the studs the cell cannot weld and why);
+``/cell/start|pause|resume|stop`` (Trigger) drive it (``auto_start`` starts at once). With
+``report_file`` a JSON report of every stud (the offline report's fields plus ``welded``) and with
+``qa_dir`` the QA record are written at the end, also of a job stopped early; ``exit_when_done`` ends
+the process (exit 0 only when every stud was welded).
 """
 from __future__ import annotations
 
@@ -93,7 +93,8 @@ class CellSequencer(Node):
         self.exit_code: int | None = None
         self.cell_status = CellStatus(state=CellStatus.STATE_IDLE, state_text="idle", message="waiting for start")
         self.pub_status = self.create_publisher(CellStatus, names.CELL_STATUS, ros_io.LATCHED_QOS)
-        self.create_subscription(StudLayout, names.DRAWING_LAYOUT, self._on_layout, ros_io.LATCHED_QOS, callback_group=cb)
+        self.create_subscription(StudLayout, names.DRAWING_LAYOUT, self._on_layout, ros_io.LATCHED_QOS,
+                                 callback_group=cb)
         self.create_subscription(Registration, names.REGISTRATION_RESULT, self._on_registration, ros_io.LATCHED_QOS,
                                  callback_group=cb)
         self.create_subscription(WeldTargetArray, names.WELD_TARGETS, self._on_targets, ros_io.RESULT_QOS,
@@ -551,6 +552,7 @@ class CellSequencer(Node):
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_cell cell_sequencer`: spin until Ctrl-C or (``exit_when_done``) the job's end: 0 if all welded."""
     dump_stacks_on_signal()
     ros_io.init_node_process(args)
     node = CellSequencer()

@@ -53,6 +53,7 @@ class MessageError(ValueError):
 
 # -- Poses and stamps ------------------------------------------------------------------------------
 def pose_to_rt(pose: Pose) -> tuple[np.ndarray, np.ndarray]:
+    """A Pose -> rotation R (3, 3), translation t (3,) [m]; MessageError for a non-finite value or a zero quaternion."""
     q = pose.orientation
     values = {"position.x": pose.position.x, "position.y": pose.position.y, "position.z": pose.position.z,
               "orientation.x": q.x, "orientation.y": q.y, "orientation.z": q.z, "orientation.w": q.w}
@@ -68,16 +69,19 @@ def pose_to_rt(pose: Pose) -> tuple[np.ndarray, np.ndarray]:
 
 
 def rt_to_pose(R: np.ndarray, t: np.ndarray) -> Pose:
+    """Rotation R (3, 3) and translation t (3,) [m] -> a Pose."""
     x, y, z, w = matrix_to_quaternion(R)
     return Pose(position=Point(x=float(t[0]), y=float(t[1]), z=float(t[2])),
                 orientation=Quaternion(x=x, y=y, z=z, w=w))
 
 
 def stamp_to_ns(stamp: Time) -> int:
+    """A builtin_interfaces Time -> integer nanoseconds."""
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 def ns_to_stamp(ns: int) -> Time:
+    """Integer nanoseconds -> a builtin_interfaces Time."""
     return Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
 
 

@@ -380,7 +380,8 @@ class HmiNode(Node):
             self.get_logger().warn(f"/inspection/result station {msg.station}: overlay_file {msg.overlay_file!r} "
                                    f"is not a readable PNG{where}: not shown", throttle_duration_sec=10.0)
         self.server.publish({"type": "inspection_overlay", "url": url, "station": int(msg.station),
-                             "file": os.path.basename(msg.overlay_file), "stamp": ros_io.stamp_to_ns(msg.header.stamp) * 1e-9})
+                             "file": os.path.basename(msg.overlay_file),
+                             "stamp": ros_io.stamp_to_ns(msg.header.stamp) * 1e-9})
 
     def _on_rework(self, msg: ReworkDecision) -> None:
         self.view.on_rework(msg.stud_id, msg.decision, time.time())
@@ -564,6 +565,7 @@ class HmiNode(Node):
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_hmi hmi`: spin until Ctrl-C; the process exit code."""
     return ros_io.spin_node(HmiNode, args)
 
 

@@ -168,7 +168,8 @@ class CellView:
         if cell.state == CellState.FAILED and not cell.message.startswith(OPERATOR_STOP_TEXT):
             causes[Code.CELL_FAILED, src] = cell.message or "the job ended in failure"
         if cell.unreachable:
-            causes[Code.UNREACHABLE, src] = (f"{len(cell.unreachable)} stud(s) the arm cannot weld (see the stud table): "
+            causes[Code.UNREACHABLE, src] = (f"{len(cell.unreachable)} stud(s) the arm cannot weld "
+                                             "(see the stud table): "
                                              f"{', '.join(cell.unreachable[:10])}"
                                              f"{' …' if len(cell.unreachable) > 10 else ''}")
         self.alarms.update("cell", causes, now)

@@ -47,7 +47,8 @@ class PoseRebaseNode(Node):
         self.T_recorded = transform_xyz_rpy(self.p["recorded_hand_eye_xyz_m"], self.p["recorded_hand_eye_rpy_deg"])
         self.T_in_use = self.in_use.T_tool_cam
         self.pub = self.create_publisher(PoseStamped, self.p["output_topic"], ros_io.CAMERA_PUB_QOS)
-        self.create_subscription(PoseStamped, self.p["input_topic"], self._on_pose, ros_io.sensor_qos(self.p["sensor_qos"]))
+        self.create_subscription(PoseStamped, self.p["input_topic"], self._on_pose,
+                                 ros_io.sensor_qos(self.p["sensor_qos"]))
         self.count = 0
         self.diag = ros_io.Diagnostics(self)
         self.diag.set(self.diag.OK, f"waiting for {self.p['input_topic']}")
@@ -66,6 +67,7 @@ class PoseRebaseNode(Node):
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_perception pose_rebase`: spin until Ctrl-C; the process exit code."""
     return ros_io.spin_node(PoseRebaseNode, args)
 
 

@@ -167,7 +167,8 @@ def _stud_mark_coverage(scene, camera, hit_x, hit_y, depth, px_m_per_depth):
         # cross with arms along the drawing axes, arm width a fifth of its length
         lx, ly = cy * ex + sy * ey, -sy * ex + cy * ey
         arm = r_m / 5
-        return np.minimum(np.maximum(np.abs(lx) - r_m, np.abs(ly) - arm), np.maximum(np.abs(ly) - r_m, np.abs(lx) - arm))
+        return np.minimum(np.maximum(np.abs(lx) - r_m, np.abs(ly) - arm),
+                          np.maximum(np.abs(ly) - r_m, np.abs(lx) - arm))
 
     return _patch_coverage(camera, np.column_stack([xy, z]), r_m, hit_x, hit_y, depth, px_m_per_depth,
                            signed_distance)

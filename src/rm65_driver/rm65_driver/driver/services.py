@@ -2,7 +2,8 @@
 resolve_stud and resolve_journal.
 
 :class:`DriverServices` is a member of :class:`~rm65_driver.driver.driver_node.DriverNode` (it creates
-the services; the state they act on is the node's :class:`~rm65_driver.driver.shared_state.DriverState`). The e-stop is a *software* stop (``set_arm_stop`` + trigger output low + a
+the services; the state they act on is the node's :class:`~rm65_driver.driver.shared_state.DriverState`).
+The e-stop is a *software* stop (``set_arm_stop`` + trigger output low + a
 latch that refuses new jobs until ``false`` on ``/arm/estop``), not a safety-rated one.
 ``move_to`` checks the workspace box (m) and the reach test (:mod:`rm65_driver.weld.reach`: the IK within the
 joint limits, as the planner checks the pose) before anything moves.

@@ -102,6 +102,9 @@ class RailControl:
 
 
 def target_in_base(target: StudTarget, world_T_base_: np.ndarray) -> StudTarget:
-    """A stud target given in ``world`` -> the same stud in the arm's base frame (``world_T_base_``: the base in world)."""
+    """A stud target given in ``world`` -> the same stud in the arm's base frame.
+
+    ``world_T_base_`` (4, 4): the base in world.
+    """
     B = np.linalg.inv(world_T_base_)
     return StudTarget(target.stud_id, B[:3, :3] @ target.position + B[:3, 3], B[:3, :3] @ target.normal)

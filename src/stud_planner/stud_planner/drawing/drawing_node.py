@@ -111,6 +111,7 @@ class DrawingNode(Node):
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_planner drawing`: spin until Ctrl-C; the process exit code."""
     return ros_io.spin_node(DrawingNode, args)
 
 

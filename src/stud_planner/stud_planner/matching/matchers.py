@@ -111,8 +111,8 @@ class _SecantSearch:
     g < 0 above) with g there, and whether its last sample straddled a depth step."""
 
     def __init__(self, xy: np.ndarray, depth: np.ndarray, camera: CameraModel, lines: VerticalLines, out: dict,
-                 zlo: np.ndarray, zhi: np.ndarray, *, tol_m: float, converge_xy_m: float, z_bracket_tol_m: float, hole_window_px: int,
-                 hole_max_window_px: int, discontinuity_m: float) -> None:
+                 zlo: np.ndarray, zhi: np.ndarray, *, tol_m: float, converge_xy_m: float, z_bracket_tol_m: float,
+                 hole_window_px: int, hole_max_window_px: int, discontinuity_m: float) -> None:
         n = xy.shape[0]
         self.xy, self.depth, self.camera, self.out, self.zlo, self.zhi = xy, depth, camera, out, zlo, zhi
         self.tol_m, self.converge_xy_m, self.z_bracket_tol_m = tol_m, converge_xy_m, z_bracket_tol_m

@@ -189,8 +189,8 @@ def match_fpm(
     with ``window_order="nearest_first"`` is the cheap variant (~9 per stud).
     Missing depth: the paper's 7x7 mean, then (``hole_fallback``) the plane-fit fallback.
     A stud not matched within tolerance: OUT_OF_VIEW if its vertical line never enters the image
-    (heights in ``z_range_m``, default :func:`observed_z_range`), NO_DEPTH if no pixel of the final window had depth, else
-    NOT_CONVERGED (the best pixel evaluated is reported).
+    (heights in ``z_range_m``, default :func:`observed_z_range`), NO_DEPTH if no pixel of the final window had
+    depth, else NOT_CONVERGED (the best pixel evaluated is reported).
     """
     xy, depth = check_inputs(targets_xy_w, depth_m, camera)
     out = empty_results("fpm", xy.shape[0])

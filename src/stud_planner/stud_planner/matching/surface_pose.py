@@ -105,7 +105,8 @@ def inclination_deg(normal_w: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(n[..., 2], -1.0, 1.0)))
 
 
-def offset_along_normal(points_w: np.ndarray, normals_w: np.ndarray, offset_m: float = M16X150_TOP_OFFSET_M) -> np.ndarray:
+def offset_along_normal(points_w: np.ndarray, normals_w: np.ndarray,
+                        offset_m: float = M16X150_TOP_OFFSET_M) -> np.ndarray:
     """Points (..., 3) moved ``offset_m`` along the unit normals (e.g. the tool top of an M16x150 stud)."""
     return np.asarray(points_w, dtype=np.float64) + offset_m * np.asarray(normals_w, dtype=np.float64)
 

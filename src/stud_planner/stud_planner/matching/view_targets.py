@@ -260,7 +260,8 @@ class NoiseMemory:
 
     def _same_camera(self, camera: CameraModel) -> bool:
         was = self._camera
-        if was is None or (was.width, was.height) != (camera.width, camera.height) or not np.array_equal(was.K, camera.K):
+        if (was is None or (was.width, was.height) != (camera.width, camera.height)
+                or not np.array_equal(was.K, camera.K)):
             return False
         cos_turn = 0.5 * (np.trace(was.R_wc.T @ camera.R_wc) - 1.0)
         return bool(np.linalg.norm(was.t_wc - camera.t_wc) <= self.max_shift_m
