@@ -40,15 +40,14 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import rclpy
+import yaml
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from stud_welding_msgs.action import WeldJob
 from stud_welding_msgs.msg import ArmState, CellStatus
-
-import numpy as np
-import yaml
 
 from rm65_driver.driver import params as driver_params
 from rm65_driver.journal.scan import read_records

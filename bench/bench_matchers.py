@@ -50,11 +50,11 @@ for _pkg in ("stud_common", "stud_perception", "stud_planner"):  # run from a ch
 
 import numpy as np  # noqa: E402
 
+from stud_perception.camera_model import CameraModel  # noqa: E402
+from stud_perception.depth_image import fill_depth_at  # noqa: E402
 from stud_perception.scene import demo_dome_scene, grid_stud_scene  # noqa: E402
 from stud_perception.scene_cameras import demo_camera  # noqa: E402
 from stud_perception.scene_render import render  # noqa: E402
-from stud_perception.camera_model import CameraModel  # noqa: E402
-from stud_perception.depth_image import fill_depth_at  # noqa: E402
 from stud_planner.matching.matchers import MatchResults, match_batch, match_bfs, match_fpm  # noqa: E402
 from stud_planner.matching.surface_pose import estimate_surface_poses_for_matches  # noqa: E402
 

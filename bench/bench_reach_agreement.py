@@ -25,9 +25,9 @@ import numpy as np
 
 from rm65_driver.driver.params import PARAMS, safety_checker
 from rm65_driver.weld.reach import ReachConfig
-from stud_common.hand_eye_in_use import resolve_hand_eye
-from stud_cell.cell_reach import CellReach
 from stud_bringup.launch import default_config_path, load_config
+from stud_cell.cell_reach import CellReach
+from stud_common.hand_eye_in_use import resolve_hand_eye
 
 
 def main(argv: list[str] | None = None) -> int:

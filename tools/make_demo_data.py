@@ -48,21 +48,21 @@ for pkg in ("stud_common", "stud_perception", "stud_planner", "stud_inspection",
 import numpy as np  # noqa: E402
 
 from rm65_driver.kinematics.rm65 import RM65Kinematics  # noqa: E402
-from rm65_driver.weld.safety import SafetyChecker, SafetyLimits  # noqa: E402
 from rm65_driver.weld.reach import Reach  # noqa: E402
+from rm65_driver.weld.safety import SafetyChecker, SafetyLimits  # noqa: E402
 from stud_bringup.demo_parts import PARTS as DEMO_PARTS  # noqa: E402
 from stud_bringup.demo_parts import DemoPart  # noqa: E402
+from stud_cell.cell_reach import CellReach  # noqa: E402
+from stud_cell.job import JobConfig  # noqa: E402
+from stud_cell.stations import footprint_m, plan_stations  # noqa: E402
 from stud_common.frames import world_T_base  # noqa: E402
 from stud_common.rotations import rpy_to_matrix  # noqa: E402
+from stud_common.strict_json import write_json  # noqa: E402
 from stud_perception.scene import MarkingBoard, SceneSpec, girder_scene, surface_height, surface_normal  # noqa: E402
 from stud_perception.scene_file import scene_from_dict, scene_to_dict  # noqa: E402
 from stud_perception.scene_solids import Cylinder, Dome, Pose2D  # noqa: E402
-from stud_common.strict_json import write_json  # noqa: E402
-from stud_cell.job import JobConfig  # noqa: E402
 from stud_planner.drawing import read_layout  # noqa: E402
 from stud_planner.drawing.dxf_writer import write_layout_dxf  # noqa: E402
-from stud_cell.cell_reach import CellReach  # noqa: E402
-from stud_cell.stations import footprint_m, plan_stations  # noqa: E402
 
 DATA = REPO / "src" / "stud_planner" / "data"
 CONFIG = REPO / "src" / "stud_perception" / "config"

@@ -7,8 +7,18 @@ import math
 
 import pytest
 
-from stud_hmi.model import (ALARMS, ArmInfo, ArmMode, CellInfo, CellState, CellView, Code, StudTable,
-                                    TargetInfo, Timeouts)
+from stud_hmi.model import (
+    ALARMS,
+    ArmInfo,
+    ArmMode,
+    CellInfo,
+    CellState,
+    CellView,
+    Code,
+    StudTable,
+    TargetInfo,
+    Timeouts,
+)
 from stud_hmi.server import to_json
 
 NAN = math.nan

@@ -13,8 +13,7 @@ import numpy as np
 from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_srvs.srv import Trigger
-from stud_welding_msgs.msg import (BendTestPlan, InspectionResult, ReworkDecision, StudInspection, WeldRecord,
-                                   WeldTarget)
+from stud_welding_msgs.msg import BendTestPlan, InspectionResult, ReworkDecision, StudInspection, WeldRecord, WeldTarget
 from stud_welding_msgs.srv import Inspect, RecordBendTest, RecordRework
 
 from rosproc import REPO, ros2_run, wait_for

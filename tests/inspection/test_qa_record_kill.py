@@ -18,9 +18,9 @@ import sys
 import textwrap
 import time
 
+from rosproc import REPO
 from stud_inspection import qa_codes
 from stud_inspection.qa_report import JSON_NAME, empty_row, read_record, write_qa_report
-from rosproc import REPO
 
 WRITER = textwrap.dedent("""
     import os, signal, sys

@@ -13,8 +13,8 @@ import subprocess
 import pytest
 
 from rosproc import REPO, wait_for
-from stud_planner.drawing import read_layout
 from stud_bringup.launcher import group_members
+from stud_planner.drawing import read_layout
 
 N_DEMO_STUDS = len(read_layout(REPO / "src" / "stud_planner" / "data" / "dome_demo.dxf").studs)
 from launch_helpers import alive

@@ -8,7 +8,6 @@ import subprocess
 
 from chromium_pdf import find_chromium, print_to_pdf
 from rosproc import REPO
-
 from stud_planner.drawing import read_layout
 
 DXF = REPO / "src" / "stud_planner" / "data" / "dome_demo.dxf"

@@ -13,8 +13,15 @@ from stud_welding_msgs.msg import ArmState, CellStatus, Registration
 from rm65_driver.journal.writer import Journal
 from rm65_driver.kinematics.rm65 import RM65Kinematics
 from stud_bag import BagWriter
-from stud_bringup.demo_score import (accuracy_at_ends, cell_bag_summary, job_span_s, rail_moves, registrations, score,
-                                     welds_from_journal)
+from stud_bringup.demo_score import (
+    accuracy_at_ends,
+    cell_bag_summary,
+    job_span_s,
+    rail_moves,
+    registrations,
+    score,
+    welds_from_journal,
+)
 from stud_common import names
 from stud_common.frames import RailDeviation, true_world_correction, world_T_base
 from stud_perception.scene import girder_scene, surface_height, surface_normal

@@ -16,10 +16,10 @@ import math
 
 import numpy as np
 
+from stud_bringup.demo import gun_axes_at_weld, score
 from stud_perception.scene import MarkingBoard, SceneSpec, surface_normal
 from stud_perception.scene_file import load_scene
 from stud_perception.scene_solids import Dome, Pose2D
-from stud_bringup.demo import gun_axes_at_weld, score
 from test_curved_cell import BOARD_POSE, part_files, run_job
 
 

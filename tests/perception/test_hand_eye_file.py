@@ -8,11 +8,10 @@ import numpy as np
 import pytest
 import yaml
 
-from stud_common.hand_eye_in_use import HandEyeLimits
+from stud_common.hand_eye_in_use import HandEyeFileError, HandEyeLimits, load_hand_eye_file, resolve_hand_eye
 from stud_perception.hand_eye import calibrate_hand_eye
-from stud_perception.hand_eye_solvers import rotation_angle_deg
-from stud_common.hand_eye_in_use import HandEyeFileError, load_hand_eye_file, resolve_hand_eye
 from stud_perception.hand_eye_file import calibration_record, write_yaml
+from stud_perception.hand_eye_solvers import rotation_angle_deg
 from test_hand_eye import DRAWING, X_OFF, reachable_tool_poses, synthetic_shots
 
 

@@ -7,9 +7,8 @@ import math
 import numpy as np
 import pytest
 
+from stud_perception.mark_registration import MarkFitConfig, RegistrationTrail, associate_marks, register_view_on_marks
 from stud_perception.markers import MarkDetection, MarkDetectorConfig, find_mark_candidates
-from stud_perception.mark_registration import (MarkFitConfig, RegistrationTrail, associate_marks,
-                                               register_view_on_marks)
 from stud_perception.registration import RegistrationError, fit_marks, local_to_world
 from stud_perception.scene import girder_scene
 from stud_perception.scene_cameras import view_camera

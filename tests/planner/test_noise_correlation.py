@@ -84,10 +84,10 @@ def test_correlated_noise_keeps_smooth_windows_on_the_fast_path(monkeypatch):
     """The fast path's gate is the frame's whole noise: against the 8x8 blocks' plane-fit RMS alone
     (blind to the noise's slow part), nearly every window of a correlated frame went to the robust
     pixel path, at twice the cost, for the same normals."""
+    import stud_planner.matching.surface_pose as surface_pose
     from stud_perception.scene import demo_dome_scene, grid_stud_scene
     from stud_perception.scene_cameras import view_camera
     from stud_perception.scene_render import render
-    import stud_planner.matching.surface_pose as surface_pose
     from stud_planner.matching.view_targets import PlannerConfig, plan_view
 
     scene = grid_stud_scene(100, demo_dome_scene(), extent_m=(0.26, 0.2))

@@ -8,15 +8,15 @@ import json
 import numpy as np
 import pytest
 
-from rm65_driver.protocol.arm_client import ArmClient
 from rm65_driver.journal.writer import Journal
 from rm65_driver.kinematics.rm65 import RM65Kinematics, pose6_to_matrix
+from rm65_driver.protocol.arm_client import ArmClient
 from rm65_driver.weld.reach import Reach, ReachConfig, ReachConfigError
 from rm65_driver.weld.reach_move import detour, joint_path_problem, plan_move
 from rm65_driver.weld.safety import SafetyChecker, SafetyLimits
-from rm65_sim.simulator import ArmSimulator
 from rm65_driver.weld.weld_job import StudTarget, WeldParams
 from rm65_driver.weld.weld_sequence import WeldSequence
+from rm65_sim.simulator import ArmSimulator
 from rm65_testing import FAST, HOME_DEG, welds_per_stud
 
 REACH = Reach(ReachConfig(standoff_m=0.06, preferred_joint_signs=(0, 0, -1, 0, -1, 0)))

@@ -6,8 +6,7 @@ import pytest
 
 from rm65_driver.kinematics.rm65 import RM65Kinematics, matrix_to_pose6, trapezoid_profile
 from rm65_driver.protocol import messages as P
-from rm65_sim.motion import (LineSegment, Motion, MotionLimits, SegmentProfile, junction_speed, line_segment,
-                                   plan_motion)
+from rm65_sim.motion import LineSegment, Motion, MotionLimits, SegmentProfile, junction_speed, line_segment, plan_motion
 from rm65_sim.simulator import ArmSimulator
 
 

@@ -10,9 +10,8 @@ import pytest
 from rm65_driver.protocol import messages as P
 from rm65_driver.rail.axis import RailAxis, RailMode
 from rm65_sim.simulator import ArmSimulator
-from stud_common.frames import RailDeviation, carriage_in_world
-
 from rm65_testing import HOME_DEG, wait_for
+from stud_common.frames import RailDeviation, carriage_in_world
 
 AXIS = RailAxis(length_m=6.0, pos_unit_m=1e-6, max_speed_m_s=0.5, accel_m_s2=0.5)
 SDK_STATE_KEYS = {"state", "pos", "current", "err_flag", "en_flag", "mode", "joint_id"}

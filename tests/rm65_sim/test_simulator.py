@@ -12,7 +12,6 @@ import pytest
 from rm65_driver.kinematics.rm65 import RM65Kinematics
 from rm65_driver.protocol import messages as P
 from rm65_sim.simulator import ArmSimulator, main
-
 from rm65_testing import wait_for
 
 

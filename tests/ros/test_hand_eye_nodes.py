@@ -15,10 +15,10 @@ from stud_welding_msgs.msg import ArmState
 
 from rosproc import REPO, ros2_run, wait_for
 from stud_common import ros_io
+from stud_common.rotations import matrix_to_quaternion, rpy_to_matrix
 from stud_perception import image_io
 from stud_perception.camera_node import camera_pose_from_tool
 from stud_perception.hand_eye_solvers import rotation_angle_deg
-from stud_common.rotations import matrix_to_quaternion, rpy_to_matrix
 from stud_perception.scene_cameras import view_camera
 from stud_perception.scene_file import load_scene
 from stud_perception.scene_render import render

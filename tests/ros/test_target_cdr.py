@@ -18,8 +18,8 @@ from stud_perception.scene_cameras import demo_camera
 from stud_perception.scene_render import render
 from stud_planner.matching.target_cdr import WELD_TARGET_ARRAY_FIELDS, WELD_TARGET_FIELDS, weld_target_array_cdr
 from stud_planner.matching.target_table import COLUMNS
-from stud_planner.msg_convert import weld_target_table
 from stud_planner.matching.view_targets import STATUS_OUT_OF_VIEW, plan_view
+from stud_planner.msg_convert import weld_target_table
 
 
 @pytest.fixture(scope="module")

@@ -19,7 +19,6 @@ from mcap.reader import make_reader
 
 from bag_nodes import content_digest
 from rosproc import Proc, python_proc, wait_for
-
 from stud_bag import BagError, BagReader, BagWriter, Qos, open_bag
 from stud_bag.msgdef import message_definition
 
@@ -189,7 +188,6 @@ def test_bag_writer_output_opens_in_mcap_and_rosbags_readers(tmp_path, mode):
 @pytest.mark.parametrize("mode", ["none", "file"])
 def test_bag_writer_splits_by_duration_and_reader_joins_the_files(tmp_path, mode):
     from rosbags.rosbag2 import Reader
-
     from std_msgs.msg import String
 
     with BagWriter(tmp_path / "split", max_bag_duration_s=0.25, compression_mode=mode) as bag:

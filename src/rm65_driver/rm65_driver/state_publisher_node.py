@@ -28,14 +28,11 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from stud_welding_msgs.msg import Registration
 
-from stud_common import frames, hand_eye_ros, ros_io, tf_io
-from stud_common.ros_io import Param, three_numbers
-
 from rm65_driver.kinematics.rm65 import D6_BY_VARIANT
 from rm65_driver.kinematics.robot_description import RM65Description, rm65_urdf
 from rm65_driver.kinematics.urdf_model import RobotModel, UrdfError, parse_urdf
-from stud_common import names
-
+from stud_common import frames, hand_eye_ros, names, ros_io, tf_io
+from stud_common.ros_io import Param, three_numbers
 
 PARAMS = [
     Param("robot_description_file", "", "URDF file to publish instead of the generated RM-65 model "

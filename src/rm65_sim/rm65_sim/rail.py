@@ -43,13 +43,18 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from stud_common.frames import RailDeviation, world_T_base
-
 from rm65_driver.kinematics.rm65 import trapezoid_profile
 from rm65_driver.protocol import messages as P
-from rm65_driver.rail.axis import (DEVICE_EXPAND, EXPAND_SET_POS, EXPAND_SET_SPEED, RailAxis, RailMode,
-                                   expand_state_message)
+from rm65_driver.rail.axis import (
+    DEVICE_EXPAND,
+    EXPAND_SET_POS,
+    EXPAND_SET_SPEED,
+    RailAxis,
+    RailMode,
+    expand_state_message,
+)
 from rm65_sim.motion import SegmentProfile
+from stud_common.frames import RailDeviation, world_T_base
 
 _log = logging.getLogger("rm65_sim.simulator")  # one logger for all parts of the simulator
 

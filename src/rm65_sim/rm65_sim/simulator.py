@@ -56,8 +56,15 @@ from rm65_driver.protocol import messages as P
 from rm65_driver.rail.axis import EXPAND_SET_POS, RailAxis
 from rm65_sim.controller import N_IO, N_TOOL_IO, ControllerCommands, DOEvent
 from rm65_sim.faults import Fault, FaultInjection
-from rm65_sim.motion import (Motion, MotionLimits, SegmentProfile, junction_speed, line_segment, plan_motion,
-                             trajectory_msg)
+from rm65_sim.motion import (
+    Motion,
+    MotionLimits,
+    SegmentProfile,
+    junction_speed,
+    line_segment,
+    plan_motion,
+    trajectory_msg,
+)
 from rm65_sim.rail import SimRail
 from rm65_sim.server import Connection, TcpServer
 from stud_common.frames import RailDeviation

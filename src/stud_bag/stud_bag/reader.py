@@ -24,7 +24,7 @@ from mcap.reader import SeekingReader
 from mcap.records import Channel, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
-from stud_bag.core import BagError, BagMessage, MCAP_MAGIC, READ_ERRORS, TopicSummary
+from stud_bag.core import MCAP_MAGIC, READ_ERRORS, BagError, BagMessage, TopicSummary
 from stud_bag.metadata import (
     METADATA_FILENAME,
     BagMetadata,

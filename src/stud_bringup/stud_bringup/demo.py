@@ -44,12 +44,10 @@ from pathlib import Path
 import numpy as np
 
 from stud_bringup.demo_parts import PARTS, DemoPart
-from stud_bringup.demo_score import (accuracy_at_ends, cell_bag_summary, gun_axes_at_weld, score,  # noqa: F401
-                                     welds_from_journal)
+from stud_bringup.demo_score import accuracy_at_ends, cell_bag_summary, gun_axes_at_weld, score, welds_from_journal  # noqa: F401
+from stud_common import names
 from stud_common.frames import RailDeviation
 from stud_common.strict_json import write_json
-from stud_common import names
-
 
 #: How far the simulated camera's true mount lies from the hand-eye the cell works with: (x, y, z) m
 #: and (roll, pitch, yaw) deg in the weld tool's frame, 0.24 mm and 0.05 deg. The order a good
@@ -70,8 +68,8 @@ def calibration_residual_vars(user_vars: list[str]) -> list[str]:
     """``--var`` arguments putting the simulated camera :data:`CALIBRATION_RESIDUAL` off the cell's
     typed hand-eye (cell.yaml's ``hand_eye_xyz_m`` / ``hand_eye_rpy_deg``); none when ``user_vars``
     set a hand-eye of their own."""
-    from stud_common.rotations import matrix_to_rpy, transform_xyz_rpy
     from stud_bringup.launch import default_config_path, load_config
+    from stud_common.rotations import matrix_to_rpy, transform_xyz_rpy
 
     if sets_hand_eye(user_vars):
         return []
@@ -100,8 +98,8 @@ def share_file(package: str, relative: str) -> Path:
 def export_overlays(bag_dir: Path, out_dir: Path) -> int:
     """The matcher's overlay images from the recorded bag as PNG files."""
     import cv2
-    from stud_bag import open_bag
 
+    from stud_bag import open_bag
     from stud_perception import image_io
 
     if not bag_dir.exists():

@@ -33,8 +33,8 @@ from typing import Any, NoReturn, Sequence
 
 import yaml
 
+from stud_bringup.launcher import ChildSpec, Launcher, LaunchError
 from stud_common.stacks import STACK_DUMP_SIGNAL
-from stud_bringup.launcher import ChildSpec, LaunchError, Launcher
 
 TOP_KEYS = {"launch", "vars", "nodes", "modes"}
 LAUNCH_KEYS = {"sigint_timeout_s": float, "sigterm_timeout_s": float, "report_lines": int}

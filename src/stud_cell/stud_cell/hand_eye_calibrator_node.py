@@ -39,21 +39,32 @@ from std_srvs.srv import Trigger
 from stud_welding_msgs.msg import ArmState, StudLayout
 from stud_welding_msgs.srv import MoveTo
 
-from stud_common import hand_eye_ros, ros_io
-from stud_perception import image_io
+from stud_cell.hand_eye_views import (
+    CalibrationView,
+    ViewAimer,
+    ViewPlanError,
+    board_centre_w,
+    plan_calibration_views,
+    plan_check_views,
+    station_view,
+)
+from stud_common import hand_eye_ros, names, ros_io
 from stud_common.hand_eye_in_use import camera_in_world
+from stud_common.ros_io import Param, three_numbers
 from stud_common.rotations import transform
-from stud_perception.hand_eye import (BoardShot, board_points_m, board_pose_from_marks, calibrate_hand_eye,
-                                      check_with_enough_views)
-from stud_perception.hand_eye_solvers import HandEyeError, rotation_angle_deg
+from stud_perception import image_io
+from stud_perception.hand_eye import (
+    BoardShot,
+    board_points_m,
+    board_pose_from_marks,
+    calibrate_hand_eye,
+    check_with_enough_views,
+)
 from stud_perception.hand_eye_file import calibration_record, check_record, write_yaml
+from stud_perception.hand_eye_solvers import HandEyeError, rotation_angle_deg
 from stud_perception.markers import MarkDetectorConfig, detect_marks
 from stud_perception.registration import layout_marks_m
-from stud_common.ros_io import Param, three_numbers
 from stud_perception.view_registration import config_for_layout
-from stud_cell.hand_eye_views import (CalibrationView, ViewAimer, ViewPlanError, board_centre_w,
-                                              plan_calibration_views, plan_check_views, station_view)
-from stud_common import names
 
 
 def _tilts(v) -> str | None:

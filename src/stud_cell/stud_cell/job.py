@@ -36,18 +36,20 @@ from pathlib import Path
 
 import numpy as np
 
-from stud_common.vocabulary import TargetStatus
-from stud_perception.registration import local_to_world
-from stud_common.strict_json import write_json
-from stud_inspection import bend, qa_codes, qa_report, rework
 from stud_cell.board_search import BoardSearchError, board_radius_m, search_plan
 from stud_cell.cell_reach import CellReach
 from stud_cell.station_reach import StationGeometry, reachable_stations
 from stud_cell.stations import Station, StationPlan, footprint_m, plan_stations, reshoot_station
 from stud_cell.unreachable import UnreachableStuds
+from stud_common.strict_json import write_json
+from stud_common.vocabulary import TargetStatus
+from stud_inspection import bend, qa_codes, qa_report, rework
+from stud_perception.registration import local_to_world
 from stud_planner.matching.target_table import BestViewKey, choose_best
 
-from stud_cell.job_ports import (DONE, FAILED, IDLE, INSPECTING, MATCHING, MOVING, PAUSED,  # noqa: F401
+# The ports' names, re-exported: callers import the job's vocabulary from here. One statement kept
+# in its compact wrapping (isort would spread its 24 names one per line).
+from stud_cell.job_ports import (DONE, FAILED, IDLE, INSPECTING, MATCHING, MOVING, PAUSED,  # noqa: F401  # isort: skip
                                   REGISTERING, RESHOOT_STATUS_TEXTS, SHOOTING, WELDING, CellPorts, DriverLost,
                                   InspectionOutcome, InspectionUnavailable, JobAborted, JobConfig, Layout, MoveRefused,
                                   Registration, Target, View, WeldOutcome, table_targets)

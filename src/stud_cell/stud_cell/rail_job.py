@@ -34,14 +34,26 @@ import math
 
 import numpy as np
 
-from stud_cell.job import (MATCHING, MOVING, REGISTERING, WELDING, CellJob, CellPorts, JobAborted, JobConfig, Layout,
-                           MoveRefused, Registration, Target, View)
 from stud_cell.cell_reach import CellReach
-from stud_cell.rail_plan import (CarriageStop, Rail, RailPlan, RailPlanConfig, RailReach, plan_rail,
-                                 registration_views)
+from stud_cell.job import (
+    MATCHING,
+    MOVING,
+    REGISTERING,
+    WELDING,
+    CellJob,
+    CellPorts,
+    JobAborted,
+    JobConfig,
+    Layout,
+    MoveRefused,
+    Registration,
+    Target,
+    View,
+)
+from stud_cell.rail_plan import CarriageStop, Rail, RailPlan, RailPlanConfig, RailReach, plan_rail, registration_views
 from stud_cell.station_reach import StationGeometry
-from stud_perception.registration import local_to_world
 from stud_cell.stations import Station, StationPlan, reshoot_station
+from stud_perception.registration import local_to_world
 
 #: Carriage positions closer than this are the same (m): no move, no new registration.
 SAME_POSITION_M = 1e-6

@@ -45,11 +45,11 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from rm65_driver.weld.reach import Reach
-from stud_common.frames import world_T_base
-from stud_common.hand_eye_in_use import tool_in_world
 from stud_cell.cell_reach import CellReach, camera_pose_as_sent
 from stud_cell.station_reach import StationGeometry
 from stud_cell.stations import Station
+from stud_common.frames import world_T_base
+from stud_common.hand_eye_in_use import tool_in_world
 
 #: Carriage intervals (m): sorted, disjoint ``(lo, hi)`` pairs.
 Intervals = tuple[tuple[float, float], ...]

@@ -41,28 +41,32 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo
+from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
-from std_msgs.msg import String
 from stud_welding_msgs.msg import ArmState, CellStatus, Registration, StudLayout, WeldRecord, WeldTargetArray
 from stud_welding_msgs.srv import Inspect, MoveTo, RailMove
 
-from stud_common import ros_io
-from stud_common.executor_calls import ExecutorCalls
-from stud_common.stacks import dump_stacks_on_signal
-from stud_perception.camera_model import nadir_rotation
-from stud_common.vocabulary import CellState
 from rm65_driver.weld.reach import ReachConfig, ReachConfigError
 from stud_cell import job as cell_job
 from stud_cell.cell_reach import CellReach
 from stud_cell.job import DriverLost, InspectionUnavailable, JobAborted, MoveRefused
 from stud_cell.rail_job import RailJob
-from stud_cell.stations import StationPlanningError, footprint_m
-from stud_inspection.qa_params import SAMPLING_PARAMS, overrides
-from stud_planner.msg_convert import (inspection_extras, inspection_rows, layout_from_msg, registration_from_msg,
-                                      weld_target_table)
 from stud_cell.sequencer_params import PARAMS
-from stud_common import names
+from stud_cell.stations import StationPlanningError, footprint_m
+from stud_common import names, ros_io
+from stud_common.executor_calls import ExecutorCalls
+from stud_common.stacks import dump_stacks_on_signal
+from stud_common.vocabulary import CellState
+from stud_inspection.qa_params import SAMPLING_PARAMS, overrides
+from stud_perception.camera_model import nadir_rotation
+from stud_planner.msg_convert import (
+    inspection_extras,
+    inspection_rows,
+    layout_from_msg,
+    registration_from_msg,
+    weld_target_table,
+)
 
 #: /arm/welds: every weld of the session, also for a sequencer started late.
 WELDS_QOS = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)

@@ -24,11 +24,10 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, Pose, Quaternion
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
-from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
-                       qos_profile_sensor_data)
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
-from stud_common.rotations import matrix_to_quaternion, quaternion_to_matrix
 from stud_common import names
+from stud_common.rotations import matrix_to_quaternion, quaternion_to_matrix
 from stud_common.stacks import dump_stacks_on_signal
 
 # -- QoS ------------------------------------------------------------------------------------------
@@ -175,8 +174,11 @@ def declare_params(node: Node, params: list[Param], on_change: Callable[[dict], 
     ``SystemExit(2)`` -- never a traceback, never a node that starts and fails later. At run time
     the same checks refuse the change through the parameter callback.
     """
-    from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterValueException,
-                                  ParameterUninitializedException)
+    from rclpy.exceptions import (
+        InvalidParameterTypeException,
+        InvalidParameterValueException,
+        ParameterUninitializedException,
+    )
 
     def current(p: Param) -> Any:
         # An empty list (a parameter file's [], -p name:=[]) has no ROS type: rclpy holds it as "not set".
@@ -416,8 +418,7 @@ def spin_node(node_factory: Callable[[], AnyNode], args: list[str] | None = None
     :data:`SPIN_WAKE_S` at least.
     A node with a ``shutdown()`` method has it called before its callbacks are drained."""
     import rclpy
-    from rclpy.executors import (Executor, ExternalShutdownException, MultiThreadedExecutor,
-                                   SingleThreadedExecutor)
+    from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 
     keep_freed_memory()
     dump_stacks_on_signal()

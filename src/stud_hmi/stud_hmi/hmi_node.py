@@ -51,18 +51,25 @@ from sensor_msgs.msg import Image
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
-from stud_welding_msgs.msg import (ArmState, BendTestPlan, CellStatus, InspectionResult, Registration, ReworkDecision,
-                                   StudLayout, WeldTargetArray)
+from stud_welding_msgs.msg import (
+    ArmState,
+    BendTestPlan,
+    CellStatus,
+    InspectionResult,
+    Registration,
+    ReworkDecision,
+    StudLayout,
+    WeldTargetArray,
+)
 from stud_welding_msgs.srv import RecordBendTest, RecordRework, ResolveStud
 
-from stud_common import hand_eye_ros, ros_io
-from stud_perception import image_io
+from stud_common import hand_eye_ros, names, ros_io
 from stud_common.ros_io import Param, three_numbers
 from stud_hmi.model import STUD_DECISIONS, ArmInfo, ArmMode, CellInfo, CellView, TargetInfo, Timeouts
 from stud_hmi.part_plan import RM65_REACH_M, PartPlan, RailConfig, StationInfo
-from stud_inspection.inspector_node import REWORK_QOS
 from stud_hmi.server import INSPECTION_OVERLAY_URL, HmiServer, WebSocketConnection, default_static_dir
-from stud_common import names
+from stud_inspection.inspector_node import REWORK_QOS
+from stud_perception import image_io
 
 PARAMS = [
     Param("port", 8090, "TCP port of the HMI page and its WebSocket (/ws)", min=1, max=65535, read_only=True),

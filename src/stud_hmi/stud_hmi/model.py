@@ -26,12 +26,22 @@ from dataclasses import dataclass
 from typing import Any, Iterable
 
 from stud_common.vocabulary import ArmMode, CellState, TargetStatus
-from stud_inspection.operator_log import OperatorError, operator_name
 from stud_hmi.alarms import ALARMS, DIAG_CODE, STATE_SOURCES, Alarm, AlarmDef, AlarmList, Code, Severity
 from stud_hmi.calibration_display import HandEyeDisplay, hand_eye_text, same_hand_eye
 from stud_hmi.job_clock import ENDED_STATES, OPERATOR_STOP_TEXT, RUNNING_STATES, JobClock
-from stud_hmi.stud_table import (FINAL_WELD_STATES, STATUS_NOT_SEEN, STATUS_OUT_OF_VIEW, WELD_ACTIVE,
-                                         WELD_FAILED, WELD_NONE, WELD_SKIPPED, WELD_WELDED, StudTable, TargetInfo)
+from stud_hmi.stud_table import (
+    FINAL_WELD_STATES,
+    STATUS_NOT_SEEN,
+    STATUS_OUT_OF_VIEW,
+    WELD_ACTIVE,
+    WELD_FAILED,
+    WELD_NONE,
+    WELD_SKIPPED,
+    WELD_WELDED,
+    StudTable,
+    TargetInfo,
+)
+from stud_inspection.operator_log import OperatorError, operator_name
 
 __all__ = [
     "ArmMode", "CellState", "TargetStatus",

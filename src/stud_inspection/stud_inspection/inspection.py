@@ -34,9 +34,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from stud_perception.camera_model import CameraModel
 from stud_common.rotations import float3, frame_from_normal
 from stud_inspection.collar import CollarMeasurement, CollarSettings, measure_collar
+from stud_perception.camera_model import CameraModel
 
 
 class Verdict(str, enum.Enum):

@@ -39,13 +39,12 @@ from sensor_msgs.msg import CameraInfo, Image
 from stud_welding_msgs.msg import BendTest, BendTestPlan, InspectionResult, ReworkDecision, StudInspection
 from stud_welding_msgs.srv import Inspect, RecordBendTest, RecordRework
 
-from stud_common import ros_io
-from stud_perception import image_io
+from stud_common import names, ros_io
 from stud_common.ros_io import Param
 from stud_inspection import bend, qa_codes, qa_report, rework
 from stud_inspection.inspection import InspectionLimits, Verdict, draw_inspection_overlay, inspect_studs
 from stud_inspection.qa_params import LIMIT_PARAMS, QA_CODE_PARAM, overrides
-from stud_common import names
+from stud_perception import image_io
 
 _LIMITS = InspectionLimits()
 PARAMS = [

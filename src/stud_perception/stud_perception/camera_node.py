@@ -34,23 +34,27 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import Trigger
 
-from stud_common import hand_eye_ros, ros_io
+from stud_common import hand_eye_ros, names, ros_io
+from stud_common.frames import RailDeviation, true_world_correction
+from stud_common.hand_eye_in_use import camera_in_world
+from stud_common.ros_io import Param, three_numbers
+from stud_common.rotations import transform, transform_xyz_rpy
 from stud_perception import image_io
 from stud_perception.camera_model import CameraModel
 from stud_perception.rectify import FISHEYE_MODELS, PINHOLE_MODELS, has_distortion
-from stud_common.ros_io import Param, three_numbers
-from stud_common.hand_eye_in_use import camera_in_world
-from stud_common.frames import RailDeviation, true_world_correction
-from stud_common.rotations import transform, transform_xyz_rpy
 from stud_perception.scene import demo_dome_scene
-from stud_perception.scene_cameras import (DEMO_FOV_DISTANCE_M, DEMO_FOV_WIDTH_M, DEMO_IMAGE_SIZE, distort_view,
-                                           view_camera)
+from stud_perception.scene_cameras import (
+    DEMO_FOV_DISTANCE_M,
+    DEMO_FOV_WIDTH_M,
+    DEMO_IMAGE_SIZE,
+    distort_view,
+    view_camera,
+)
 from stud_perception.scene_file import load_scene
 from stud_perception.scene_render import render
 from stud_perception.scene_sensor import MAX_DEPTH_NOISE_M
 from stud_perception.scene_solids import SceneError
 from stud_perception.welded_studs import DefectsByPosition, StudCylinder, welded_stud
-from stud_common import names
 
 OPTICAL_FRAME = "camera_color_optical_frame"
 

@@ -34,8 +34,14 @@ import numpy as np
 
 from stud_common.hand_eye_in_use import HandEyeLimits
 from stud_common.rotations import matrix_to_quaternion, matrix_to_rpy, rigid_inverse, transform
-from stud_perception.hand_eye_solvers import (HandEyeError, project_so3, rotation_angle_deg, rotation_exp, rotation_log,
-                                              solve_ax_xb)
+from stud_perception.hand_eye_solvers import (
+    HandEyeError,
+    project_so3,
+    rotation_angle_deg,
+    rotation_exp,
+    rotation_log,
+    solve_ax_xb,
+)
 from stud_perception.hand_eye_spread import CheckLimits, check_limits, measure_mark_noise, solution_covariance
 
 __all__ = ["BoardShot", "MarkCheck", "HandEyeResult", "HandEyeCheck",

@@ -21,7 +21,6 @@ from stud_perception.camera_model import CameraModel, CameraModelError
 from stud_perception.depth_image import DepthImageError, depth_image_to_m
 from stud_perception.rectify import Rectifier, rectifier_for
 
-
 _ENCODINGS = {  # encoding -> (dtype, channels)
     "rgb8": (np.uint8, 3), "bgr8": (np.uint8, 3), "rgba8": (np.uint8, 4), "bgra8": (np.uint8, 4),
     "mono8": (np.uint8, 1), "8UC1": (np.uint8, 1), "8UC3": (np.uint8, 3),

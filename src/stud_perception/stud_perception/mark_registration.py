@@ -40,8 +40,14 @@ import numpy as np
 from stud_perception.camera_model import CameraModel
 from stud_perception.depth_image import FillRule
 from stud_perception.markers import MarkCandidates, MarkDetection, MarkDetectorConfig, MarkStatus, find_mark_candidates
-from stud_perception.registration import (BOARD_LABELS, MarkRegistration, RegistrationError, fit_marks, local_to_world,
-                                          registration_from_marks)
+from stud_perception.registration import (
+    BOARD_LABELS,
+    MarkRegistration,
+    RegistrationError,
+    fit_marks,
+    local_to_world,
+    registration_from_marks,
+)
 from stud_perception.view_registration import ViewRegistration
 
 

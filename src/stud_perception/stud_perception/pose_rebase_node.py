@@ -17,12 +17,10 @@ from __future__ import annotations
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 
-from stud_common import hand_eye_ros, ros_io
+from stud_common import hand_eye_ros, names, ros_io
+from stud_common.ros_io import Param, three_numbers
 from stud_common.rotations import transform, transform_xyz_rpy
 from stud_perception.hand_eye import rebase_camera_pose
-from stud_common.ros_io import Param, three_numbers
-from stud_common import names
-
 
 PARAMS = [
     ros_io.SENSOR_QOS_PARAM,

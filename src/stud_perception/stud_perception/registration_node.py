@@ -33,15 +33,19 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import Trigger
 from stud_welding_msgs.msg import Registration, StudLayout
 
-from stud_common import ros_io
+from stud_common import names, ros_io
+from stud_common.ros_io import Param
 from stud_perception import image_io
 from stud_perception.mark_registration import MarkFitConfig, RegistrationTrail
 from stud_perception.markers import MarkDetectorConfig
-from stud_perception.registration import (BOARD_LABELS, MarkRegistration, layout_marks_m, layout_reference_marks_m,
-                                          local_to_world)
-from stud_common.ros_io import Param
+from stud_perception.registration import (
+    BOARD_LABELS,
+    MarkRegistration,
+    layout_marks_m,
+    layout_reference_marks_m,
+    local_to_world,
+)
 from stud_perception.view_registration import config_for_layout, draw_registration_overlay, register_view
-from stud_common import names
 
 PARAMS = [
     ros_io.SENSOR_QOS_PARAM,

@@ -34,8 +34,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stud_perception.scene_solids import Component, Dome, Girder, Plate, Pose2D, SceneError, finite_pair
-from stud_perception.welded_studs import (DEFAULT_COLLAR_HEIGHT_M, DEFAULT_COLLAR_WIDTH_M, DEFAULT_STUD_DIAMETER_M,
-                                         DEFAULT_STUD_LENGTH_M)
+from stud_perception.welded_studs import (
+    DEFAULT_COLLAR_HEIGHT_M,
+    DEFAULT_COLLAR_WIDTH_M,
+    DEFAULT_STUD_DIAMETER_M,
+    DEFAULT_STUD_LENGTH_M,
+)
 
 # Surface ids of :attr:`stud_perception.scene_render.RenderedView.surface_id`.
 SURFACE_NONE = -1

@@ -15,8 +15,18 @@ import numpy as np
 
 from stud_perception.camera_model import CameraModel
 from stud_perception.depth_image import depth_mm_to_m
-from stud_perception.scene import (SURFACE_BOARD, SURFACE_COLLAR, SURFACE_COMPONENT, SURFACE_NONE, SURFACE_OBSTACLE,
-                                   SURFACE_STUD, SURFACE_TABLE, SceneSpec, surface_height, surface_normal)
+from stud_perception.scene import (
+    SURFACE_BOARD,
+    SURFACE_COLLAR,
+    SURFACE_COMPONENT,
+    SURFACE_NONE,
+    SURFACE_OBSTACLE,
+    SURFACE_STUD,
+    SURFACE_TABLE,
+    SceneSpec,
+    surface_height,
+    surface_normal,
+)
 from stud_perception.scene_sensor import sensor_depth_mm, specular_mask
 from stud_perception.scene_solids import Component, SceneError
 from stud_perception.welded_studs import StudCollar, StudCylinder

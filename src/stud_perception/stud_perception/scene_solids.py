@@ -14,6 +14,7 @@ from typing import ClassVar, Union
 
 import numpy as np
 
+
 class SceneError(ValueError):
     """A scene description that cannot be rendered (names the field and the value)."""
 

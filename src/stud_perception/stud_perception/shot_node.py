@@ -24,11 +24,9 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import Trigger
 from stud_welding_msgs.msg import ArmState
 
-from stud_common import hand_eye_ros, ros_io
-from stud_perception.camera_node import OPTICAL_FRAME, camera_pose_from_tool
+from stud_common import hand_eye_ros, names, ros_io
 from stud_common.ros_io import Param
-from stud_common import names
-
+from stud_perception.camera_node import OPTICAL_FRAME, camera_pose_from_tool
 
 PARAMS = [
     Param("input_color_topic", "/camera_driver/color/image_raw", "the driver's colour image topic"),

@@ -30,14 +30,14 @@ import struct
 import sys
 import time
 from dataclasses import dataclass, replace
-from typing import Any
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from stud_common import ros_io
-from stud_perception import image_io
+from stud_common import names, ros_io
 from stud_common.strict_json import write_json
+from stud_perception import image_io
 from stud_perception.mark_registration import MarkFitConfig, RegistrationTrail
 from stud_perception.markers import MarkDetectorConfig
 from stud_perception.registration import MarkRegistration
@@ -47,7 +47,6 @@ from stud_planner.drawing.limits import add_limit_arguments, cli_hint, limits_fr
 from stud_planner.matching.gun_clearance import GunModel
 from stud_planner.matching.target_table import TargetTable
 from stud_planner.matching.view_targets import ALGORITHMS, PlannerConfig, draw_targets_overlay, plan_view
-from stud_common import names
 
 DEFAULT_TOPICS = {"color": names.COLOR_IMAGE, "depth": names.DEPTH_IMAGE,
                   "info": names.CAMERA_INFO, "pose": names.CAMERA_POSE}

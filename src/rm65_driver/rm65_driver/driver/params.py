@@ -15,16 +15,15 @@ import os
 
 import numpy as np
 
-from stud_common import hand_eye_ros
-from stud_common.ros_io import Param, three_numbers
-from stud_common.vocabulary import OnDisconnect, StudOrder, choices
-
 from rm65_driver.kinematics.rm65 import D6_BY_VARIANT, DHModel, RM65Kinematics
 from rm65_driver.protocol import messages as P
 from rm65_driver.rail.axis import RailAxis, RailRequestError
+from rm65_driver.weld.goal_checks import GoalTolerances
 from rm65_driver.weld.safety import SafetyChecker, SafetyLimits
 from rm65_driver.weld.weld_job import WeldParams
-from rm65_driver.weld.goal_checks import GoalTolerances
+from stud_common import hand_eye_ros
+from stud_common.ros_io import Param, three_numbers
+from stud_common.vocabulary import OnDisconnect, StudOrder, choices
 
 
 def default_journal() -> str:

@@ -34,8 +34,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
 
-from stud_common.vocabulary import JournalStatus
-
 from rm65_driver.journal.records import (
     STARTED,
     TORN_TAIL,
@@ -46,6 +44,7 @@ from rm65_driver.journal.records import (
     parse_line,
     studs_in,
 )
+from stud_common.vocabulary import JournalStatus
 
 
 @dataclass(frozen=True)

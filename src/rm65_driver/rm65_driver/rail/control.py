@@ -20,13 +20,19 @@ from typing import Sequence
 
 import numpy as np
 
-from stud_common.frames import world_T_base
-
 from rm65_driver.protocol.arm_client import ArmClient, ArmCommandError
 from rm65_driver.protocol.messages import ProtocolError
-from rm65_driver.rail.axis import (DEVICE_EXPAND, RailAxis, RailReading, expand_get_state, expand_set_pos,
-                                   expand_set_speed, parse_expand_state)
+from rm65_driver.rail.axis import (
+    DEVICE_EXPAND,
+    RailAxis,
+    RailReading,
+    expand_get_state,
+    expand_set_pos,
+    expand_set_speed,
+    parse_expand_state,
+)
 from rm65_driver.weld.weld_job import StudTarget
+from stud_common.frames import world_T_base
 
 
 class RailControl:

@@ -38,10 +38,17 @@ from typing import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
+from rm65_driver.kinematics.rm65 import (
+    D6_BY_VARIANT,
+    JOINT_LIMITS_DEG,
+    SHOULDER_M,
+    WORKING_RADIUS_M,
+    DHModel,
+    RM65Kinematics,
+    rotation_vector,
+    tool_pose_facing,
+)
 from stud_common.hand_eye_in_use import tool_in_world
-
-from rm65_driver.kinematics.rm65 import (D6_BY_VARIANT, JOINT_LIMITS_DEG, SHOULDER_M, WORKING_RADIUS_M, DHModel,
-                                         RM65Kinematics, rotation_vector, tool_pose_facing)
 
 _EYE16 = tuple(float(v) for v in np.eye(4).ravel())
 

@@ -22,7 +22,6 @@ from typing import Sequence
 import numpy as np
 
 from stud_common.strict_json import write_json
-
 from stud_planner.drawing import DrawingError, DrawingLayout, LayoutOptions, read_layout, units_to_metres
 from stud_planner.drawing.limits import add_limit_arguments, cli_hint, limits_from_args
 

@@ -11,8 +11,8 @@ from typing import Any, Sequence
 
 import ezdxf.lldxf.const as dxfconst
 import numpy as np
-from stud_common.rotations import float3
 
+from stud_common.rotations import float3
 from stud_planner.drawing.circles import read_circles
 from stud_planner.drawing.frame import drawing_frame, marks_in_frame
 from stud_planner.drawing.layers import format_patterns, layer_matcher

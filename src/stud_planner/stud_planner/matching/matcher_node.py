@@ -67,16 +67,21 @@ from std_msgs.msg import Header
 from stud_welding_msgs.msg import Registration, StudLayout, WeldTargetArray
 from visualization_msgs.msg import MarkerArray
 
-from stud_common import ros_io
-from stud_perception import image_io
+from stud_common import names, ros_io
 from stud_common.ros_io import Param
+from stud_perception import image_io
 from stud_planner.matching.gun_clearance import GunModel
-from stud_planner.msg_convert import LayoutView, layout_from_msg, registration_from_msg
 from stud_planner.matching.target_cdr import weld_target_array_cdr
 from stud_planner.matching.target_markers import target_markers
-from stud_planner.matching.view_targets import (ALGORITHMS, NoiseMemory, PlannerConfig, draw_targets_overlay, plan_view,
-                                               view_noise_correlation)
-from stud_common import names
+from stud_planner.matching.view_targets import (
+    ALGORITHMS,
+    NoiseMemory,
+    PlannerConfig,
+    draw_targets_overlay,
+    plan_view,
+    view_noise_correlation,
+)
+from stud_planner.msg_convert import LayoutView, layout_from_msg, registration_from_msg
 
 _PLAN = PlannerConfig()  # the planner's defaults are its own; the parameters expose them
 PARAMS = [

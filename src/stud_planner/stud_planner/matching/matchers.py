@@ -33,10 +33,19 @@ import numpy as np
 from stud_perception.camera_model import CameraModel, VerticalLines
 from stud_perception.depth_image import FillRule
 from stud_planner.matching.depth_lookup import PixelFills, depth_at_subpixel
-from stud_planner.matching.match_common import (Z_RANGE_MARGIN_M, MatchingError, MatchResult, MatchResults,
-                                                MatchStatus, check_inputs, empty_results, line_in_view_z_interval,
-                                                observed_z_range)
+from stud_planner.matching.match_common import (
+    Z_RANGE_MARGIN_M,
+    MatchingError,
+    MatchResult,
+    MatchResults,
+    MatchStatus,
+    check_inputs,
+    empty_results,
+    line_in_view_z_interval,
+    observed_z_range,
+)
 from stud_planner.matching.paper_baselines import match_bfs, match_fpm, xy_jacobian_at_height
+
 
 # ---------------------------------------------------------------------------------------------
 # Batch: ours

@@ -18,9 +18,16 @@ import numpy as np
 
 from stud_perception.camera_model import CameraModel
 from stud_perception.depth_image import Fallback, FillRule, fill_depth_at
-from stud_planner.matching.match_common import (MatchingError, MatchResults, MatchStatus, check_inputs,
-                                                depth_samples, empty_results, line_in_view_z_interval,
-                                                observed_z_range)
+from stud_planner.matching.match_common import (
+    MatchingError,
+    MatchResults,
+    MatchStatus,
+    check_inputs,
+    depth_samples,
+    empty_results,
+    line_in_view_z_interval,
+    observed_z_range,
+)
 
 
 def _depth_at_pixel(depth_m: np.ndarray, u: int, v: int, window_px: int, fallback: Fallback) -> tuple[float, FillRule]:

@@ -18,7 +18,6 @@ import numpy as np
 from stud_perception.camera_model import CameraModel
 from stud_planner.matching.window_moments import BLOCK_PX, BlockMoments, powers_of
 
-
 #: Quadric terms of the fit in the window's normalised image coordinates: 1, a, b, a^2, ab, b^2.
 N_TERMS = 6
 

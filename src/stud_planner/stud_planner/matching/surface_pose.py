@@ -36,12 +36,18 @@ from enum import IntEnum
 
 import numpy as np
 
-from stud_perception.camera_model import CameraModel
 from stud_common.rotations import frame_from_normal
 from stud_common.rotations import matrix_to_quaternion as quaternion_from_matrix
+from stud_perception.camera_model import CameraModel
 from stud_planner.matching.noise_correlation import NoiseCorrelation, measure_noise_correlation
-from stud_planner.matching.quadric_fit import (N_TERMS, fast_fits, fit_inverse_depth, frame_noise_m,
-                                               InverseDepthFit, window_blocks)
+from stud_planner.matching.quadric_fit import (
+    N_TERMS,
+    InverseDepthFit,
+    fast_fits,
+    fit_inverse_depth,
+    frame_noise_m,
+    window_blocks,
+)
 from stud_planner.matching.window_moments import BlockMoments
 
 #: Paper: M16x150 shear stud, tool-top offset along the normal.
