@@ -170,7 +170,8 @@ def run_part(part: str, out: Path, arm_port: int, extra: list[str]) -> dict:
     if rail is not None:
         print(f"  rail: {moved['moves']} carriage moves, {moved['distance_m']:.2f} m, {rail_s:.1f} s moving "
               f"({rail_s / max(welded, 1):.2f} s/stud, inside the categories above); floor: the studs need >= "
-              f"{rail.travel_m:.2f} m of travel, one move of {rail.move_s:.1f} s ({rail.move_s / max(welded, 1):.2f} s/stud); "
+              f"{rail.travel_m:.2f} m of travel, one move of {rail.move_s:.1f} s "
+              f"({rail.move_s / max(welded, 1):.2f} s/stud); "
               f"floor with it {floor.as_sequenced_s + rail.move_s / max(welded, 1):.2f} s/stud as sequenced, "
               f"{floor.blended_s + rail.move_s / max(welded, 1):.2f} blended", flush=True)
     in_station = sum(split.per_stud(k) for k in ("approach", "descent", "weld", "dwell", "retract"))

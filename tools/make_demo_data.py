@@ -24,8 +24,9 @@ cross slope) along the rail the arm rides (stud_bringup.demo_parts: a 7 m rail, 
 the carriage), rows of three studs 80 mm apart every 150 mm -- 120 studs, the most the issue's deck
 spacing (rows every 150-250 mm) puts on 6 m -- and a reference mark every 100 mm alternately either
 side of the studs (a camera view, 0.38 m along the girder, holds three or four of them: the fit over
-them has a residual; at 200 mm a view held one or two), the marking board before its start. It is checked with the same reach test at
-carriage positions along the rail (stud_common.frames.world_T_base): for every camera station of the
+them has a residual; at 200 mm a view held one or two), the marking board before its start. It is
+checked with the same reach test at carriage positions along the rail (stud_common.frames.world_T_base):
+for every camera station of the
 cell's plan, a carriage position from which the arm puts the camera there *and* welds every stud the
 station sees (so every stud is weldable from some carriage position), and one for the registration
 view over the board. The RM-65's patch is narrow: a stud 0.22-0.38 m beside the rail's line is
@@ -254,7 +255,8 @@ def scene_with_drawing_ids(scene: SceneSpec, dxf_path: Path) -> SceneSpec:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--part", nargs="+", choices=sorted(PARTS), default=list(PARTS), help="the parts to write (default: all)")
+    ap.add_argument("--part", nargs="+", choices=sorted(PARTS), default=list(PARTS),
+                    help="the parts to write (default: all)")
     args = ap.parse_args(argv)
     for part in args.part:
         scene = PARTS[part]()

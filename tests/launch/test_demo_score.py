@@ -120,7 +120,8 @@ def test_a_fixed_arms_journal_is_the_forward_kinematics_of_its_joints_and_the_pl
 
 def test_accuracy_at_the_ends_takes_the_studs_near_each_end_only():
     rows = [{"x_m": x, "xy_error_m": e, "z_error_m": e / 2, "normal_error_deg": 0.1, "slope_deg": 2.5, "welded": True,
-             "gun_axis_error_deg": 0.2} for x, e in ((0.5, 0.0002), (0.8, 0.0003), (3.0, 0.009), (6.2, 0.0007), (6.4, 0.0004))]
+             "gun_axis_error_deg": 0.2}
+            for x, e in ((0.5, 0.0002), (0.8, 0.0003), (3.0, 0.009), (6.2, 0.0007), (6.4, 0.0004))]
     ends = accuracy_at_ends(rows, span_m=0.5)
     assert ends["start"]["studs"] == 2 and ends["start"]["max_xy_error_mm"] == pytest.approx(0.3)
     assert ends["far_end"]["studs"] == 2 and ends["far_end"]["max_xy_error_mm"] == pytest.approx(0.7)
