@@ -40,15 +40,14 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import rclpy
+import yaml
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from stud_welding_msgs.action import WeldJob
 from stud_welding_msgs.msg import ArmState, CellStatus
-
-import numpy as np
-import yaml
 
 from rm65_driver.driver import params as driver_params
 from rm65_driver.journal.scan import read_records
@@ -171,7 +170,8 @@ def run_part(part: str, out: Path, arm_port: int, extra: list[str]) -> dict:
     if rail is not None:
         print(f"  rail: {moved['moves']} carriage moves, {moved['distance_m']:.2f} m, {rail_s:.1f} s moving "
               f"({rail_s / max(welded, 1):.2f} s/stud, inside the categories above); floor: the studs need >= "
-              f"{rail.travel_m:.2f} m of travel, one move of {rail.move_s:.1f} s ({rail.move_s / max(welded, 1):.2f} s/stud); "
+              f"{rail.travel_m:.2f} m of travel, one move of {rail.move_s:.1f} s "
+              f"({rail.move_s / max(welded, 1):.2f} s/stud); "
               f"floor with it {floor.as_sequenced_s + rail.move_s / max(welded, 1):.2f} s/stud as sequenced, "
               f"{floor.blended_s + rail.move_s / max(welded, 1):.2f} blended", flush=True)
     in_station = sum(split.per_stud(k) for k in ("approach", "descent", "weld", "dwell", "retract"))

@@ -27,6 +27,7 @@ for pkg in ("stud_common", "stud_perception"):
     sys.path.insert(0, str(REPO / "src" / pkg))
 
 import numpy as np  # noqa: E402
+
 from stud_perception.mark_registration import MarkFitConfig, RegistrationTrail  # noqa: E402
 from stud_perception.markers import MarkDetectorConfig  # noqa: E402
 from stud_perception.registration import local_to_world  # noqa: E402

@@ -50,11 +50,11 @@ for _pkg in ("stud_common", "stud_perception", "stud_planner"):  # run from a ch
 
 import numpy as np  # noqa: E402
 
+from stud_perception.camera_model import CameraModel  # noqa: E402
+from stud_perception.depth_image import fill_depth_at  # noqa: E402
 from stud_perception.scene import demo_dome_scene, grid_stud_scene  # noqa: E402
 from stud_perception.scene_cameras import demo_camera  # noqa: E402
 from stud_perception.scene_render import render  # noqa: E402
-from stud_perception.camera_model import CameraModel  # noqa: E402
-from stud_perception.depth_image import fill_depth_at  # noqa: E402
 from stud_planner.matching.matchers import MatchResults, match_batch, match_bfs, match_fpm  # noqa: E402
 from stud_planner.matching.surface_pose import estimate_surface_poses_for_matches  # noqa: E402
 
@@ -265,7 +265,8 @@ def scaling_table(view, camera: CameraModel, s_px: float, args) -> None:
         t_bfs = Timing(bfs_iters_mean * s_px * n, estimated=True)
         rows.append([
             f"{n:,}",
-            Timing(t_b).fmt(), Timing(t_b).fmt(n), f"{batch.iterations[batch.ok].mean():.1f}" if batch.ok.any() else "-",
+            Timing(t_b).fmt(), Timing(t_b).fmt(n),
+            f"{batch.iterations[batch.ok].mean():.1f}" if batch.ok.any() else "-",
             f"{batch.ok.mean():.0%}",
             Timing(t_bp).fmt(), t_fpm.fmt(), t_fpm.fmt(n), t_bfs.fmt(), t_bfs.fmt(n),
         ])

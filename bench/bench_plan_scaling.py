@@ -14,10 +14,11 @@ fresh process, as a user runs it:
 * ``cli``: the whole ``plan --drawing D --bag B --out R`` command, wall clock, in a new process
   (imports included), and its peak resident memory (``ru_maxrss``).
 
-It prints the figures per size, the time per stud and the ratio of the per-stud cost against
-the smallest size (1.0 = linear; below 1 while the fixed cost -- imports, the bag, registration --
-still weighs), the marginal cost per added stud between sizes (equal = linear), and the targets: 250k parsed and planned in <= 20 s, peak
-memory <= 1.5 GB. Exit code 1 when a target is missed (0 with ``--no-check``).
+It prints the figures per size, the time per stud and the ratio of the per-stud cost against the
+smallest size (1.0 = linear; below 1 while the fixed cost -- imports, the bag, registration -- still
+weighs), the marginal cost per added stud between sizes (equal = linear), and the targets: 250k parsed
+and planned in <= 20 s, peak memory <= 1.5 GB. Exit code 1 when a target is missed (0 with
+``--no-check``).
 
 Usage::
 
@@ -118,7 +119,8 @@ def _run_cli(drawing: Path, report: Path) -> tuple[float, float]:
     before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     t0 = time.perf_counter()
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO / "src" / "stud_planner"),
-                                                       str(REPO / "src" / "stud_perception"), str(REPO / "src" / "stud_bag"),
+                                                       str(REPO / "src" / "stud_perception"),
+                                                       str(REPO / "src" / "stud_bag"),
                                                        str(REPO / "src" / "stud_common"),
                                                        os.environ.get("PYTHONPATH", "")]))
     done = subprocess.run([sys.executable, "-c", code, "--drawing", str(drawing), "--bag", str(DEMO_BAG),
@@ -179,13 +181,16 @@ def main(argv: list[str] | None = None) -> int:
             per_in = (m["parse_s"] + m["plan_s"]) / m["studs"] * 1e6
             ratio_cli = per_cli / (base["cli_s"] / base["studs"] * 1e6)
             ratio_in = per_in / ((base["parse_s"] + base["plan_s"]) / base["studs"] * 1e6)
-            print(f"  {m['studs']:>8,}: {per_cli:6.1f} us/stud (x{ratio_cli:.2f}), {per_in:6.1f} us/stud (x{ratio_in:.2f})")
+            print(f"  {m['studs']:>8,}: {per_cli:6.1f} us/stud (x{ratio_cli:.2f}), "
+                  f"{per_in:6.1f} us/stud (x{ratio_in:.2f})")
         if len(rows) > 1:
             print("marginal cost per added stud (removes the fixed cost: imports, the bag, registration):")
             for a, b in zip(rows, rows[1:]):
                 dn = b["studs"] - a["studs"]
-                print(f"  {a['studs']:>8,} -> {b['studs']:>8,}: plan command {(b['cli_s'] - a['cli_s']) / dn * 1e6:6.1f} "
-                      f"us/stud, parse + plan {(b['parse_s'] + b['plan_s'] - a['parse_s'] - a['plan_s']) / dn * 1e6:6.1f} "
+                cli_us = (b['cli_s'] - a['cli_s']) / dn * 1e6
+                inproc_us = (b['parse_s'] + b['plan_s'] - a['parse_s'] - a['plan_s']) / dn * 1e6
+                print(f"  {a['studs']:>8,} -> {b['studs']:>8,}: plan command {cli_us:6.1f} "
+                      f"us/stud, parse + plan {inproc_us:6.1f} "
                       "us/stud")
         big = rows[-1]
         ok_time = big["cli_s"] <= TARGET_S

@@ -9,11 +9,11 @@ Prints tables (a benchmark, not a test). The scenes are held-out-like, not the d
 - ``shell``: a tank-shell section (horizontal cylinder, R = 300 mm, 60 mm crown, slopes to 24 deg
   under the studs), the camera yawed -50 deg and tilted 12 deg.
 
-N studs on a grid over the part. For each method and N: the wall time per frame (best of
-``--repeat`` rounds, each round running ours, ours' variants and peers A and B once, interleaved, so
-that a shared machine's slow spells fall on all of them alike), the largest normal error against the exact truth over the visible studs given a
-normal, and the coverage (visible studs given a usable result: a pose for the pose methods, a
-match for the matchers). Then every method's time as a ratio to ours.
+N studs on a grid over the part. For each method and N: the wall time per frame (best of ``--repeat``
+rounds, each round running ours, ours' variants and peers A and B once, interleaved, so that a shared
+machine's slow spells fall on all of them alike), the largest normal error against the exact truth over
+the visible studs given a normal, and the coverage (visible studs given a usable result: a pose for the
+pose methods, a match for the matchers). Then every method's time as a ratio to ours.
 
 Methods (what each figure includes):
 - ``ours: match+normal+sigma+status``: view_planning.plan_view without the gun-clearance check --

@@ -25,9 +25,9 @@ import numpy as np
 
 from rm65_driver.driver.params import PARAMS, safety_checker
 from rm65_driver.weld.reach import ReachConfig
-from stud_common.hand_eye_in_use import resolve_hand_eye
-from stud_cell.cell_reach import CellReach
 from stud_bringup.launch import default_config_path, load_config
+from stud_cell.cell_reach import CellReach
+from stud_common.hand_eye_in_use import resolve_hand_eye
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -41,7 +41,8 @@ def main(argv: list[str] | None = None) -> int:
     p.update(standoff_m=v["standoff_m"], stud_length_mm=v["stud_length_mm"], min_stud_spacing_m=v["min_stud_spacing_m"],
              preferred_joint_signs=node["preferred_joint_signs"])
     driver = safety_checker(p, resolve_hand_eye("", v["hand_eye_xyz_m"], v["hand_eye_rpy_deg"]).T_tool_cam)
-    planner = CellReach.from_config(ReachConfig.from_json(driver.reach_for(p["standoff_m"], p["plunge_m"]).config.to_json()))
+    planner = CellReach.from_config(
+        ReachConfig.from_json(driver.reach_for(p["standoff_m"], p["plunge_m"]).config.to_json()))
     kin = driver.kin
     rng = np.random.default_rng(args.seed)
     lo, hi = kin.limits_rad[:, 0], kin.limits_rad[:, 1]

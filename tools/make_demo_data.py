@@ -24,8 +24,9 @@ cross slope) along the rail the arm rides (stud_bringup.demo_parts: a 7 m rail, 
 the carriage), rows of three studs 80 mm apart every 150 mm -- 120 studs, the most the issue's deck
 spacing (rows every 150-250 mm) puts on 6 m -- and a reference mark every 100 mm alternately either
 side of the studs (a camera view, 0.38 m along the girder, holds three or four of them: the fit over
-them has a residual; at 200 mm a view held one or two), the marking board before its start. It is checked with the same reach test at
-carriage positions along the rail (stud_common.frames.world_T_base): for every camera station of the
+them has a residual; at 200 mm a view held one or two), the marking board before its start. It is
+checked with the same reach test at carriage positions along the rail (stud_common.frames.world_T_base):
+for every camera station of the
 cell's plan, a carriage position from which the arm puts the camera there *and* welds every stud the
 station sees (so every stud is weldable from some carriage position), and one for the registration
 view over the board. The RM-65's patch is narrow: a stud 0.22-0.38 m beside the rail's line is
@@ -48,21 +49,21 @@ for pkg in ("stud_common", "stud_perception", "stud_planner", "stud_inspection",
 import numpy as np  # noqa: E402
 
 from rm65_driver.kinematics.rm65 import RM65Kinematics  # noqa: E402
-from rm65_driver.weld.safety import SafetyChecker, SafetyLimits  # noqa: E402
 from rm65_driver.weld.reach import Reach  # noqa: E402
+from rm65_driver.weld.safety import SafetyChecker, SafetyLimits  # noqa: E402
 from stud_bringup.demo_parts import PARTS as DEMO_PARTS  # noqa: E402
 from stud_bringup.demo_parts import DemoPart  # noqa: E402
+from stud_cell.cell_reach import CellReach  # noqa: E402
+from stud_cell.job import JobConfig  # noqa: E402
+from stud_cell.stations import footprint_m, plan_stations  # noqa: E402
 from stud_common.frames import world_T_base  # noqa: E402
 from stud_common.rotations import rpy_to_matrix  # noqa: E402
+from stud_common.strict_json import write_json  # noqa: E402
 from stud_perception.scene import MarkingBoard, SceneSpec, girder_scene, surface_height, surface_normal  # noqa: E402
 from stud_perception.scene_file import scene_from_dict, scene_to_dict  # noqa: E402
 from stud_perception.scene_solids import Cylinder, Dome, Pose2D  # noqa: E402
-from stud_common.strict_json import write_json  # noqa: E402
-from stud_cell.job import JobConfig  # noqa: E402
 from stud_planner.drawing import read_layout  # noqa: E402
 from stud_planner.drawing.dxf_writer import write_layout_dxf  # noqa: E402
-from stud_cell.cell_reach import CellReach  # noqa: E402
-from stud_cell.stations import footprint_m, plan_stations  # noqa: E402
 
 DATA = REPO / "src" / "stud_planner" / "data"
 CONFIG = REPO / "src" / "stud_perception" / "config"
@@ -254,7 +255,8 @@ def scene_with_drawing_ids(scene: SceneSpec, dxf_path: Path) -> SceneSpec:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--part", nargs="+", choices=sorted(PARTS), default=list(PARTS), help="the parts to write (default: all)")
+    ap.add_argument("--part", nargs="+", choices=sorted(PARTS), default=list(PARTS),
+                    help="the parts to write (default: all)")
     args = ap.parse_args(argv)
     for part in args.part:
         scene = PARTS[part]()

@@ -32,20 +32,21 @@ for pkg in ("stud_common", "stud_perception", "stud_planner", "stud_inspection",
     sys.path.insert(0, str(REPO / "src" / pkg))
 
 import numpy as np  # noqa: E402
+
 from stud_bag import BagWriter, Qos  # noqa: E402
+from stud_cell.job import JobConfig  # noqa: E402
+from stud_cell.stations import footprint_m, plan_stations  # noqa: E402
 from stud_common import ros_io  # noqa: E402
 from stud_common.frames import RailDeviation, true_world_correction  # noqa: E402
+from stud_common.strict_json import write_json  # noqa: E402
 from stud_perception.camera_model import CameraModel, nadir_rotation  # noqa: E402
 from stud_perception.camera_node import shot_messages  # noqa: E402
 from stud_perception.scene import SceneSpec  # noqa: E402
 from stud_perception.scene_cameras import view_camera  # noqa: E402
 from stud_perception.scene_file import load_scene  # noqa: E402
 from stud_perception.scene_render import render  # noqa: E402
-from stud_common.strict_json import write_json  # noqa: E402
-from stud_cell.job import JobConfig  # noqa: E402
 from stud_planner.drawing import read_layout  # noqa: E402
 from stud_planner.msg_convert import layout_to_msg  # noqa: E402
-from stud_cell.stations import footprint_m, plan_stations  # noqa: E402
 
 DRAWING = REPO / "src" / "stud_planner" / "data" / "dome_demo.dxf"
 SCENE = REPO / "src" / "stud_perception" / "config" / "dome_scene.json"

@@ -109,7 +109,8 @@ def run_replay(bag: Path, drawing: Path, out: Path, stamps: set[int], timeout_s:
             if ended_at is None and "bag_play exited" in log.read_text():
                 ended_at = time.monotonic()
             if cell.poll() is not None or (ended_at is not None and time.monotonic() - ended_at > timeout_s):
-                print(f"replay_check: targets of {len(stamps - set(got))} view(s) never came (see {log})", file=sys.stderr)
+                print(f"replay_check: targets of {len(stamps - set(got))} view(s) never came (see {log})",
+                      file=sys.stderr)
                 break
             time.sleep(0.2)
     finally:
@@ -163,7 +164,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {name:<24} {n:4d} targets compared, largest difference {worst * 1e3:.4f} mm")
     print(f"replay_check: {'PASSED' if ok else 'FAILED'} (tolerance {args.tol_mm:g} mm)")
     (work / "replay_check.json").write_text(json.dumps(
-        {"ok": ok, "tol_mm": args.tol_mm, **{name: {"compared": n, "max_mm": worst * 1e3} for name, (n, worst) in rows}},
+        {"ok": ok, "tol_mm": args.tol_mm,
+         **{name: {"compared": n, "max_mm": worst * 1e3} for name, (n, worst) in rows}},
         indent=1))
     return 0 if ok else 1
 

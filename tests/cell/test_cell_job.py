@@ -13,8 +13,8 @@ import pytest
 
 from stud_cell import job as cell_job
 from stud_cell.job import CellJob, DriverLost, InspectionOutcome, InspectionUnavailable, JobAborted, JobConfig
-from stud_inspection.rework import append_record, make_record
 from stud_cell.stations import footprint_m
+from stud_inspection.rework import append_record, make_record
 
 
 class FakeCell:

@@ -14,10 +14,10 @@ import pytest
 from rm65_driver.kinematics.rm65 import RM65Kinematics
 from rm65_driver.weld.reach import Reach, ReachConfig
 from rm65_driver.weld.safety import SafetyChecker, SafetyLimits
-from stud_perception.scene_solids import Dome
 from stud_cell import job as cell_job
 from stud_cell.cell_reach import CellReach
 from stud_cell.job import CellJob, JobConfig, MoveRefused
+from stud_perception.scene_solids import Dome
 from test_cell_job import FakeCell
 
 HAND_EYE = np.eye(4)

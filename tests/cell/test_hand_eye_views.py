@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stud_perception.hand_eye import rotation_spread_deg
 from stud_cell.hand_eye_views import ViewPlanError, plan_calibration_views, plan_check_views, station_view
+from stud_perception.hand_eye import rotation_spread_deg
 
 TARGET = np.array([0.367, -0.158, 0.005])
 

@@ -71,10 +71,10 @@ class RailCell(FakeCell):
         self.marks_w = {m.label: scene.drawing_to_world.apply(np.array([m.drawing_xy_m]))[0]
                         for m in scene.reference_marks} if marks else {}
         self.board_w = dict(zip("OAB", scene.drawing_to_world.apply(np.asarray(scene.board.marks_drawing_m))))
-        self.M_true = planar(np.array([[math.cos(scene.drawing_to_world.yaw_rad), -math.sin(scene.drawing_to_world.yaw_rad), 0,
-                                        scene.drawing_to_world.x_m],
-                                       [math.sin(scene.drawing_to_world.yaw_rad), math.cos(scene.drawing_to_world.yaw_rad), 0,
-                                        scene.drawing_to_world.y_m], [0, 0, 1, 0], [0, 0, 0, 1]]))
+        yaw = scene.drawing_to_world.yaw_rad
+        self.M_true = planar(np.array([[math.cos(yaw), -math.sin(yaw), 0, scene.drawing_to_world.x_m],
+                                       [math.sin(yaw), math.cos(yaw), 0, scene.drawing_to_world.y_m],
+                                       [0, 0, 1, 0], [0, 0, 0, 1]]))
         self.rail_length_m = rail_length_m
         self.reach = reach_for(rail_length_m)
         self.carriage = start_m
@@ -165,7 +165,8 @@ class RailCell(FakeCell):
         here = self.here()
         for t in targets:
             verdict = here.stud(t.entry["position_m"], t.entry["normal"])
-            assert verdict.ok, f"{t.stud_id} sent with the carriage at {self.carriage}, the driver refuses: {verdict.reason}"
+            assert verdict.ok, (f"{t.stud_id} sent with the carriage at {self.carriage}, "
+                                f"the driver refuses: {verdict.reason}")
             landed = (self.correction(self.carriage) @ np.array([*t.entry["position_m"], 1.0]))[:3]
             self.weld_errors[t.stud_id] = float(np.linalg.norm(landed - self.truth[t.stud_id][0]))
             self.welded_at[t.stud_id] = self.carriage
@@ -246,9 +247,11 @@ def test_every_target_sent_is_checked_with_the_base_where_the_carriage_stands(gi
     targets = {t["stud_id"]: t for t in report["targets"]}
     refused_elsewhere = 0
     for sid, t in targets.items():
-        assert CellReach(cell.reach, world_T_base(t["carriage_position_m"], MOUNT)).stud(t["position_m"], t["normal"]).ok
-        refused_elsewhere += sum(not CellReach(cell.reach, world_T_base(c, MOUNT)).stud(t["position_m"], t["normal"]).ok
-                                 for c in positions if c != t["carriage_position_m"])
+        def reach_from(carriage_m: float):
+            return CellReach(cell.reach, world_T_base(carriage_m, MOUNT)).stud(t["position_m"], t["normal"])
+
+        assert reach_from(t["carriage_position_m"]).ok
+        refused_elsewhere += sum(not reach_from(c).ok for c in positions if c != t["carriage_position_m"])
     assert refused_elsewhere > 0   # the base matters: the same target is refused from some other stop
 
 

@@ -39,8 +39,8 @@ def girder_plan():
     xy, stations = girder_stations()
     rail_reach = RailReach(reach_for(6.0), Rail(6.0))
     plan = plan_rail(stations, xy, rail_reach, prior_z_m=0.15, start_m=0.0)
-    print(f"\n6 m girder: {len(xy)} studs, {len(stations)} stations -> {len(plan.stops)} carriage positions, planned in "
-          f"{plan.planning_s:.1f} s ({plan.reach_checks} reach checks)")
+    print(f"\n6 m girder: {len(xy)} studs, {len(stations)} stations -> {len(plan.stops)} carriage positions, "
+          f"planned in {plan.planning_s:.1f} s ({plan.reach_checks} reach checks)")
     return xy, stations, rail_reach, plan
 
 

@@ -11,13 +11,14 @@ from __future__ import annotations
 import os
 
 import numpy as np
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from rm65_driver.driver.params import PARAMS, safety_checker
 from rm65_driver.weld.reach import ReachConfig
-from stud_common.hand_eye_in_use import resolve_hand_eye
-from stud_cell.cell_reach import CellReach
 from stud_bringup.launch import default_config_path, load_config
+from stud_cell.cell_reach import CellReach
+from stud_common.hand_eye_in_use import resolve_hand_eye
 
 CELL = load_config(default_config_path())
 

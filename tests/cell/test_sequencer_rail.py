@@ -11,12 +11,12 @@ import rclpy
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
+from stud_welding_msgs.msg import ArmState
+from stud_welding_msgs.srv import RailMove
 
 from stud_cell.job import JobAborted, MoveRefused
 from stud_cell.sequencer_node import CellSequencer
 from stud_common import names, ros_io
-from stud_welding_msgs.msg import ArmState
-from stud_welding_msgs.srv import RailMove
 
 
 class FakeRailArm(Node):

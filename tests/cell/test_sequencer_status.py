@@ -10,12 +10,12 @@ import rclpy
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
+from stud_welding_msgs.msg import ArmState, CellStatus, Registration
+from stud_welding_msgs.srv import MoveTo
 
 from stud_cell import job as cell_job
 from stud_cell.sequencer_node import CellSequencer
 from stud_common import names, ros_io
-from stud_welding_msgs.msg import ArmState, CellStatus, Registration
-from stud_welding_msgs.srv import MoveTo
 
 PLANE_Z = 0.05  # the registered marks' height: the part lies on a table 50 mm above the arm's base
 

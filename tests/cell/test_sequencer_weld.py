@@ -16,12 +16,12 @@ from rclpy.action import ActionServer, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
-
-from stud_common import names, ros_io
-from stud_cell import job as cell_job
-from stud_cell.sequencer_node import CellSequencer
 from stud_welding_msgs.action import WeldJob
 from stud_welding_msgs.msg import ArmState, WeldTarget
+
+from stud_cell import job as cell_job
+from stud_cell.sequencer_node import CellSequencer
+from stud_common import names, ros_io
 
 IDS = ["S0001", "S0002", "S0003"]
 SILENT_S, NOT_STARTED_S, WELDING_S = 2.0, 2.5, 1.5  # the driver's stall, then its slow job start

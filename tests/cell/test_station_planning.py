@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from stud_perception.camera_model import CameraModel, nadir_rotation
 from stud_cell.stations import StationPlanningError, footprint_m, plan_stations
+from stud_perception.camera_model import CameraModel, nadir_rotation
 
 #: The camera the footprint stands for: 640x480 (aspect 0.75), spanning 0.46 m at 0.5 m.
 CAMERA = CameraModel.from_fov(640, 480, 0.46, 0.5)

@@ -24,7 +24,8 @@ def test_the_contracts_topics_are_the_ones_the_acceptance_checks_read():
     assert (c["COLOR_IMAGE"], c["DEPTH_IMAGE"], c["CAMERA_INFO"], c["CAMERA_POSE"]) == (
         "/camera/color/image_raw", "/camera/depth/image_raw", "/camera/color/camera_info", "/camera/pose")
     assert (c["DRAWING_LAYOUT"], c["REGISTRATION_RESULT"], c["WELD_TARGETS"], c["WELD_TARGET_POSES"],
-            c["WELD_TARGET_MARKERS"], c["WELD_TARGET_OVERLAY"], c["ARM_STATE"], c["ARM_WELD_JOB"], c["DIAGNOSTICS"]) == (
+            c["WELD_TARGET_MARKERS"], c["WELD_TARGET_OVERLAY"], c["ARM_STATE"], c["ARM_WELD_JOB"],
+            c["DIAGNOSTICS"]) == (
         "/drawing/layout", "/registration/result", "/weld_targets", "/weld_targets/poses", "/weld_targets/markers",
         "/weld_targets/overlay", "/arm/state", "/arm/weld_job", "/diagnostics")
 

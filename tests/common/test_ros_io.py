@@ -154,6 +154,7 @@ def test_stamp_sync_says_which_views_it_drops_and_what_they_lacked():
     from types import SimpleNamespace
 
     from builtin_interfaces.msg import Time
+
     from stud_common import ros_io
 
     def msg(sec):

@@ -7,11 +7,20 @@ from pathlib import Path
 from stud_welding_msgs.msg import ArmState, CellStatus, WeldTarget
 from stud_welding_msgs.srv import ResolveStud
 
-from stud_common.vocabulary import (VIEW_DEPENDENT, ArmMode, CellState, JournalStatus, MatchAlgorithm, OnDisconnect,
-                                    StudOrder, TargetStatus, WeldPhase, choices)
+from stud_common.vocabulary import (
+    VIEW_DEPENDENT,
+    ArmMode,
+    CellState,
+    JournalStatus,
+    MatchAlgorithm,
+    OnDisconnect,
+    StudOrder,
+    TargetStatus,
+    WeldPhase,
+    choices,
+)
 from stud_planner.matching.matchers import MatchStatus
 from stud_planner.matching.view_targets import STATUS_TEXT
-
 
 MSGS = Path(__file__).resolve().parents[2] / "src" / "stud_welding_msgs"
 

@@ -15,14 +15,25 @@ from sensor_msgs.msg import Image
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
-from stud_welding_msgs.msg import (ArmState, BendTest, BendTestPlan, CellStatus, InspectionResult, ReworkDecision, Stud,
-                                   StudInspection, StudLayout, WeldTarget, WeldTargetArray)
+from stud_welding_msgs.msg import (
+    ArmState,
+    BendTest,
+    BendTestPlan,
+    CellStatus,
+    InspectionResult,
+    ReworkDecision,
+    Stud,
+    StudInspection,
+    StudLayout,
+    WeldTarget,
+    WeldTargetArray,
+)
 from stud_welding_msgs.srv import RecordBendTest, RecordRework, ResolveStud
 
 from rosproc import wait_for
 from stud_common import ros_io
-from stud_perception import image_io
 from stud_hmi.model import CellState
+from stud_perception import image_io
 
 NAN = math.nan
 

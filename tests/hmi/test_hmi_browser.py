@@ -21,8 +21,8 @@ pytest.importorskip("stud_welding_msgs.msg", reason="workspace not built/sourced
 
 from stud_welding_msgs.msg import WeldTarget  # noqa: E402
 
-from hmi_testing import ctrl_c, free_port  # noqa: E402
 from fake_cell import FakeCell, target  # noqa: E402
+from hmi_testing import ctrl_c, free_port  # noqa: E402
 from rosproc import ros2_run, wait_for  # noqa: E402
 from ws_client import WsClient  # noqa: E402
 
@@ -312,7 +312,8 @@ def test_page_shows_the_banner_alarms_valid_buttons_progress_and_decisions_as_th
     # (6) an uncertain stud: the decision is a control on the page (two clicks), it reaches /arm/resolve_stud
     cell_is(CellStatus.STATE_DONE, welded=6, message="done")
     arm_is(ArmState.MODE_IDLE, uncertain=("S0007",))
-    until("document.querySelector('#uncertain li[data-stud=\"S0007\"]') && !document.getElementById('decisions').hidden",
+    until("document.querySelector('#uncertain li[data-stud=\"S0007\"]')"
+          " && !document.getElementById('decisions').hidden",
           "the uncertain-stud decision")
     until("document.querySelector('#alarms li[data-key=\"A104@rm65_driver\"]')", "alarm A104")
     js("(() => { const b = Array.from(document.querySelectorAll('#uncertain li[data-stud=\"S0007\"] button'))"
@@ -343,7 +344,8 @@ def test_page_shows_the_banner_alarms_valid_buttons_progress_and_decisions_as_th
     assert js("sessionStorage.getItem('operator')") == "A. Inspector"
     js("(() => { const li = document.querySelector('#rework li[data-stud=\"S0002\"]');"
        " li.querySelector('input.note').value = 'lean checked with a gauge';"
-       " const b = Array.from(li.querySelectorAll('button')).find(x => x.textContent === 'Rework'); b.click(); b.click(); })()")
+       " const b = Array.from(li.querySelectorAll('button')).find(x => x.textContent === 'Rework');"
+       " b.click(); b.click(); })()")
     wait_for(lambda: cell.reworked, 10, spin=ros_node.spin, what="/inspection/record_rework called" + fail())
     assert cell.reworked == [("S0002", "rework", "lean checked with a gauge")] and cell.operators == ["A. Inspector"]
     cell.rework_recorded("S0002", "rework")
@@ -352,13 +354,15 @@ def test_page_shows_the_banner_alarms_valid_buttons_progress_and_decisions_as_th
 
     # (7b) the QA record's bend tests: entered on the page, signed, they reach the inspector
     cell.bend_tests([("S0003", "lot sample (2 of 6 welded)", ""), ("S0001", "pre-production test stud", "pass")])
-    until("!document.getElementById('bend-box').hidden && document.querySelector('#bend-tests li[data-stud=\"S0003\"]')",
+    until("!document.getElementById('bend-box').hidden"
+          " && document.querySelector('#bend-tests li[data-stud=\"S0003\"]')",
           "the bend-test list")
     assert "gb50205" in js("document.getElementById('bend-code').textContent")
     assert "B. Welder" in js("document.querySelector('#bend-tests li[data-stud=\"S0001\"]').textContent")
     js("(() => { const li = document.querySelector('#bend-tests li[data-stud=\"S0003\"]');"
        " li.querySelector('input.angle').value = '32'; li.querySelector('input.note').value = 'no crack';"
-       " const b = Array.from(li.querySelectorAll('button')).find(x => x.textContent === 'Pass'); b.click(); b.click(); })()")
+       " const b = Array.from(li.querySelectorAll('button')).find(x => x.textContent === 'Pass');"
+       " b.click(); b.click(); })()")
     wait_for(lambda: cell.bent, 10, spin=ros_node.spin, what="/inspection/record_bend_test called" + fail())
     assert cell.bent == [("S0003", "pass", 32.0, "no crack", "A. Inspector")]
     until(row.format(sid="S0001") + " === 'pass · bend pass'", "the bend result in the table")
@@ -411,7 +415,8 @@ def test_page_shows_the_inspection_overlay_the_result_names_and_nothing_a_url_na
 
     # a result naming a file that is no PNG: the old image goes, the page says so, the file is not served
     cell.inspection({"S0001": ("pass", [])}, station=3, overlay_file=tmp_path / "secret.txt")
-    wait_for(lambda: js("document.getElementById('inspection-empty').textContent") == "overlay secret.txt not available",
+    wait_for(lambda: (js("document.getElementById('inspection-empty').textContent")
+                      == "overlay secret.txt not available"),
              15, spin=ros_node.spin, what="the missing overlay said" + fail())
     assert js(f"{img}.classList.contains('shown')") is False
     assert status("/inspection/overlay.png") == [404, False]

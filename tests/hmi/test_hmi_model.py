@@ -7,8 +7,18 @@ import math
 
 import pytest
 
-from stud_hmi.model import (ALARMS, ArmInfo, ArmMode, CellInfo, CellState, CellView, Code, StudTable,
-                                    TargetInfo, Timeouts)
+from stud_hmi.model import (
+    ALARMS,
+    ArmInfo,
+    ArmMode,
+    CellInfo,
+    CellState,
+    CellView,
+    Code,
+    StudTable,
+    TargetInfo,
+    Timeouts,
+)
 from stud_hmi.server import to_json
 
 NAN = math.nan
@@ -197,7 +207,8 @@ def test_hand_eye_calibrations_that_differ_between_nodes_raise_an_alarm():
     v.on_hand_eye("camera", dict(cal), 101.0)
     c = v.calibration()
     assert c["agree"] and c["nodes"] == ["camera", "rm65_driver"] and codes(v) == []
-    assert c["text"] == "file hand_eye.yaml (2025-04-30, residual 0.31 mm): xyz [0.0, 50.0, 20.0] mm, rpy [0.00, 0.00, 90.00]°"
+    assert c["text"] == ("file hand_eye.yaml (2025-04-30, residual 0.31 mm): "
+                         "xyz [0.0, 50.0, 20.0] mm, rpy [0.00, 0.00, 90.00]°")
     v.on_hand_eye("camera", {"source": "typed", "xyz_m": [0.0, 0.0, 0.0], "rpy_deg": [0.0, 0.0, 0.0]}, 102.0)
     assert not v.calibration()["agree"] and codes(v) == [Code.HAND_EYE]
 

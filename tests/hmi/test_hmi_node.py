@@ -16,8 +16,8 @@ from rclpy.action import ActionClient  # noqa: E402
 from stud_welding_msgs.action import WeldJob  # noqa: E402
 from stud_welding_msgs.msg import WeldTarget  # noqa: E402
 
-from hmi_testing import ctrl_c, free_port  # noqa: E402
 from fake_cell import FakeCell, target  # noqa: E402
+from hmi_testing import ctrl_c, free_port  # noqa: E402
 from rosproc import ros2_run, wait_for  # noqa: E402
 from ws_client import WsClient  # noqa: E402
 

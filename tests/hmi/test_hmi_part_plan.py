@@ -11,8 +11,18 @@ import pytest
 
 from stud_common.vocabulary import CellState
 from stud_hmi.model import StudTable, TargetInfo
-from stud_hmi.part_plan import (MIN_MARKER_PX, NO_REASON, PartPlan, PlanState, RailConfig, StationInfo, fit_view, footprint_corners,
-                                in_footprint, plan_state)
+from stud_hmi.part_plan import (
+    MIN_MARKER_PX,
+    NO_REASON,
+    PartPlan,
+    PlanState,
+    RailConfig,
+    StationInfo,
+    fit_view,
+    footprint_corners,
+    in_footprint,
+    plan_state,
+)
 from stud_hmi.server import to_json
 
 NAN = math.nan

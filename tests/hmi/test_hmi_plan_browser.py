@@ -77,7 +77,8 @@ def test_the_plan_shows_a_girder_fitted_with_states_zoom_scroll_carriage_station
     until("document.querySelectorAll('#plan-studs circle').length === 90 && window.hmiPlan.msg.frame === 'world'",
           "90 studs on the plan in world")
     until("window.hmiPlan.view", "a fitted view")
-    w, h = js("(() => { const r = document.getElementById('plan').getBoundingClientRect(); return [r.width, r.height]; })()")
+    w, h = js("(() => { const r = document.getElementById('plan').getBoundingClientRect();"
+              " return [r.width, r.height]; })()")
     bounds = js("window.hmiPlan.msg.bounds_m")
     (cx, cy), scale = fit_view(bounds, w, h)
     view = js("window.hmiPlan.view")
@@ -116,7 +117,8 @@ def test_the_plan_shows_a_girder_fitted_with_states_zoom_scroll_carriage_station
     assert fill("S0003") == planned
     legend = js("Object.fromEntries(Array.from(document.querySelectorAll('#plan-legend li'))"
                 ".map(li => [li.dataset.state, li.textContent]))")
-    assert legend["welding"] == "welding 1" and legend["unreachable"] == "unreachable 1" and legend["planned"] == "planned 88"
+    assert (legend["welding"] == "welding 1" and legend["unreachable"] == "unreachable 1"
+            and legend["planned"] == "planned 88")
 
     # (3) the station being worked: its footprint, its studs ringed; the unreachable stud listed with its reason
     until("document.querySelector('#plan-station polygon.footprint')", "the camera footprint")

@@ -12,8 +12,8 @@ pytest.importorskip("stud_welding_msgs.msg", reason="workspace not built/sourced
 from geometry_msgs.msg import Point  # noqa: E402
 from stud_welding_msgs.msg import ArmState, CellStatus, Registration, Stud, StudLayout, WeldTarget  # noqa: E402
 
-from hmi_testing import ctrl_c, free_port  # noqa: E402
 from fake_cell import FakeCell, target  # noqa: E402
+from hmi_testing import ctrl_c, free_port  # noqa: E402
 from rosproc import ros2_run  # noqa: E402
 from stud_common import ros_io  # noqa: E402
 from test_hmi_node import Inbox  # noqa: E402

@@ -49,7 +49,8 @@ def test_a_400_stud_record_lists_a_lot_sample_of_10_spread_over_the_part_drawn_a
     doc = _write(tmp_path, rows)
     sample = [sid for sid, why in _reasons(doc).items() if any(w.startswith("lot sample") for w in why)]
     assert len(sample) == 10 == max(10, math.ceil(0.01 * 400))  # GB 50205: >= 1 % and at least 10 per lot
-    assert doc["sampling"]["seed"] == 1234 and doc["sampling"]["lot_sample"] == 10 and doc["code"]["profile"] == "gb50205"
+    assert (doc["sampling"]["seed"] == 1234 and doc["sampling"]["lot_sample"] == 10
+            and doc["code"]["profile"] == "gb50205")
     # spread over the part, whatever the seed: each quarter of the part holds at least 2 of the 10 (a random
     # draw leaves a quarter empty one time in 20), and the farthest stud from the sample is nearer than a
     # random draw's

@@ -84,7 +84,8 @@ def test_every_value_of_every_profile_has_a_source_and_the_record_says_which_pro
         0.01, 10, 30.0)
     assert (iso.value("height_tol_mm"), iso.value("height_tol_below_mm")) == (1.0, 2.0)
     assert (iso.sampling().failure_neighbours, iso.sampling().preproduction_studs) == (3, 3)
-    assert (aws.sampling().preproduction_studs, aws.sampling().bend_angle_deg, aws.sampling().missing_flash_bend_deg) == (
+    aws_rules = aws.sampling()
+    assert (aws_rules.preproduction_studs, aws_rules.bend_angle_deg, aws_rules.missing_flash_bend_deg) == (
         2, 30.0, 15.0)
     assert all(qa_codes.profile(c).value("min_collar_coverage_deg") == 360.0 for c in qa_codes.CODES)
 

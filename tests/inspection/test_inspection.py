@@ -17,13 +17,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from stud_common.rotations import frame_from_normal
+from stud_inspection.inspection import InspectionLimits, Verdict, inspect_studs
 from stud_perception.scene import SceneSpec, surface_height, surface_normal
 from stud_perception.scene_cameras import view_camera
 from stud_perception.scene_file import load_scene
 from stud_perception.scene_render import render
 from stud_perception.scene_solids import Cylinder, Plate, Pose2D
 from stud_perception.welded_studs import StudCylinder, WeldDefect, parse_weld_defects, welded_stud
-from stud_inspection.inspection import InspectionLimits, Verdict, inspect_studs
 from stud_planner.matching.view_targets import plan_view
 
 CONFIG = Path(__file__).resolve().parents[2] / "src" / "stud_perception" / "config"

@@ -13,8 +13,7 @@ import numpy as np
 from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_srvs.srv import Trigger
-from stud_welding_msgs.msg import (BendTestPlan, InspectionResult, ReworkDecision, StudInspection, WeldRecord,
-                                   WeldTarget)
+from stud_welding_msgs.msg import BendTestPlan, InspectionResult, ReworkDecision, StudInspection, WeldRecord, WeldTarget
 from stud_welding_msgs.srv import Inspect, RecordBendTest, RecordRework
 
 from rosproc import REPO, ros2_run, wait_for
@@ -97,8 +96,9 @@ def test_the_inspector_judges_the_studs_the_sim_camera_shows_welded(ros_node, pr
     for t, n in welded:  # the arm welds every stud where planned (but one), the gun along -normal
         R = frame_from_normal(-n)
         q = matrix_to_quaternion(R)
-        rec = WeldRecord(stud_id=t.stud_id, job_id="J1", tool_pose=Pose(position=t.pose.position,
-                                                                       orientation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3])))
+        rec = WeldRecord(stud_id=t.stud_id, job_id="J1",
+                         tool_pose=Pose(position=t.pose.position,
+                                        orientation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3])))
         rec.header.frame_id = "world"
         pub.publish(rec)
     res = None
@@ -139,8 +139,9 @@ def test_the_inspector_judges_the_studs_the_sim_camera_shows_welded(ros_node, pr
     # and in the job's QA record (written by the cell at the job's end: here, by hand)
     plans = []
     ros_node.create_subscription(BendTestPlan, "/inspection/bend_tests", plans.append, ros_io.LATCHED_QOS)
-    rows = [{**empty_row(s.stud_id, xy_mm), "verdict": s.verdict_text, "weld_seq": k + 1 if s.verdict_text != "not_welded"
-             else None} for k, (s, xy_mm) in enumerate(zip(res.studs, np.asarray(scene.studs_drawing_m) * 1e3))]
+    rows = [{**empty_row(s.stud_id, xy_mm), "verdict": s.verdict_text,
+             "weld_seq": k + 1 if s.verdict_text != "not_welded" else None}
+            for k, (s, xy_mm) in enumerate(zip(res.studs, np.asarray(scene.studs_drawing_m) * 1e3))]
     write_qa_report(tmp_path, {"id": "J1"}, {"max_lean_deg": 5.0, "position_tol_mm": 2.0, "nominal_length_mm": 50.0,
                                              "height_tol_mm": 2.0, "stud_diameter_mm": 16.0}, rows, [], [],
                     code=qa_codes.profile("gb50205").describe(), seed=7)
@@ -158,7 +159,8 @@ def test_the_inspector_judges_the_studs_the_sim_camera_shows_welded(ros_node, pr
     reply = _call(ros_node, record, RecordRework.Request(stud_id=ids[0], decision="weld again",
                                                          operator_name="A. Inspector"))
     assert not reply.success and "not one of rework, accept" in reply.message
-    reply = _call(ros_node, record, RecordRework.Request(stud_id=ids[0], decision="rework", note="lean by gauge: 8 deg"))
+    reply = _call(ros_node, record,
+                  RecordRework.Request(stud_id=ids[0], decision="rework", note="lean by gauge: 8 deg"))
     assert not reply.success and "no operator name" in reply.message  # a decision is signed
     reply = _call(ros_node, record, RecordRework.Request(stud_id=ids[0], decision="rework", note="lean by gauge: 8 deg",
                                                          operator_name="A. Inspector"))

@@ -18,9 +18,9 @@ import sys
 import textwrap
 import time
 
+from rosproc import REPO
 from stud_inspection import qa_codes
 from stud_inspection.qa_report import JSON_NAME, empty_row, read_record, write_qa_report
-from rosproc import REPO
 
 WRITER = textwrap.dedent("""
     import os, signal, sys
@@ -79,8 +79,8 @@ def _record(out):
         r.update(verdict="fail" if k % 7 == 0 else "pass", weld_seq=k + 1, station=1 + k // 50,
                  reasons=["lean 8.0 deg > 5 deg"] if k % 7 == 0 else [])
         rows.append(r)
-    write_qa_report(out, {"id": "J400"}, {"max_lean_deg": 5.0}, rows, [], [], code=qa_codes.profile("gb50205").describe(),
-                    seed=11)
+    write_qa_report(out, {"id": "J400"}, {"max_lean_deg": 5.0}, rows, [], [],
+                    code=qa_codes.profile("gb50205").describe(), seed=11)
 
 
 def _whole(out) -> int:

@@ -11,16 +11,14 @@ import cv2
 import numpy as np
 import pytest
 
+import chromium_pdf
+from chromium_pdf import find_chromium
 from stud_inspection import qa_codes
 from stud_inspection.inspection import InspectionLimits, draw_inspection_overlay, inspect_studs
 from stud_inspection.qa_report import empty_row, write_qa_report
 from stud_perception.scene_render import render
 from stud_perception.welded_studs import WeldDefect
 from welded_views import bundled, over, weld_and_shoot, with_defects
-
-import chromium_pdf
-from chromium_pdf import find_chromium
-
 
 CHROMIUM = find_chromium()
 

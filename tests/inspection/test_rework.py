@@ -62,7 +62,8 @@ def test_the_newest_line_of_a_stud_is_its_decision_and_a_torn_last_line_is_no_de
     with open(path, "a") as f:  # a power cut in the middle of an append: never confirmed to the operator
         f.write('{"stud_id": "S0007", "decision": "acc')
     got = latest_decisions(path)
-    assert {s: (r.decision, r.note) for s, r in got.items()} == {"S0004": ("accept", "gauge ok"), "S0007": ("rework", "")}
+    assert {s: (r.decision, r.note) for s, r in got.items()} == {"S0004": ("accept", "gauge ok"),
+                                                                 "S0007": ("rework", "")}
 
 
 def test_a_damaged_decision_line_is_an_error_naming_the_file_and_line(tmp_path):

@@ -61,8 +61,8 @@ def weld_and_shoot(scene, camera, weld_ids, seed=0, noise_m=0.0005, holes=0.01, 
     for sid, p, n in zip(weld_ids, t.position_w, t.normal_w):
         scene_id, _d = by_position.nearest(p)
         defect = scene.weld_defects.get(scene_id) if scene_id is not None else None
-        studs.append(welded_stud(sid, p, -n, defect, length_m=scene.stud_length_m, collar_height_m=scene.collar_height_m,
-                                 collar_width_m=scene.collar_width_m))
+        studs.append(welded_stud(sid, p, -n, defect, length_m=scene.stud_length_m,
+                                 collar_height_m=scene.collar_height_m, collar_width_m=scene.collar_width_m))
     after = render(scene, camera, seed=seed + 1, depth_noise_m=noise_m, hole_fraction=holes,
                    welded=tuple(s for s in studs if s is not None), depth_noise_correlation_px=correlation_px)
     return Shots(list(weld_ids), t.position_w, t.normal_w, t.ok, before.depth_m, after.depth_m, camera, studs)

@@ -75,7 +75,8 @@ def test_command_line_overrides_beat_mode_and_node_params(cfg):
     assert hw["arm_driver"].params["arm_ip"] == "10.0.0.7"
     replay, notes = plan(cfg, "replay", cli_vars={"bag": "/b"}, with_nodes=["arm_simulator", "arm_driver"],
                          respawn_driver=False)
-    assert list(replay)[-2:] == ["arm_simulator", "arm_driver"] and replay["arm_driver"].start_after == ("arm_simulator",)
+    assert list(replay)[-2:] == ["arm_simulator", "arm_driver"]
+    assert replay["arm_driver"].start_after == ("arm_simulator",)
 
 
 @pytest.mark.parametrize("mode, kw, message", [
@@ -211,7 +212,8 @@ def test_main_dry_run_prints_commands_with_params_files(capsys, tmp_path):
     code, out, err = run_main(capsys, "--mode", "sim", "--dry-run", "--params", str(CELL_YAML), "--out",
                               str(tmp_path), "--no-hmi", "--set", "matcher.algorithm=bfs")
     assert code == 0, err
-    assert f"--params-file {tmp_path}/params/matcher.yaml" in out and "{sensor_qos: reliable, algorithm: bfs, normal_window_m: 0.02, per_view_registration: false}" in out
+    assert f"--params-file {tmp_path}/params/matcher.yaml" in out
+    assert "{sensor_qos: reliable, algorithm: bfs, normal_window_m: 0.02, per_view_registration: false}" in out
     assert "# hmi" not in out and "--port 8080" in out
     assert not (tmp_path / "params").exists()  # a dry run writes nothing
 

@@ -13,8 +13,8 @@ import subprocess
 import pytest
 
 from rosproc import REPO, wait_for
-from stud_planner.drawing import read_layout
 from stud_bringup.launcher import group_members
+from stud_planner.drawing import read_layout
 
 N_DEMO_STUDS = len(read_layout(REPO / "src" / "stud_planner" / "data" / "dome_demo.dxf").studs)
 from launch_helpers import alive
@@ -170,7 +170,8 @@ def test_sim_cell_welds_a_headless_job_and_the_sequencers_exit_ends_the_launch(c
     started = cell.record_pids()
     assert not any(alive(pid) or group_members(pid) for pid in started.values())
     out = cell.output()
-    assert "cell_sequencer exited (exit code 0" in out and "[launch] summary: cell_sequencer finished; exit code 0" in out
+    assert "cell_sequencer exited (exit code 0" in out
+    assert "[launch] summary: cell_sequencer finished; exit code 0" in out
     report = json.loads((cell.out_dir / "weld_report.json").read_text())
     assert report["targets"] and all(t["welded"] for t in report["targets"]), report["message"]
     assert len((cell.out_dir / "weld_journal.jsonl").read_text().splitlines()) >= len(report["targets"])

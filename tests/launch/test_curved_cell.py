@@ -9,10 +9,10 @@ import json
 
 import numpy as np
 
+from stud_bringup.demo import gun_axes_at_weld, score
 from stud_perception.scene import MarkingBoard, SceneSpec
 from stud_perception.scene_file import load_scene, scene_from_dict, scene_to_dict
 from stud_perception.scene_solids import Plate, Pose2D, Trough
-from stud_bringup.demo import gun_axes_at_weld, score
 from stud_planner.drawing import read_layout
 from stud_planner.drawing.dxf_writer import write_layout_dxf
 from test_cell_ros import REPO, free_port

@@ -8,7 +8,6 @@ import subprocess
 
 from chromium_pdf import find_chromium, print_to_pdf
 from rosproc import REPO
-
 from stud_planner.drawing import read_layout
 
 DXF = REPO / "src" / "stud_planner" / "data" / "dome_demo.dxf"
@@ -35,7 +34,8 @@ def test_demo_welds_every_stud_once_and_leaves_its_outputs(tmp_path):
     welded = [json.loads(line)["stud"] for line in (out / "weld_journal.jsonl").read_text().splitlines()
               if json.loads(line).get("event") == "welded"]
     assert len(welded) == len(set(welded))
-    assert sorted(welded) == sorted({t["stud_id"] for t in json.loads((out / "weld_report.json").read_text())["targets"]})
+    targets = json.loads((out / "weld_report.json").read_text())["targets"]
+    assert sorted(welded) == sorted({t["stud_id"] for t in targets})
     # the post-weld inspection shots were the inspector's alone: the last /weld_targets is what the matcher
     # saw before the welds, no welded stud gun_blocked (issue 37)
     last = summary["last_weld_targets"]

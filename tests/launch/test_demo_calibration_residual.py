@@ -7,10 +7,10 @@ import ast
 import numpy as np
 import pytest
 
+from stud_bringup.demo import CALIBRATION_RESIDUAL, calibration_residual_size, calibration_residual_vars
+from stud_bringup.launch import default_config_path, load_config
 from stud_common.rotations import transform_xyz_rpy
 from stud_perception.hand_eye_solvers import rotation_angle_deg
-from stud_bringup.launch import default_config_path, load_config
-from stud_bringup.demo import CALIBRATION_RESIDUAL, calibration_residual_size, calibration_residual_vars
 
 
 def test_the_simulated_camera_is_the_residual_off_the_typed_hand_eye():

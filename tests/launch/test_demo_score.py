@@ -13,8 +13,15 @@ from stud_welding_msgs.msg import ArmState, CellStatus, Registration
 from rm65_driver.journal.writer import Journal
 from rm65_driver.kinematics.rm65 import RM65Kinematics
 from stud_bag import BagWriter
-from stud_bringup.demo_score import (accuracy_at_ends, cell_bag_summary, job_span_s, rail_moves, registrations, score,
-                                     welds_from_journal)
+from stud_bringup.demo_score import (
+    accuracy_at_ends,
+    cell_bag_summary,
+    job_span_s,
+    rail_moves,
+    registrations,
+    score,
+    welds_from_journal,
+)
 from stud_common import names
 from stud_common.frames import RailDeviation, true_world_correction, world_T_base
 from stud_perception.scene import girder_scene, surface_height, surface_normal
@@ -113,7 +120,8 @@ def test_a_fixed_arms_journal_is_the_forward_kinematics_of_its_joints_and_the_pl
 
 def test_accuracy_at_the_ends_takes_the_studs_near_each_end_only():
     rows = [{"x_m": x, "xy_error_m": e, "z_error_m": e / 2, "normal_error_deg": 0.1, "slope_deg": 2.5, "welded": True,
-             "gun_axis_error_deg": 0.2} for x, e in ((0.5, 0.0002), (0.8, 0.0003), (3.0, 0.009), (6.2, 0.0007), (6.4, 0.0004))]
+             "gun_axis_error_deg": 0.2}
+            for x, e in ((0.5, 0.0002), (0.8, 0.0003), (3.0, 0.009), (6.2, 0.0007), (6.4, 0.0004))]
     ends = accuracy_at_ends(rows, span_m=0.5)
     assert ends["start"]["studs"] == 2 and ends["start"]["max_xy_error_mm"] == pytest.approx(0.3)
     assert ends["far_end"]["studs"] == 2 and ends["far_end"]["max_xy_error_mm"] == pytest.approx(0.7)

@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 import yaml
 
+from stud_cell.hand_eye_views import REAIM_MIN_SHOTS
+from stud_common.hand_eye_in_use import load_hand_eye_file
 from stud_common.rotations import transform_xyz_rpy
 from stud_perception.hand_eye_solvers import rotation_angle_deg
-from stud_common.hand_eye_in_use import load_hand_eye_file
-from stud_cell.hand_eye_views import REAIM_MIN_SHOTS
 from test_cell_ros import N_DEMO_STUDS, free_port
 
 BELIEVED = ([0.05, 0.0, -0.10], [0.0, 0.0, 0.0])  # cell.yaml's hand_eye_* vars

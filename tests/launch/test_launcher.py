@@ -18,7 +18,7 @@ import pytest
 
 from launch_helpers import alive
 from rosproc import wait_for
-from stud_bringup.launcher import ChildSpec, LaunchError, Launcher, describe_returncode, group_members
+from stud_bringup.launcher import ChildSpec, Launcher, LaunchError, describe_returncode, group_members
 
 HERE = Path(__file__).resolve().parent
 CHILD = HERE / "child.py"

@@ -16,17 +16,18 @@ import math
 
 import numpy as np
 
+from stud_bringup.demo import gun_axes_at_weld, score
 from stud_perception.scene import MarkingBoard, SceneSpec, surface_normal
 from stud_perception.scene_file import load_scene
 from stud_perception.scene_solids import Dome, Pose2D
-from stud_bringup.demo import gun_axes_at_weld, score
 from test_curved_cell import BOARD_POSE, part_files, run_job
 
 
 def dome_scene(centre, base_radius_m, height_m, rings, board: Pose2D) -> SceneSpec:
     world = [np.asarray(centre) + r * np.array([math.cos(a0 + 2 * math.pi * k / m), math.sin(a0 + 2 * math.pi * k / m)])
              for r, m, a0 in rings for k in range(m)]
-    return SceneSpec(component=Dome(tuple(centre), base_radius_m, height_m), board=MarkingBoard(), drawing_to_world=board,
+    return SceneSpec(component=Dome(tuple(centre), base_radius_m, height_m), board=MarkingBoard(),
+                     drawing_to_world=board,
                      studs_drawing_m=tuple(map(tuple, board.apply_inverse(np.array(world)))), stud_length_m=0.05)
 
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stud_perception.camera_model import CameraModel, CameraModelError
 from stud_common.rotations import rpy_to_matrix
+from stud_perception.camera_model import CameraModel, CameraModelError
 
 # A camera tilted and rolled away from nadir, with unequal focal lengths and an off-centre
 # principal point: every term of Eq. 1 matters.

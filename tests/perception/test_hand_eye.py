@@ -19,19 +19,30 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rm65_driver.kinematics.rm65 import RM65Kinematics
-from stud_perception.depth_image import depth_mm_to_m
+from stud_cell.hand_eye_views import (
+    REAIM_MIN_SHOTS,
+    ViewAimer,
+    board_centre_w,
+    plan_calibration_views,
+    plan_check_views,
+    station_view,
+)
 from stud_common.hand_eye_in_use import HandEyeLimits
-from stud_common.rotations import transform, transform_xyz_rpy
-from stud_perception.hand_eye import (BoardShot, board_points_m, board_pose_from_marks, calibrate_hand_eye, check_hand_eye,
-                                      rotation_spread_deg)
+from stud_common.rotations import rpy_to_matrix, transform, transform_xyz_rpy
+from stud_perception.depth_image import depth_mm_to_m
+from stud_perception.hand_eye import (
+    BoardShot,
+    board_points_m,
+    board_pose_from_marks,
+    calibrate_hand_eye,
+    check_hand_eye,
+    rotation_spread_deg,
+)
 from stud_perception.hand_eye_solvers import HandEyeError, rotation_angle_deg, solve_ax_xb
 from stud_perception.markers import MarkDetectorConfig, detect_marks
-from stud_common.rotations import rpy_to_matrix
 from stud_perception.scene_cameras import view_camera
 from stud_perception.scene_file import load_scene
 from stud_perception.scene_render import render
-from stud_cell.hand_eye_views import (REAIM_MIN_SHOTS, ViewAimer, board_centre_w, plan_calibration_views,
-                                              plan_check_views, station_view)
 
 CI = os.environ.get("CI") == "true"  # derandomised in CI: the same cases every run
 REPO = Path(__file__).resolve().parents[2]
@@ -343,7 +354,8 @@ def test_a_shot_whose_marks_disagree_with_the_drawing_is_named():
     shots[4] = BoardShot(shots[4].T_world_tool, bad)
     result = calibrate_hand_eye(shots, DRAWING)
     assert not result.accepted
-    assert any(re.match(r"shot 5: marks disagree with the drawing \(\|OA\| off by \+(2\.9|3\.0)\d mm; tolerance 1.5 mm", p)
+    assert any(re.match(r"shot 5: marks disagree with the drawing "
+                        r"\(\|OA\| off by \+(2\.9|3\.0)\d mm; tolerance 1.5 mm", p)
                for p in result.problems), result.problems
 
 

@@ -8,11 +8,10 @@ import numpy as np
 import pytest
 import yaml
 
-from stud_common.hand_eye_in_use import HandEyeLimits
+from stud_common.hand_eye_in_use import HandEyeFileError, HandEyeLimits, load_hand_eye_file, resolve_hand_eye
 from stud_perception.hand_eye import calibrate_hand_eye
-from stud_perception.hand_eye_solvers import rotation_angle_deg
-from stud_common.hand_eye_in_use import HandEyeFileError, load_hand_eye_file, resolve_hand_eye
 from stud_perception.hand_eye_file import calibration_record, write_yaml
+from stud_perception.hand_eye_solvers import rotation_angle_deg
 from test_hand_eye import DRAWING, X_OFF, reachable_tool_poses, synthetic_shots
 
 
@@ -65,7 +64,8 @@ def _edited(tmp_path, result, edit):
      "accepted is False: the calibration was refused (rotations too small: 3 deg)"),
     (lambda r: r["hand_eye"].update(rpy_deg=[0.0, 0.0, 10.0]), "hand_eye.rpy_deg [0.0, 0.0, 10.0] and quaternion_xyzw"),
     (lambda r: r["hand_eye"].pop("xyz_m"), "missing field hand_eye.xyz_m"),
-    (lambda r: r["hand_eye"].update(xyz_m=[0.05, "a", 0.1]), "hand_eye.xyz_m must be 3 finite numbers, got [0.05, 'a', 0.1]"),
+    (lambda r: r["hand_eye"].update(xyz_m=[0.05, "a", 0.1]),
+     "hand_eye.xyz_m must be 3 finite numbers, got [0.05, 'a', 0.1]"),
     (lambda r: r["hand_eye"].update(child_frame="camera_link"), "hand_eye.child_frame is 'camera_link'"),
     (lambda r: r.update(format="other 2"), "format is 'other 2'"),
     (lambda r: r["poses"].update(used=7), "refused: poses.used 7: too few poses, need at least 12"),

@@ -26,8 +26,7 @@ from stud_perception.hand_eye_spread import chi2_quantile
 from stud_perception.scene_sensor import MAX_DEPTH_NOISE_M
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_hand_eye import (DRAWING, _scaled, offsets, reachable_tool_poses, synthetic_shots,  # noqa: E402
-                           true_hand_eye)
+from test_hand_eye import DRAWING, _scaled, offsets, reachable_tool_poses, synthetic_shots, true_hand_eye  # noqa: E402
 
 MAX_VERIFY_VIEWS = 60  # hand_eye_calibrator's max_verify_views default
 

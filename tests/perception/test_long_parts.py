@@ -8,8 +8,15 @@ import numpy as np
 import pytest
 
 from stud_perception.depth_image import depth_mm_to_m
-from stud_perception.scene import (SURFACE_COMPONENT, SURFACE_TABLE, ReferenceMark, SceneSpec, girder_scene,
-                                   surface_height, surface_normal)
+from stud_perception.scene import (
+    SURFACE_COMPONENT,
+    SURFACE_TABLE,
+    ReferenceMark,
+    SceneSpec,
+    girder_scene,
+    surface_height,
+    surface_normal,
+)
 from stud_perception.scene_cameras import view_camera
 from stud_perception.scene_file import scene_from_dict, scene_to_dict
 from stud_perception.scene_render import render

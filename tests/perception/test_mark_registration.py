@@ -7,9 +7,8 @@ import math
 import numpy as np
 import pytest
 
+from stud_perception.mark_registration import MarkFitConfig, RegistrationTrail, associate_marks, register_view_on_marks
 from stud_perception.markers import MarkDetection, MarkDetectorConfig, find_mark_candidates
-from stud_perception.mark_registration import (MarkFitConfig, RegistrationTrail, associate_marks,
-                                               register_view_on_marks)
 from stud_perception.registration import RegistrationError, fit_marks, local_to_world
 from stud_perception.scene import girder_scene
 from stud_perception.scene_cameras import view_camera
@@ -179,7 +178,8 @@ def test_along_the_rail_every_station_cancels_the_rail_error_and_a_blind_one_say
     assert result.ok and result.registration.extrapolated
     nearest = trail.stations[-1]
     assert result.registration.M_local2world is nearest.registration.M_local2world
-    assert result.registration.extrapolated_m == pytest.approx(np.linalg.norm(nearest.position_xy_m - cam.position_w[:2]))
+    assert result.registration.extrapolated_m == pytest.approx(
+        np.linalg.norm(nearest.position_xy_m - cam.position_w[:2]))
     assert 0.5 < result.registration.extrapolated_m < 0.7
     assert f"extrapolated {result.registration.extrapolated_m:.3f} m" in result.message
     assert "marks not found" in result.message

@@ -10,8 +10,16 @@ import pytest
 
 from stud_perception.camera_model import CameraModel
 from stud_perception.depth_image import depth_mm_to_m
-from stud_perception.scene import (SURFACE_BOARD, SURFACE_COMPONENT, SURFACE_TABLE, SceneSpec, demo_dome_scene,
-                                   grid_stud_scene, surface_height, surface_normal)
+from stud_perception.scene import (
+    SURFACE_BOARD,
+    SURFACE_COMPONENT,
+    SURFACE_TABLE,
+    SceneSpec,
+    demo_dome_scene,
+    grid_stud_scene,
+    surface_height,
+    surface_normal,
+)
 from stud_perception.scene_cameras import demo_camera, view_camera
 from stud_perception.scene_file import load_scene, scene_from_dict, scene_to_dict
 from stud_perception.scene_render import render

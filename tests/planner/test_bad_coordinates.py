@@ -10,8 +10,8 @@ from pathlib import Path
 import ezdxf
 import pytest
 
-from stud_planner.drawing import inspect_cli as drawing_inspect
 from stud_planner.drawing import DrawingError, DrawingLayout, read_circles, read_layout
+from stud_planner.drawing import inspect_cli as drawing_inspect
 
 REPO = Path(__file__).resolve().parents[2]
 DEMO = REPO / "src" / "stud_planner" / "data" / "dome_demo.dxf"

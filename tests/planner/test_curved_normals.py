@@ -46,9 +46,11 @@ def curved_scene(kind: str, slope_deg: float, yaw_rad: float = 0.3) -> SceneSpec
     else:
         comp = Plate((0.0, 0.0), (0.25, 0.2), yaw_rad, 0.09, math.radians(slope_deg))
         c, sn = math.cos(yaw_rad), math.sin(yaw_rad)
-        pts = [[c * a - sn * b, sn * a + c * b] for a in np.linspace(-0.08, 0.08, 4) for b in np.linspace(-0.06, 0.06, 4)]
+        pts = [[c * a - sn * b, sn * a + c * b]
+               for a in np.linspace(-0.08, 0.08, 4) for b in np.linspace(-0.06, 0.06, 4)]
     world = np.asarray(pts)
-    return SceneSpec(component=comp, drawing_to_world=POSE, studs_drawing_m=tuple(map(tuple, POSE.apply_inverse(world))))
+    return SceneSpec(component=comp, drawing_to_world=POSE,
+                     studs_drawing_m=tuple(map(tuple, POSE.apply_inverse(world))))
 
 
 def view_of(scene, seed, noise_m, holes, yaw=0.6, tilt=0.12, azimuth=1.0):

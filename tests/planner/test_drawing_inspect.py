@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from stud_planner.drawing import inspect_cli as drawing_inspect
-from stud_planner.drawing.inspect_cli import main
 from stud_planner.drawing.dxf_writer import write_layout_dxf
+from stud_planner.drawing.inspect_cli import main
 
 REPO = Path(__file__).resolve().parents[2]
 CORPUS = REPO.parent / "shared" / "data" / "dxf"

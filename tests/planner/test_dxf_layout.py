@@ -334,7 +334,8 @@ def test_ids_do_not_change_with_the_placement_of_the_drawing(tmp_path, shift_mm)
     marks = {"O": (0.0, 0.0), "A": (0.4, 0.0), "B": (0.0, 0.3)}
     ids = []
     rng = np.random.default_rng(11)
-    placements = [(0.0, (0, 0))] + [(a, tuple(o)) for a, o in zip(rng.uniform(-180, 180, 9), rng.uniform(-3e5, 3e5, (9, 2)))]
+    placements = [(0.0, (0, 0))] + [(a, tuple(o))
+                                    for a, o in zip(rng.uniform(-180, 180, 9), rng.uniform(-3e5, 3e5, (9, 2)))]
     for k, (angle, off) in enumerate(placements):
         c, sn = math.cos(math.radians(angle)), math.sin(math.radians(angle))
         R = np.array([[c, -sn], [sn, c]])

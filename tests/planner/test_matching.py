@@ -14,9 +14,17 @@ from hypothesis import strategies as st
 
 from stud_perception.camera_model import CameraModel
 from stud_perception.depth_image import FillRule, sample_depth_bilinear
-from stud_planner.matching.matchers import (MatchingError, MatchResult, MatchResults, MatchStatus,
-                                            line_in_view_z_interval, match_batch, match_bfs, match_fpm,
-                                            xy_jacobian_at_height)
+from stud_planner.matching.matchers import (
+    MatchingError,
+    MatchResult,
+    MatchResults,
+    MatchStatus,
+    line_in_view_z_interval,
+    match_batch,
+    match_bfs,
+    match_fpm,
+    xy_jacobian_at_height,
+)
 
 TOL_M = 0.001
 

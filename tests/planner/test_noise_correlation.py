@@ -84,10 +84,10 @@ def test_correlated_noise_keeps_smooth_windows_on_the_fast_path(monkeypatch):
     """The fast path's gate is the frame's whole noise: against the 8x8 blocks' plane-fit RMS alone
     (blind to the noise's slow part), nearly every window of a correlated frame went to the robust
     pixel path, at twice the cost, for the same normals."""
+    import stud_planner.matching.surface_pose as surface_pose
     from stud_perception.scene import demo_dome_scene, grid_stud_scene
     from stud_perception.scene_cameras import view_camera
     from stud_perception.scene_render import render
-    import stud_planner.matching.surface_pose as surface_pose
     from stud_planner.matching.view_targets import PlannerConfig, plan_view
 
     scene = grid_stud_scene(100, demo_dome_scene(), extent_m=(0.26, 0.2))
@@ -97,7 +97,8 @@ def test_correlated_noise_keeps_smooth_windows_on_the_fast_path(monkeypatch):
     view = render(scene, cam, seed=7, depth_noise_m=0.0005, hole_fraction=0.04, depth_noise_correlation_px=1.5)
     robust = []
     pixel_path = surface_pose._pixel_path_fits
-    monkeypatch.setattr(surface_pose, "_pixel_path_fits", lambda idx, *a, **k: robust.append(len(idx)) or pixel_path(idx, *a, **k))
+    monkeypatch.setattr(surface_pose, "_pixel_path_fits",
+                        lambda idx, *a, **k: robust.append(len(idx)) or pixel_path(idx, *a, **k))
     t = plan_view(list(scene.stud_ids), np.asarray(scene.studs_drawing_m), scene.M_local2world, view.depth_m, cam,
                   PlannerConfig(check_gun_clearance=False))
     fitted = int(t.poses.ok.sum())
@@ -120,7 +121,8 @@ def test_painted_stud_marks_do_not_hide_the_correlation(part):
     from stud_perception.scene_render import render
     from stud_planner.matching.view_targets import PlannerConfig, plan_view
 
-    scene = load_scene(Path(__file__).resolve().parents[2] / "src" / "stud_perception" / "config" / f"{part}_scene.json")
+    config = Path(__file__).resolve().parents[2] / "src" / "stud_perception" / "config"
+    scene = load_scene(config / f"{part}_scene.json")
     c = scene.studs_world_xy_m.mean(axis=0)
     cam = view_camera((c[0], c[1], 0.0), 0.40)
     view = render(scene, cam, seed=3, depth_noise_m=0.0005, hole_fraction=0.02, mark_depth_dropout=True,

@@ -12,14 +12,13 @@ import pytest
 
 pytest.importorskip("rclpy")
 from stud_bag import BagWriter  # noqa: E402
-
 from stud_common import ros_io  # noqa: E402
 from stud_perception.camera_node import shot_messages  # noqa: E402
 from stud_perception.scene_cameras import distort_view, view_camera  # noqa: E402
 from stud_perception.scene_file import load_scene  # noqa: E402
 from stud_perception.scene_render import render  # noqa: E402
-from stud_planner.offline_plan import PlanError, main, plan, read_views  # noqa: E402
 from stud_planner.matching.view_targets import PlannerConfig  # noqa: E402
+from stud_planner.offline_plan import PlanError, main, plan, read_views  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
 BAG = REPO / "bags" / "dome_demo"

@@ -46,7 +46,8 @@ def test_every_girder_view_is_registered_on_its_own_marks_and_matched_with_it(gi
     report = plan(DXF, bag)
     assert report["warnings"] == []
     regs = report["registrations"]
-    assert [r["view"] for r in regs] == list(range(5)) and report["view_stamps_ns"] == [v["stamp_ns"] for v in truth["views"]]
+    assert [r["view"] for r in regs] == list(range(5))
+    assert report["view_stamps_ns"] == [v["stamp_ns"] for v in truth["views"]]
     assert regs[0]["marks"] == ["O", "A", "B"]
     for r in regs[1:]:  # the stations see reference marks only (A as well at the girder's start), three or more
         assert len(r["marks"]) >= 3 and any(m.startswith("M") for m in r["marks"]), r

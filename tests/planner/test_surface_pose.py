@@ -8,10 +8,18 @@ from hypothesis import strategies as st
 
 from stud_perception.camera_model import CameraModel
 from stud_planner.matching.matchers import match_batch
-from stud_planner.matching.surface_pose import (M16X150_TOP_OFFSET_M, SurfaceFitConfig, SurfaceStatus,
-                                                estimate_surface_poses, estimate_surface_poses_for_matches,
-                                                frame_from_normal, inclination_deg, offset_along_normal,
-                                                quaternion_from_matrix, quaternion_from_normal)
+from stud_planner.matching.surface_pose import (
+    M16X150_TOP_OFFSET_M,
+    SurfaceFitConfig,
+    SurfaceStatus,
+    estimate_surface_poses,
+    estimate_surface_poses_for_matches,
+    frame_from_normal,
+    inclination_deg,
+    offset_along_normal,
+    quaternion_from_matrix,
+    quaternion_from_normal,
+)
 
 
 def angle_deg(a, b):

@@ -29,8 +29,7 @@ from stud_welding_msgs.action import WeldJob  # noqa: E402
 from stud_welding_msgs.msg import ArmState, WeldTarget  # noqa: E402
 from stud_welding_msgs.srv import ResolveStud  # noqa: E402
 
-from rm65_driver.kinematics.rm65 import (RM65Kinematics, matrix_to_quat_xyzw, quat_xyzw_to_matrix,  # noqa: E402
-                                         tool_pose_facing)
+from rm65_driver.kinematics.rm65 import RM65Kinematics, matrix_to_quat_xyzw, quat_xyzw_to_matrix, tool_pose_facing  # noqa: E402
 from rm65_testing import dome_targets, welds_per_stud  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
@@ -170,8 +169,9 @@ def test_move_to_takes_the_preferred_branch(sim, probe, tmp_path, signs, expect)
     """/arm/move_to over DDS to a camera pose over the marking board that the arm reaches with
     J3, J5 of either sign: from the test's home pose (J3, J5 negative) the nearest stays negative;
     with preferred_joint_signs asking for positive the controller is sent the positive one."""
-    from stud_perception.camera_model import nadir_rotation
     from stud_welding_msgs.srv import MoveTo
+
+    from stud_perception.camera_model import nadir_rotation
 
     proc = NodeProc(sim.port, tmp_path, preferred_joint_signs=signs, hand_eye_xyz_m=[0.05, 0.0, -0.10])
     try:
@@ -198,7 +198,8 @@ def test_estop_stop_latency_and_resolve_over_ros(sim, probe, tmp_path):
         probe.create_subscription(ArmState, "/arm/state", states.append, RELIABLE_10)
         spin_until(probe, lambda: states and states[-1].connected, 30, "/arm/state", proc)
         resolve = probe.create_client(ResolveStud, "/arm/resolve_stud")
-        r = call(probe, resolve, ResolveStud.Request(stud_id="U1", decision=ResolveStud.Request.DECISION_NOT_WELDED), proc)
+        r = call(probe, resolve,
+                 ResolveStud.Request(stud_id="U1", decision=ResolveStud.Request.DECISION_NOT_WELDED), proc)
         assert r.success, r.message
         r = call(probe, resolve, ResolveStud.Request(stud_id="U1", decision=ResolveStud.Request.DECISION_WELDED), proc)
         assert not r.success and "not uncertain" in r.message

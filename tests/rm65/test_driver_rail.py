@@ -24,8 +24,8 @@ from stud_welding_msgs.srv import MoveTo, RailMove  # noqa: E402
 
 from rm65_driver.kinematics.rm65 import RM65Kinematics, matrix_to_quat_xyzw  # noqa: E402
 from rm65_driver.rail.axis import RailAxis  # noqa: E402
-from rm65_sim.simulator import ArmSimulator  # noqa: E402
 from rm65_driver.weld.weld_job import StudTarget  # noqa: E402
+from rm65_sim.simulator import ArmSimulator  # noqa: E402
 from rm65_testing import FAST, HOME_DEG, dome_targets, welds_per_stud  # noqa: E402
 from stud_common.frames import world_T_base  # noqa: E402
 from test_driver_node import RELIABLE_10, NodeProc, call, spin_until, weld_target_msg  # noqa: E402

@@ -13,12 +13,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rm65_driver.weld.goal_checks import GoalTolerances, check_target_fields
 from rm65_driver.kinematics.rm65 import matrix_to_quat_xyzw, tool_pose_facing
+from rm65_driver.weld.goal_checks import GoalTolerances, check_target_fields
 from rm65_driver.weld.weld_job import StudTarget
-from stud_planner.matching.surface_pose import quaternion_from_normal
-
 from rm65_testing import dome_targets, welds_per_stud
+from stud_planner.matching.surface_pose import quaternion_from_normal
 
 P0 = (0.30, 0.0, 0.03)
 
@@ -103,6 +102,7 @@ def test_a_goal_with_bad_targets_welds_only_the_good_ones_and_names_each_bad_one
     from rclpy.node import Node
     from stud_welding_msgs.action import WeldJob
     from stud_welding_msgs.msg import ArmState
+
     from test_driver_node import RELIABLE_10, NodeProc, spin_until, weld_target_msg
 
     good = dome_targets(rings=((0.0, 1), (0.05, 5)))

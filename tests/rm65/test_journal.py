@@ -11,13 +11,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stud_common.vocabulary import JournalStatus
-
-from rm65_driver.journal.records import (DECISION_NOT_WELDED, DECISION_WELDED, TRANSITIONS, JournalError,
-                                         encode_record, mirror_path)
+from rm65_driver.journal.records import (
+    DECISION_NOT_WELDED,
+    DECISION_WELDED,
+    TRANSITIONS,
+    JournalError,
+    encode_record,
+    mirror_path,
+)
 from rm65_driver.journal.scan import JournalCorrupt
 from rm65_driver.journal.writer import Journal
 from rm65_testing import nul_block_over_one_stud, random_bytes, write_job
+from stud_common.vocabulary import JournalStatus
 
 
 def test_records_are_json_lines_and_survive_a_reload(tmp_path):

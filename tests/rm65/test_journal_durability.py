@@ -8,8 +8,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from rm65_driver.journal.writer import Journal
 from rm65_driver.journal.records import mirror_path
+from rm65_driver.journal.writer import Journal
 
 
 def _spy_fsync(monkeypatch) -> list[tuple[str, bool, set[str]]]:

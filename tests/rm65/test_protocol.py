@@ -95,7 +95,8 @@ def test_decode_frame_raises_a_clear_error():
 def test_units_at_the_edge_match_the_doc_examples():
     assert P.joints_to_wire(np.radians([90, -10.1, 0, 0, 0, 0.001])) == [90000, -10100, 0, 0, 0, 1]
     assert P.pose_to_wire([0.1, 0.2, 0.03, 0.4, 0.5, 0.6]) == [100000, 200000, 30000, 400, 500, 600]
-    np.testing.assert_allclose(P.pose_from_wire([100000, 200000, 30000, 400, 500, 600]), [0.1, 0.2, 0.03, 0.4, 0.5, 0.6])
+    np.testing.assert_allclose(P.pose_from_wire([100000, 200000, 30000, 400, 500, 600]),
+                               [0.1, 0.2, 0.03, 0.4, 0.5, 0.6])
     np.testing.assert_allclose(np.degrees(P.joints_from_wire([107149, -84991])), [107.149, -84.991])
 
 
@@ -171,8 +172,9 @@ def test_reply_matching_by_tag_and_result_key():
     ],
 )
 def test_arm_state_is_parsed_in_all_three_documented_error_formats(arm_state, codes, fmt):
-    msg = {"state": "current_arm_state", "arm_state": {"joint": [107149, -84991, 112484, -130772, 64784, 85805],
-                                                         "pose": [150269, -219514, 597973, 782, 409, 1043], **arm_state}}
+    msg = {"state": "current_arm_state",
+           "arm_state": {"joint": [107149, -84991, 112484, -130772, 64784, 85805],
+                         "pose": [150269, -219514, 597973, 782, 409, 1043], **arm_state}}
     r = P.parse_arm_state(msg)
     assert r.error_codes == codes and r.err_format == fmt
     np.testing.assert_allclose(np.degrees(r.joints_rad), [107.149, -84.991, 112.484, -130.772, 64.784, 85.805])

@@ -5,8 +5,16 @@ import pytest
 
 from rm65_driver.protocol import messages as P
 from rm65_driver.protocol.messages import ProtocolError
-from rm65_driver.rail.axis import (RailAxis, RailMode, RailRequestError, expand_get_state, expand_set_pos,
-                              expand_set_speed, expand_state_message, parse_expand_state)
+from rm65_driver.rail.axis import (
+    RailAxis,
+    RailMode,
+    RailRequestError,
+    expand_get_state,
+    expand_set_pos,
+    expand_set_speed,
+    expand_state_message,
+    parse_expand_state,
+)
 
 
 def test_positions_convert_at_the_configured_unit_and_the_travel_is_checked():

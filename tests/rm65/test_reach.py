@@ -8,15 +8,15 @@ import json
 import numpy as np
 import pytest
 
-from rm65_driver.protocol.arm_client import ArmClient
 from rm65_driver.journal.writer import Journal
 from rm65_driver.kinematics.rm65 import RM65Kinematics, pose6_to_matrix
+from rm65_driver.protocol.arm_client import ArmClient
 from rm65_driver.weld.reach import Reach, ReachConfig, ReachConfigError
 from rm65_driver.weld.reach_move import detour, joint_path_problem, plan_move
 from rm65_driver.weld.safety import SafetyChecker, SafetyLimits
-from rm65_sim.simulator import ArmSimulator
 from rm65_driver.weld.weld_job import StudTarget, WeldParams
 from rm65_driver.weld.weld_sequence import WeldSequence
+from rm65_sim.simulator import ArmSimulator
 from rm65_testing import FAST, HOME_DEG, welds_per_stud
 
 REACH = Reach(ReachConfig(standoff_m=0.06, preferred_joint_signs=(0, 0, -1, 0, -1, 0)))
@@ -116,7 +116,8 @@ def test_the_configuration_goes_over_the_wire_exactly_and_bad_ones_are_named():
 def test_the_safety_checkers_reach_is_the_one_it_applies():
     tool = np.eye(4)
     tool[2, 3] = 0.15
-    checker = SafetyChecker(RM65Kinematics(), SafetyLimits(max_tool_tilt_deg=40.0), tool, prefer_signs=(0, 0, -1, 0, -1, 0))
+    checker = SafetyChecker(RM65Kinematics(), SafetyLimits(max_tool_tilt_deg=40.0), tool,
+                            prefer_signs=(0, 0, -1, 0, -1, 0))
     reach = checker.reach_for(0.06)
     assert reach.config.max_tool_tilt_deg == 40.0 and reach.config.standoff_m == 0.06
     p, n = [0.30, 0.0, 0.02], tilted(45, 90)

@@ -1,4 +1,5 @@
-"""Pre-motion safety checks: reach, limits, workspace box, the gun's tilt, the free rotation about the stud, speed caps."""
+"""Pre-motion safety checks: reach, limits, workspace box, the gun's tilt, the free rotation about the stud,
+speed caps."""
 from __future__ import annotations
 
 import numpy as np

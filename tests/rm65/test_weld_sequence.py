@@ -13,8 +13,6 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from stud_common.vocabulary import OnDisconnect, StudOrder
-
 from rm65_driver.journal.writer import Journal
 from rm65_driver.kinematics.rm65 import RM65Kinematics
 from rm65_driver.protocol import messages as P
@@ -23,6 +21,7 @@ from rm65_driver.weld.weld_job import StudTarget, WeldParams
 from rm65_driver.weld.weld_sequence import WeldSequence
 from rm65_sim.simulator import ArmSimulator
 from rm65_testing import FAST, dome_targets, wait_for, welds_per_stud
+from stud_common.vocabulary import OnDisconnect, StudOrder
 
 PARAMS = WeldParams(standoff_m=0.04, tool_offset_m=0.15, pulse_s=0.01, dwell_s=0.01, joint_speed_pct=50,
                     linear_speed_pct=20, motion_timeout_s=5.0, reconnect_timeout_s=3.0)

@@ -6,8 +6,7 @@ import pytest
 
 from rm65_driver.kinematics.rm65 import RM65Kinematics, matrix_to_pose6, trapezoid_profile
 from rm65_driver.protocol import messages as P
-from rm65_sim.motion import (LineSegment, Motion, MotionLimits, SegmentProfile, junction_speed, line_segment,
-                                   plan_motion)
+from rm65_sim.motion import LineSegment, Motion, MotionLimits, SegmentProfile, junction_speed, line_segment, plan_motion
 from rm65_sim.simulator import ArmSimulator
 
 
@@ -135,7 +134,8 @@ def test_the_fast_approach_joined_to_the_slow_final_move_saves_the_stop_between_
                    line=line_segment(kin, p1, np.eye(4), T1, a1))
     second = Motion("movel", p2, SegmentProfile.rest_to_rest(T2, a2), 0, line=line_segment(kin, p2, np.eye(4), T2, a2))
     ArmSimulator._join(first, second)
-    assert first.profile.length == pytest.approx(0.04, rel=1e-4) and second.profile.length == pytest.approx(0.01, rel=1e-4)
+    assert (first.profile.length == pytest.approx(0.04, rel=1e-4)
+            and second.profile.length == pytest.approx(0.01, rel=1e-4))
     # handed over at the slow move's speed: the 10 mm at 10 % (0.05 m/s, 0.16 m/s^2) peak at 0.04 m/s from rest,
     # and the junction takes no more than that (conservative: the slow move could cruise at 0.05 from a flying start)
     assert first.profile.w == pytest.approx(second.line.speed) and first.profile.w == pytest.approx(0.04, rel=1e-3)

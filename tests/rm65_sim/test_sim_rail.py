@@ -10,9 +10,8 @@ import pytest
 from rm65_driver.protocol import messages as P
 from rm65_driver.rail.axis import RailAxis, RailMode
 from rm65_sim.simulator import ArmSimulator
-from stud_common.frames import RailDeviation, carriage_in_world
-
 from rm65_testing import HOME_DEG, wait_for
+from stud_common.frames import RailDeviation, carriage_in_world
 
 AXIS = RailAxis(length_m=6.0, pos_unit_m=1e-6, max_speed_m_s=0.5, accel_m_s2=0.5)
 SDK_STATE_KEYS = {"state", "pos", "current", "err_flag", "en_flag", "mode", "joint_id"}
@@ -208,7 +207,8 @@ def test_a_jog_moves_at_its_speed_stops_on_zero_and_halts_at_the_end_of_the_trav
         assert wait_for(lambda: not sim.rail.moving, 10.0)  # ran into the rail's zero
         assert sim.rail.position_m == 0.0 and peer.state()["mode"] == RailMode.IDLE
         for bad in (101, -101, 2.5, None):
-            assert peer.ask({"command": "expand_set_speed", "speed": bad}, "expand_set_speed")["set_speed_state"] is False
+            reply = peer.ask({"command": "expand_set_speed", "speed": bad}, "expand_set_speed")
+            assert reply["set_speed_state"] is False
     finally:
         peer.close()
         sim.stop()
@@ -227,8 +227,10 @@ def test_a_controller_without_the_axis_refuses_and_reports_it_disabled():
     sim = ArmSimulator(port=0, time_scale=0.02).start()
     peer = Peer(sim.port)
     try:
-        assert peer.ask({"command": "expand_set_pos", "pos": 0, "speed": 50}, "expand_set_pos")["set_pos_state"] is False
-        assert peer.ask({"command": "expand_set_speed", "speed": 10}, "expand_set_speed")["set_speed_state"] is False
+        assert peer.ask({"command": "expand_set_pos", "pos": 0, "speed": 50},
+                        "expand_set_pos")["set_pos_state"] is False
+        assert peer.ask({"command": "expand_set_speed", "speed": 10},
+                        "expand_set_speed")["set_speed_state"] is False
         st = peer.state()
         assert st["en_flag"] == 0 and st["mode"] == 0
         np.testing.assert_array_equal(sim.rail.true_base_in_world(), np.eye(4))
@@ -294,7 +296,8 @@ def test_simulator_command_line_runs_a_rail(tmp_path):
     try:
         assert "rail of 3 m" in proc.stdout.readline()
         peer = Peer(port)
-        assert peer.ask({"command": "expand_set_pos", "pos": 3_000_000, "speed": 100}, "expand_set_pos")["set_pos_state"]
+        assert peer.ask({"command": "expand_set_pos", "pos": 3_000_000, "speed": 100},
+                        "expand_set_pos")["set_pos_state"]
         assert peer.wait(is_arrival(4), timeout=10)["trajectory_state"] is True
         assert peer.ask({"command": "expand_set_pos", "pos": 3_000_001, "speed": 100},
                         "expand_set_pos")["set_pos_state"] is False

@@ -12,7 +12,6 @@ import pytest
 from rm65_driver.kinematics.rm65 import RM65Kinematics
 from rm65_driver.protocol import messages as P
 from rm65_sim.simulator import ArmSimulator, main
-
 from rm65_testing import wait_for
 
 
@@ -79,7 +78,8 @@ def test_movej_ack_then_arrival_and_the_state_follows(raw, sim):
     q = np.radians([5, -25, -95, 3, -55, 10])
     msgs = raw.ask(P.movej(q, 50), n=2)
     assert msgs[0] == {"command": "movej", "receive_state": True}
-    assert msgs[1] == {"state": "current_trajectory_state", "trajectory_state": True, "device": 0, "trajectory_connect": 0}
+    assert msgs[1] == {"state": "current_trajectory_state", "trajectory_state": True, "device": 0,
+                       "trajectory_connect": 0}
     [st] = raw.ask(P.get_current_arm_state())
     r = P.parse_arm_state(st)
     np.testing.assert_allclose(r.joints_rad, q, atol=2e-5)
@@ -161,7 +161,8 @@ def test_older_error_formats_are_configurable(fmt, key):
 def test_pretty_printed_requests_and_replies():
     with ArmSimulator(port=0, pretty_replies=True) as s:
         r = Raw(s.port)
-        r.send(P.encode(P.get_current_arm_state(), pretty=True) + P.encode({"command": "get_joint_degree"}, pretty=True))
+        r.send(P.encode(P.get_current_arm_state(), pretty=True)
+               + P.encode({"command": "get_joint_degree"}, pretty=True))
         raw_bytes = b""
         end = time.monotonic() + 2
         while raw_bytes.count(b"\r\n") < 2 and time.monotonic() < end:

@@ -42,7 +42,8 @@ def test_drawing_node_refuses_a_bomb_stays_up_says_why_on_diagnostics_and_loads_
                     return s.message
         return None
 
-    wait_for(lambda: refusal() is not None, 60, spin=ros_node.spin, what=f"the refusal on /diagnostics\n{node.output()}")
+    wait_for(lambda: refusal() is not None, 60, spin=ros_node.spin,
+             what=f"the refusal on /diagnostics\n{node.output()}")
     message = refusal()
     assert f"{bomb}: block 'L7' (nesting level 4) placed 10 times in block 'L8'" in message, message
     assert "raise the parameter drawing_limits.max_expanded_entities" in message

@@ -15,10 +15,10 @@ from stud_welding_msgs.msg import ArmState
 
 from rosproc import REPO, ros2_run, wait_for
 from stud_common import ros_io
+from stud_common.rotations import matrix_to_quaternion, rpy_to_matrix
 from stud_perception import image_io
 from stud_perception.camera_node import camera_pose_from_tool
 from stud_perception.hand_eye_solvers import rotation_angle_deg
-from stud_common.rotations import matrix_to_quaternion, rpy_to_matrix
 from stud_perception.scene_cameras import view_camera
 from stud_perception.scene_file import load_scene
 from stud_perception.scene_render import render
@@ -96,7 +96,8 @@ def test_a_refused_calibration_file_stops_the_node_with_the_reason(procs, tmp_pa
     wait_for(lambda: procs[0].popen.poll() is not None, 30, what="the camera node to refuse the file")
     assert procs[0].popen.returncode == 2
     out = procs[0].output()
-    assert f"hand_eye_file: {cal}: accepted is False: the calibration was refused (rotations about one axis only)" in out
+    assert (f"hand_eye_file: {cal}: accepted is False: the calibration was refused "
+            "(rotations about one axis only)") in out
     few = calibration_file(tmp_path / "few.yaml", used=8)
     procs.append(ros2_run("rm65_driver", "driver", tmp_path / "driver.log", {"hand_eye_file": str(few)}))
     wait_for(lambda: procs[1].popen.poll() is not None, 30, what="the driver to refuse the file")

@@ -14,7 +14,6 @@ from rosproc import ros2_run, wait_for
 from stud_common import ros_io
 from stud_planner.matching.target_markers import ARROW_NS, TEXT_NS, status_rgba
 from stud_planner.matching.view_targets import STATUS_OK
-
 from test_matcher_node import COLOR, _camera_inputs, _shoot_until
 
 

@@ -10,9 +10,8 @@ from geometry_msgs.msg import PoseStamped
 
 from rosproc import ros2_run, wait_for
 from stud_common import ros_io
-from stud_common.rotations import transform, transform_xyz_rpy
+from stud_common.rotations import rpy_to_matrix, transform, transform_xyz_rpy
 from stud_perception.hand_eye import rebase_camera_pose
-from stud_common.rotations import rpy_to_matrix
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "perception"))
 
@@ -26,11 +25,10 @@ def test_rebase_is_the_tool_pose_times_the_hand_eye_in_use():
 
 
 def test_pose_rebase_node_reposes_recorded_poses_with_the_calibration_file(ros_node, procs, tmp_path):
-    from test_hand_eye import DRAWING, X_OFF, reachable_tool_poses, synthetic_shots
-
-    from stud_perception.hand_eye import calibrate_hand_eye
     from stud_common.hand_eye_in_use import load_hand_eye_file
+    from stud_perception.hand_eye import calibrate_hand_eye
     from stud_perception.hand_eye_file import calibration_record, write_yaml
+    from test_hand_eye import DRAWING, X_OFF, reachable_tool_poses, synthetic_shots
 
     path = write_yaml(tmp_path / "hand_eye.yaml",
                       calibration_record(calibrate_hand_eye(synthetic_shots(X_OFF, reachable_tool_poses(), 11),

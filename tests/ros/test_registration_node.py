@@ -23,7 +23,6 @@ from stud_perception.scene_render import render
 from stud_planner.drawing import read_layout
 from stud_planner.drawing.dxf_writer import write_layout_dxf
 from stud_planner.msg_convert import layout_to_msg
-
 from test_sensor_nodes import DEMO_DXF, DEMO_SCENE
 
 SCENE = load_scene(DEMO_SCENE)

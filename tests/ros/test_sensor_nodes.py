@@ -1,7 +1,6 @@
 """The drawing and camera nodes as separate processes, received by this test process over DDS."""
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 from geometry_msgs.msg import PoseStamped

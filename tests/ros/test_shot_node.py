@@ -21,7 +21,6 @@ from stud_perception.camera_node import camera_pose_from_tool, shot_messages
 from stud_perception.scene_cameras import view_camera
 from stud_perception.scene_file import load_scene
 from stud_perception.scene_render import render
-
 from test_sensor_nodes import DEMO_SCENE
 
 HAND_EYE = ([0.05, 0.0, -0.10], [0.0, 0.0, 90.0])

@@ -10,10 +10,10 @@ from std_msgs.msg import String
 from stud_welding_msgs.msg import Registration
 from tf2_msgs.msg import TFMessage
 
-from rosproc import ros2_run, wait_for
 from rm65_driver.kinematics.rm65 import RM65Kinematics, pose_to_matrix, rotation_angle
 from rm65_driver.kinematics.robot_description import JOINT_NAMES
 from rm65_driver.kinematics.urdf_model import parse_urdf
+from rosproc import ros2_run, wait_for
 from stud_common import frames, ros_io, tf_io
 
 
@@ -85,11 +85,10 @@ def test_with_a_hand_eye_file_the_camera_frame_is_the_calibrated_one_not_the_typ
     from pathlib import Path
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "perception"))
-    from test_hand_eye import DRAWING, X_OFF, reachable_tool_poses, synthetic_shots
-
-    from stud_perception.hand_eye import calibrate_hand_eye
     from stud_common.hand_eye_in_use import load_hand_eye_file
+    from stud_perception.hand_eye import calibrate_hand_eye
     from stud_perception.hand_eye_file import calibration_record, write_yaml
+    from test_hand_eye import DRAWING, X_OFF, reachable_tool_poses, synthetic_shots
 
     path = write_yaml(tmp_path / "hand_eye.yaml",
                       calibration_record(calibrate_hand_eye(synthetic_shots(X_OFF, reachable_tool_poses(), 11),

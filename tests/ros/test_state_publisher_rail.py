@@ -7,10 +7,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from tf2_msgs.msg import TFMessage
 
-from rosproc import ros2_run, wait_for
 from rm65_driver.kinematics.rm65 import RM65Kinematics, pose_to_matrix, rotation_angle
 from rm65_driver.kinematics.robot_description import JOINT_NAMES
 from rm65_driver.kinematics.urdf_model import parse_urdf
+from rosproc import ros2_run, wait_for
 from stud_common import frames, ros_io, tf_io
 from stud_common.frames import world_T_base
 

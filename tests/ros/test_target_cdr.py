@@ -18,8 +18,8 @@ from stud_perception.scene_cameras import demo_camera
 from stud_perception.scene_render import render
 from stud_planner.matching.target_cdr import WELD_TARGET_ARRAY_FIELDS, WELD_TARGET_FIELDS, weld_target_array_cdr
 from stud_planner.matching.target_table import COLUMNS
-from stud_planner.msg_convert import weld_target_table
 from stud_planner.matching.view_targets import STATUS_OUT_OF_VIEW, plan_view
+from stud_planner.msg_convert import weld_target_table
 
 
 @pytest.fixture(scope="module")
@@ -63,7 +63,8 @@ def _check(targets, view_index=7, sec=1_700_000_123, nanosec=456_789_000, frame_
     finite = np.all(np.isfinite(targets.quat_xyzw.reshape(-1, 4)), axis=1)
     np.testing.assert_array_equal(q[finite], targets.quat_xyzw.reshape(-1, 4)[finite])
     np.testing.assert_array_equal(q[~finite], np.tile([0.0, 0.0, 0.0, 1.0], (int((~finite).sum()), 1)))
-    np.testing.assert_allclose(col(lambda t: (t.pixel_u, t.pixel_v), 2), targets.matches.pixel_uv.reshape(-1, 2), **nan_eq)
+    np.testing.assert_allclose(col(lambda t: (t.pixel_u, t.pixel_v), 2), targets.matches.pixel_uv.reshape(-1, 2),
+                               **nan_eq)
     np.testing.assert_allclose(col(lambda t: (t.xy_error, t.inclination, t.normal_rms), 3),
                                np.column_stack([targets.matches.xy_residual_m, targets.inclination_deg,
                                                 targets.normal_rms_m]), **nan_eq)

@@ -5,7 +5,8 @@
 half way; writes what it sent (topic, digest of the content, header stamp) to ``--out``, then stays up
 until SIGINT.
 ``listen``: subscribes (reliable; transient local for the layout) and writes what it received, with
-monotonic receive times, to ``--out`` once ``--expect`` messages arrived or ``--timeout`` passed, then stays up until SIGINT.
+monotonic receive times, to ``--out`` once ``--expect`` messages arrived or ``--timeout`` passed, then
+stays up until SIGINT.
 """
 from __future__ import annotations
 

@@ -19,7 +19,6 @@ from mcap.reader import make_reader
 
 from bag_nodes import content_digest
 from rosproc import Proc, python_proc, wait_for
-
 from stud_bag import BagError, BagReader, BagWriter, Qos, open_bag
 from stud_bag.msgdef import message_definition
 
@@ -189,7 +188,6 @@ def test_bag_writer_output_opens_in_mcap_and_rosbags_readers(tmp_path, mode):
 @pytest.mark.parametrize("mode", ["none", "file"])
 def test_bag_writer_splits_by_duration_and_reader_joins_the_files(tmp_path, mode):
     from rosbags.rosbag2 import Reader
-
     from std_msgs.msg import String
 
     with BagWriter(tmp_path / "split", max_bag_duration_s=0.25, compression_mode=mode) as bag:
@@ -242,7 +240,8 @@ def test_a_recording_that_was_never_closed_is_read_up_to_its_last_message(tmp_pa
     with BagReader(tmp_path / "b") as reader:
         count = len(list(reader))
         assert 10 < count < 50 and reader.message_count == count
-        assert any("no metadata.yaml" in n for n in reader.notes) and any("last complete record" in n for n in reader.notes)
+        assert any("no metadata.yaml" in n for n in reader.notes)
+        assert any("last complete record" in n for n in reader.notes)
 
 
 # -- errors ------------------------------------------------------------------------------------------
@@ -438,7 +437,8 @@ def test_record_keeps_up_with_full_size_depth_images_at_10_hz(tmp_path):
     gaps = np.diff([f.log_time_ns for f in frames]) / 1e9
     assert gaps.mean() == pytest.approx(0.1, abs=0.01) and gaps.max() < 0.2
     raw = sum(len(f.data) for f in frames)
-    print(f"recorded {len(frames)} frames of 2.4 MB at 10 Hz; {raw / 2**20:.1f} MiB raw -> {size / 2**20:.1f} MiB on disk")
+    print(f"recorded {len(frames)} frames of 2.4 MB at 10 Hz; "
+          f"{raw / 2**20:.1f} MiB raw -> {size / 2**20:.1f} MiB on disk")
 
 
 def test_play_topics_start_offset_and_loop_until_sigint(recorded, tmp_path):

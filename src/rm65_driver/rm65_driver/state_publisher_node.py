@@ -3,7 +3,8 @@
 Publishes the arm's URDF latched on ``/robot_description`` (std_msgs/String) and its frames as
 robot_state_publisher does: the fixed joints once on ``/tf_static`` (``world -> base_link``,
 ``link6 -> rm65_flange``, ``rm65_flange -> weld_tool``, ``weld_tool -> camera_color_optical_frame``
-from the hand-eye: ``hand_eye_file`` when given, as every node that poses the camera), the moving joints on ``/tf`` for every ``/joint_states`` message, stamped with it.
+from the hand-eye: ``hand_eye_file`` when given, as every node that poses the camera), the moving
+joints on ``/tf`` for every ``/joint_states`` message, stamped with it.
 On a rail (``rail_length_m`` > 0, the driver's value) ``world -> carriage`` is the moving
 ``rail_joint`` (the driver's ``/joint_states``) and ``carriage -> base_link`` a static frame
 (``rail_mount_xyz_m``), so TF carries world -> carriage -> base_link.
@@ -27,19 +28,17 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from stud_welding_msgs.msg import Registration
 
-from stud_common import frames, hand_eye_ros, ros_io, tf_io
-from stud_common.ros_io import Param, three_numbers
-
 from rm65_driver.kinematics.rm65 import D6_BY_VARIANT
 from rm65_driver.kinematics.robot_description import RM65Description, rm65_urdf
 from rm65_driver.kinematics.urdf_model import RobotModel, UrdfError, parse_urdf
-from stud_common import names
-
+from stud_common import frames, hand_eye_ros, names, ros_io, tf_io
+from stud_common.ros_io import Param, three_numbers
 
 PARAMS = [
     Param("robot_description_file", "", "URDF file to publish instead of the generated RM-65 model "
           "(empty: generate it from the parameters below)", read_only=True),
-    Param("arm_variant", "RM65-B", "arm variant (its flange distance d6)", choices=tuple(D6_BY_VARIANT), read_only=True),
+    Param("arm_variant", "RM65-B", "arm variant (its flange distance d6)", choices=tuple(D6_BY_VARIANT),
+          read_only=True),
     Param("tool_offset_m", 0.15, "flange -> weld-gun tip along flange z (weld_tool) [m]; as the driver's",
           min=0.0, max=0.5, read_only=True),
     *hand_eye_ros.PARAMS,  # weld_tool -> camera_color_optical_frame: the typed hand-eye or hand_eye_file
@@ -142,6 +141,7 @@ class StatePublisherNode(Node):
 
 
 def main(args=None) -> int:
+    """`ros2 run rm65_driver state_publisher`: spin until Ctrl-C; the process exit code."""
     return ros_io.spin_node(StatePublisherNode, args)
 
 

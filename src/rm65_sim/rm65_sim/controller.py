@@ -15,9 +15,15 @@ from typing import Any
 
 import numpy as np
 
+from rm65_driver.kinematics.rm65 import (
+    JOINT_MAX_ACC_DEG_S2,
+    JOINT_MAX_SPEED_DEG_S,
+    RM65Kinematics,
+    invert_transform,
+    matrix_to_pose6,
+    pose6_to_matrix,
+)
 from rm65_driver.protocol import messages as P
-from rm65_driver.kinematics.rm65 import (JOINT_MAX_ACC_DEG_S2, JOINT_MAX_SPEED_DEG_S, RM65Kinematics, invert_transform,
-                                         matrix_to_pose6, pose6_to_matrix)
 
 #: Controller IO (Gen-3: four multiplexed DI/DO) and tool-flange IO (two), §1.8.
 N_IO = 4

@@ -22,9 +22,14 @@ from typing import Any, Callable
 
 import numpy as np
 
+from rm65_driver.kinematics.rm65 import (
+    RM65Kinematics,
+    invert_transform,
+    pose6_to_matrix,
+    rotation_angle,
+    trapezoid_profile,
+)
 from rm65_driver.protocol import messages as P
-from rm65_driver.kinematics.rm65 import (RM65Kinematics, invert_transform, pose6_to_matrix, rotation_angle,
-                                         trapezoid_profile)
 
 _log = logging.getLogger("rm65_sim.simulator")  # one logger for all parts of the simulator
 

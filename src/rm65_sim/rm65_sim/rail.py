@@ -43,12 +43,18 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from stud_common.frames import RailDeviation, world_T_base
-
 from rm65_driver.kinematics.rm65 import trapezoid_profile
 from rm65_driver.protocol import messages as P
-from rm65_driver.rail.axis import DEVICE_EXPAND, EXPAND_SET_POS, EXPAND_SET_SPEED, RailAxis, RailMode, expand_state_message
+from rm65_driver.rail.axis import (
+    DEVICE_EXPAND,
+    EXPAND_SET_POS,
+    EXPAND_SET_SPEED,
+    RailAxis,
+    RailMode,
+    expand_state_message,
+)
 from rm65_sim.motion import SegmentProfile
+from stud_common.frames import RailDeviation, world_T_base
 
 _log = logging.getLogger("rm65_sim.simulator")  # one logger for all parts of the simulator
 
@@ -113,7 +119,10 @@ class SimRail:
             return self.position_m * (1.0 + self.deviation.scale_ppm * 1e-6) + self.deviation.offset_m
 
     def true_base_in_world(self) -> np.ndarray:
-        """Where the arm's base really is in ``world`` (4, 4): the rail's deviation applied (identity without a rail)."""
+        """Where the arm's base really is in ``world`` (4, 4).
+
+        The rail's deviation applied (identity without a rail).
+        """
         with self.lock:
             if self.axis is None:
                 return np.eye(4)

@@ -1,7 +1,7 @@
 """A loopback simulator of the RM-65 controller's JSON-over-TCP interface.
 
-Speaks the protocol of docs/RM65_PROTOCOL.md (``§`` cites its sections) well enough for our driver *and* the official SDK
-(robotic-arm 1.1.6) to connect: ``\\r\\n`` framing (pretty-printed requests tolerated), the
+Speaks the protocol of docs/RM65_PROTOCOL.md (``§`` cites its sections) well enough for our driver
+*and* the official SDK (robotic-arm 1.1.6) to connect: ``\\r\\n`` framing (pretty-printed requests tolerated), the
 eleven connect-time queries of §1.11, ``movej`` / ``movej_p`` / ``movel`` with the
 acknowledgement followed by the ``current_trajectory_state`` arrival message, stop / slow stop
 / pause / continue, tool and work frames, controller and tool-flange IO, arm state in the
@@ -56,8 +56,15 @@ from rm65_driver.protocol import messages as P
 from rm65_driver.rail.axis import EXPAND_SET_POS, RailAxis
 from rm65_sim.controller import N_IO, N_TOOL_IO, ControllerCommands, DOEvent
 from rm65_sim.faults import Fault, FaultInjection
-from rm65_sim.motion import (Motion, MotionLimits, SegmentProfile, junction_speed, line_segment, plan_motion,
-                             trajectory_msg)
+from rm65_sim.motion import (
+    Motion,
+    MotionLimits,
+    SegmentProfile,
+    junction_speed,
+    line_segment,
+    plan_motion,
+    trajectory_msg,
+)
 from rm65_sim.rail import SimRail
 from rm65_sim.server import Connection, TcpServer
 from stud_common.frames import RailDeviation

@@ -24,7 +24,7 @@ from mcap.reader import SeekingReader
 from mcap.records import Channel, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
-from stud_bag.core import BagError, BagMessage, MCAP_MAGIC, READ_ERRORS, TopicSummary
+from stud_bag.core import MCAP_MAGIC, READ_ERRORS, BagError, BagMessage, TopicSummary
 from stud_bag.metadata import (
     METADATA_FILENAME,
     BagMetadata,
@@ -179,7 +179,8 @@ class BagReader:
         except BagError:
             raise
         except READ_ERRORS as exc:
-            raise BagError(f"'{label}': corrupt MCAP file, not readable as MCAP ({type(exc).__name__}: {exc})") from None
+            raise BagError(f"'{label}': corrupt MCAP file, not readable as MCAP "
+                           f"({type(exc).__name__}: {exc})") from None
         except OSError as exc:
             raise BagError(f"'{label}': cannot read ({exc.strerror or exc})") from None
         return scan

@@ -44,12 +44,10 @@ from pathlib import Path
 import numpy as np
 
 from stud_bringup.demo_parts import PARTS, DemoPart
-from stud_bringup.demo_score import (accuracy_at_ends, cell_bag_summary, gun_axes_at_weld, score,  # noqa: F401
-                                     welds_from_journal)
+from stud_bringup.demo_score import accuracy_at_ends, cell_bag_summary, gun_axes_at_weld, score, welds_from_journal  # noqa: F401
+from stud_common import names
 from stud_common.frames import RailDeviation
 from stud_common.strict_json import write_json
-from stud_common import names
-
 
 #: How far the simulated camera's true mount lies from the hand-eye the cell works with: (x, y, z) m
 #: and (roll, pitch, yaw) deg in the weld tool's frame, 0.24 mm and 0.05 deg. The order a good
@@ -70,8 +68,8 @@ def calibration_residual_vars(user_vars: list[str]) -> list[str]:
     """``--var`` arguments putting the simulated camera :data:`CALIBRATION_RESIDUAL` off the cell's
     typed hand-eye (cell.yaml's ``hand_eye_xyz_m`` / ``hand_eye_rpy_deg``); none when ``user_vars``
     set a hand-eye of their own."""
-    from stud_common.rotations import matrix_to_rpy, transform_xyz_rpy
     from stud_bringup.launch import default_config_path, load_config
+    from stud_common.rotations import matrix_to_rpy, transform_xyz_rpy
 
     if sets_hand_eye(user_vars):
         return []
@@ -92,6 +90,7 @@ def calibration_residual_size() -> tuple[float, float]:
 
 
 def share_file(package: str, relative: str) -> Path:
+    """The installed file ``relative`` in ``package``'s share directory (ament index)."""
     from ament_index_python.packages import get_package_share_directory
 
     return Path(get_package_share_directory(package)) / relative
@@ -100,8 +99,8 @@ def share_file(package: str, relative: str) -> Path:
 def export_overlays(bag_dir: Path, out_dir: Path) -> int:
     """The matcher's overlay images from the recorded bag as PNG files."""
     import cv2
-    from stud_bag import open_bag
 
+    from stud_bag import open_bag
     from stud_perception import image_io
 
     if not bag_dir.exists():
@@ -146,14 +145,17 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog="demo", description="Run the simulated weld cell on a bundled curved part.")
     ap.add_argument("--part", choices=sorted(PARTS), default="dome",
                     help="; ".join(f"{name}: {part.description}" for name, part in PARTS.items()))
-    ap.add_argument("--out", type=Path, default=Path("out") / "demo", help="output folder (default: out/demo)")
+    ap.add_argument("--out", type=Path, default=Path("out") / "demo",
+                    help="output folder (default: out/demo)")
     ap.add_argument("--no-hmi", action="store_true", help="do not start the web HMI")
     ap.add_argument("--time-scale", type=float, default=None,
                     help="arm simulator motion time factor (1 = real time; default: the part's, 0.25 for the dome)")
-    ap.add_argument("--max-xy-error-mm", type=float, default=None, help="accuracy limit on the weld points (default 1.0)")
+    ap.add_argument("--max-xy-error-mm", type=float, default=None,
+                    help="accuracy limit on the weld points (default 1.0)")
     ap.add_argument("--max-z-error-mm", type=float, default=None,
                     help="limit on the weld points' height (default: the girder's 1.0; none for the dome and shell)")
-    ap.add_argument("--max-normal-error-deg", type=float, default=None, help="accuracy limit on the normals (default 1.0)")
+    ap.add_argument("--max-normal-error-deg", type=float, default=None,
+                    help="accuracy limit on the normals (default 1.0)")
     ap.add_argument("--max-gun-axis-error-deg", type=float, default=None,
                     help="limit on the gun's axis at each weld (forward kinematics) against the true normal "
                          "(default 1.5, the girder's 1.0)")
@@ -227,8 +229,10 @@ def rail_of_run(out: Path, part: DemoPart, user_vars: list[str]) -> tuple[float,
         return params.get(name, given.get(name, default))
 
     length = float(value("rail_length_m", driver, 0.0))
-    mount = tuple(float(v) for v in value("rail_mount_xyz_m", driver, (0.0, 0.0, 0.0))) if length > 0 else (0.0, 0.0, 0.0)
-    deviation = RailDeviation(float(value("true_rail_scale_ppm", camera, 0.0)), float(value("true_rail_offset_m", camera, 0.0)),
+    mount = (tuple(float(v) for v in value("rail_mount_xyz_m", driver, (0.0, 0.0, 0.0))) if length > 0
+             else (0.0, 0.0, 0.0))
+    deviation = RailDeviation(float(value("true_rail_scale_ppm", camera, 0.0)),
+                              float(value("true_rail_offset_m", camera, 0.0)),
                               float(value("true_rail_yaw_urad_per_m", camera, 0.0))) if length > 0 else RailDeviation()
     return length, mount, deviation
 
@@ -273,7 +277,8 @@ def _evaluate(args: argparse.Namespace, out: Path, report: dict, code: int, elap
           and acc["max_normal_error_deg"] <= args.max_normal_error_deg and acc["gun_axes_checked"] == welded
           and acc["max_gun_axis_error_deg"] <= args.max_gun_axis_error_deg)
     summary = {"ok": ok, "part": args.part, "cell_exit_code": code, "studs_total": total, "studs_welded": welded,
-               "welded_once": welded_once, "stations": report.get("stations"), "unreachable": report.get("unreachable", []),
+               "welded_once": welded_once, "stations": report.get("stations"),
+               "unreachable": report.get("unreachable", []),
                "unreachable_reasons": report.get("unreachable_reasons", {}),
                "time_s": round(elapsed, 1), "accuracy": {k: v for k, v in acc.items() if k != "studs"},
                "overlays": overlays, "qa_summary": qa_counts, "last_weld_targets": last,
@@ -302,17 +307,19 @@ def _print_rail(summary: dict) -> None:
     """The summary's lines of a part welded from a rail: the rail and its simulated error, the accuracy at
     both ends of the part, the registration at each carriage position, the rail moves, the studs per hour."""
     rail = summary["rail"]
-    print(f"   rail                {rail['length_m']:g} m, the arm's base {rail['mount_xyz_m']} m on the carriage; simulated "
-          f"error {rail['true_scale_ppm']:g} ppm scale, {1e3 * rail['true_offset_m']:.2f} mm at zero, "
-          f"{rail['true_yaw_urad_per_m']:g} urad/m bend (sim-only truth: the weld points above are where the gun truly was)")
+    print(f"   rail                {rail['length_m']:g} m, the arm's base {rail['mount_xyz_m']} m on the carriage; "
+          f"simulated error {rail['true_scale_ppm']:g} ppm scale, {1e3 * rail['true_offset_m']:.2f} mm at zero, "
+          f"{rail['true_yaw_urad_per_m']:g} urad/m bend (sim-only truth: the weld points above are where the gun "
+          "truly was)")
     for name, end in summary["accuracy_at_ends"].items():
         print(f"   {name.replace('_', ' '):<20}x {end['x_m'][0]:.2f}-{end['x_m'][1]:.2f} m, {end['studs']} studs: max "
               f"{end['max_xy_error_mm']:.2f} mm XY, {end['max_z_error_mm']:.2f} mm Z, gun axis "
               f"{end['max_gun_axis_error_deg']:.2f} deg")
     regs = summary["registrations"]
     extrapolated = sum(r["extrapolated_m"] > 0 for r in regs)
-    print(f"   registrations       {len(regs)} valid ({extrapolated} extrapolated, {summary['registrations_invalid']} "
-          f"refused): per carriage position, each view's marks and residual (RMS / largest mark, mm)")
+    print(f"   registrations       {len(regs)} valid ({extrapolated} extrapolated, "
+          f"{summary['registrations_invalid']} refused): per carriage position, each view's marks and residual "
+          f"(RMS / largest mark, mm)")
     by_carriage: dict[str, list[str]] = {}
     for r in regs:
         where = f"{r['carriage_m']:.3f} m" if r["carriage_m"] is not None else "?"
@@ -324,9 +331,10 @@ def _print_rail(summary: dict) -> None:
         print(f"     carriage {where:>9}  " + "; ".join(views))
     print(f"   rail moves          {rail['moves']} moves, {rail['distance_m']:.2f} m travelled")
     rate = summary.get("studs_per_hour")
-    print("   throughput          " + (f"{summary['studs_welded']} studs in {summary['job_s']:.0f} s of job: {rate:.0f} studs/h "
-                                       f"at {summary['time_scale']:g}x motion time (real time: bench/bench_cycle_time.py "
-                                       f"--part {summary['part']})" if rate else "the job's span is not in the cell bag"))
+    print("   throughput          "
+          + (f"{summary['studs_welded']} studs in {summary['job_s']:.0f} s of job: {rate:.0f} studs/h "
+             f"at {summary['time_scale']:g}x motion time (real time: bench/bench_cycle_time.py "
+             f"--part {summary['part']})" if rate else "the job's span is not in the cell bag"))
 
 
 def _print_summary(args: argparse.Namespace, out: Path, report: dict, result: dict) -> None:
@@ -382,10 +390,12 @@ def _print_summary(args: argparse.Namespace, out: Path, report: dict, result: di
     if last is None:
         print("   last /weld_targets  none recorded")
     else:
-        print(f"   last /weld_targets  view {last['view']}: " + ", ".join(f"{k} {v}" for k, v in sorted(last['counts'].items()))
+        print(f"   last /weld_targets  view {last['view']}: "
+              + ", ".join(f"{k} {v}" for k, v in sorted(last['counts'].items()))
               + f"; inspection shots matched as views: {last['inspection_shots_matched']}"
               + (f"; gun_blocked: {', '.join(last['gun_blocked'])}" if last["gun_blocked"] else ""))
-    print(f"   time                {result['elapsed_s']:.0f} s (arm simulator at {args.time_scale:g}x real motion time)")
+    print(f"   time                {result['elapsed_s']:.0f} s "
+          f"(arm simulator at {args.time_scale:g}x real motion time)")
     print(f"   output              {out}/  (weld_report.json, qa_report.json/.csv/.html, summary.json, "
           f"overlays/ [{overlays}], qa/, cell_bag/, " + ("sensor_bag/, " if PARTS[args.part].record_sensors else "")
           + "logs)")
@@ -393,6 +403,7 @@ def _print_summary(args: argparse.Namespace, out: Path, report: dict, result: di
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the demo cell on the chosen part and score it; returns 0 if every check passed, else 1."""
     args = _parse_args(argv)
     out = args.out.resolve()
     _clear_previous_run(out)

@@ -82,8 +82,9 @@ PARTS: dict[str, DemoPart] = {
         cell_vars={"rail_length_m": GIRDER_RAIL_LENGTH_M, "rail_mount_xyz_m": GIRDER_MOUNT_XYZ_M,
                    "workspace_min_m": (-0.70, -0.70, -0.02),
                    "workspace_max_m": (GIRDER_RAIL_LENGTH_M + 0.70, 0.70, 1.10),
-                   # the camera 0.42 m above the flange's crown: a view 0.39 x 0.29 m holds three or four reference marks
-                   # and the studs between them; the registration view over the board before the girder
+                   # the camera 0.42 m above the flange's crown: a view 0.39 x 0.29 m holds three or four
+                   # reference marks and the studs between them; the registration view over the board before
+                   # the girder
                    "camera_height_m": 0.58, "part_height_m": 0.17,
                    "registration_station_xyz_m": (0.315, 0.25, 0.35),
                    # from 0.43 m a 20 mm patch holds a third of the pixels it holds over the dome: its normals

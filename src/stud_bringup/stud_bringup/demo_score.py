@@ -60,7 +60,8 @@ def welds_from_journal(journal_file: Path, tool_offset_m: float = 0.15, mount_xy
         sid = str(rec.get("stud"))
         if rec.get("event") == "started" and rec.get("joints_at_weld") is not None:
             c = float(rec.get("rail_position_m", 0.0))
-            T = world_T_base(c, mount_xyz_m, deviation) @ kin.fk(np.asarray(rec["joints_at_weld"], dtype=np.float64)) @ tool
+            T = (world_T_base(c, mount_xyz_m, deviation)
+                 @ kin.fk(np.asarray(rec["joints_at_weld"], dtype=np.float64)) @ tool)
             started[sid] = WeldPose(sid, T[:3, 3].copy(), T[:3, 2].copy(), c)
         elif rec.get("event") == "welded" and sid in started:
             welded[sid] = started[sid]

@@ -33,8 +33,8 @@ from typing import Any, NoReturn, Sequence
 
 import yaml
 
+from stud_bringup.launcher import ChildSpec, Launcher, LaunchError
 from stud_common.stacks import STACK_DUMP_SIGNAL
-from stud_bringup.launcher import ChildSpec, LaunchError, Launcher
 
 TOP_KEYS = {"launch", "vars", "nodes", "modes"}
 LAUNCH_KEYS = {"sigint_timeout_s": float, "sigterm_timeout_s": float, "report_lines": int}
@@ -231,6 +231,7 @@ class _Substituter:
 
 
 def share_directory(package: str, where: str = "") -> str:
+    """``package``'s installed share directory (ament index); :class:`CellConfigError` naming ``where`` if none."""
     from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 
     try:
@@ -329,8 +330,8 @@ def plan_cell(cfg: dict, mode: str, *, out_dir: str, cli_vars: dict | None = Non
     for n in [*with_nodes, *without_nodes]:
         if n not in nodes:
             raise CellConfigError(f"unknown node '{n}' (defined: {', '.join(nodes)})")
-    names = [n for n in [*mspec["nodes"], *(w for w in with_nodes if w not in mspec["nodes"])] if n not in without_nodes]
-
+    names = [n for n in [*mspec["nodes"], *(w for w in with_nodes if w not in mspec["nodes"])]
+             if n not in without_nodes]
     variables = {**(cfg.get("vars") or {}), **(mspec.get("vars") or {}), **(cli_vars or {}), "out": out_dir,
                  "mode": mode}
     for need in mspec.get("needs", []):
@@ -347,7 +348,8 @@ def plan_cell(cfg: dict, mode: str, *, out_dir: str, cli_vars: dict | None = Non
         if node not in nodes:
             raise CellConfigError(f"--set {text!r}: unknown node '{node}' (defined: {', '.join(nodes)})")
         if node not in names:
-            raise CellConfigError(f"--set {text!r}: node '{node}' is not part of mode {mode} (add it with --with {node})")
+            raise CellConfigError(f"--set {text!r}: node '{node}' is not part of mode {mode} "
+                                  f"(add it with --with {node})")
         overrides.setdefault(node, {})[param] = value
 
     if respawn_driver and DRIVER_NODE not in names:
@@ -358,8 +360,7 @@ def plan_cell(cfg: dict, mode: str, *, out_dir: str, cli_vars: dict | None = Non
         node = nodes[name]
         where = f"nodes.{name}"
         params = _deep_merge(node.get("params") or {}, (mspec.get("params") or {}).get(name) or {})
-        params = _check_param(_deep_merge(subst(params, f"{where}.params"), overrides.get(name, {})),
-                              f"{where}.params")
+        params = _check_param(_deep_merge(subst(params, f"{where}.params"), overrides.get(name, {})), f"{where}.params")
         remaps = {str(subst(k, f"{where}.remaps")): str(subst(v, f"{where}.remaps"))
                   for k, v in {**(node.get("remaps") or {}), **((mspec.get("remaps") or {}).get(name) or {})}.items()}
         env = {str(k): (None if v is None else subst._text(subst(v, f"{where}.env")))
@@ -382,10 +383,10 @@ def plan_cell(cfg: dict, mode: str, *, out_dir: str, cli_vars: dict | None = Non
                 skip = f"{what} is not installed"
                 notes.append(f"skipping {name}: {skip}")
             else:
-                raise CellConfigError(f"cannot launch {name}: {what} is not installed (build with: bash tools/setup.sh)")
+                raise CellConfigError(f"cannot launch {name}: {what} is not installed "
+                                      "(build with: bash tools/setup.sh)")
         planned.append(PlannedNode(
-            name=name, argv=argv, params=params, remaps=remaps, env=env,
-            required=node.get("required", False),
+            name=name, argv=argv, params=params, remaps=remaps, env=env, required=node.get("required", False),
             respawn=node.get("respawn", False) or (respawn_driver and name == DRIVER_NODE),
             max_respawns=int(node.get("max_respawns", 3)), respawn_delay_s=float(node.get("respawn_delay_s", 1.0)),
             exit_on=node.get("exit_on", False), ready=node.get("ready"), start_after=_names(node.get("start_after")),
@@ -437,6 +438,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``cell`` command line; a bad option raises :class:`CellConfigError` instead of exiting."""
     p = _Parser(prog="cell", description="Start the weld cell's nodes as one supervised group (Ctrl-C stops all).")
     p.add_argument("--mode", required=True, help="a mode of the cell description: sim, replay or hardware")
     p.add_argument("--bag", help="bag directory to play (replay mode)")
@@ -480,6 +482,8 @@ def _print_plan(plan: Sequence[PlannedNode], out_dir: Path) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the ``cell`` command: the mode's nodes as one supervised group (--dry-run: print them); returns the
+    exit code."""
     args_in = list(sys.argv[1:] if argv is None else argv)
     try:
         args = build_parser().parse_args(args_in)

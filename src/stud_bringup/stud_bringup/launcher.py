@@ -550,7 +550,8 @@ class Launcher:
         for name, child in self._children.items():
             ok, note = self._judge(child)
             self.outcomes[name] = ChildOutcome(name, child.pid, child.returncode, child.respawns,
-                                               signal.Signals(child.stop_signal).name if child.stop_signal else None, ok, note)
+                                               signal.Signals(child.stop_signal).name if child.stop_signal else None,
+                                               ok, note)
             if not ok:
                 self._exit_code = max(self._exit_code, 1)
         self._say(f"summary: {self._stop_reason or 'stopped'}; exit code {self._exit_code}")

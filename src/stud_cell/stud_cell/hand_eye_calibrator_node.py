@@ -7,10 +7,11 @@ and counted): the first through the believed hand-eye (camera frame), the rest, 
 agree on one, through the estimate so far (tool frame;
 :class:`~stud_cell.hand_eye_views.ViewAimer`, so a camera mounted degrees off its believed
 pose still sees the board in the tilted views). At each view it waits for the arm to settle, takes
-the weld-tool pose from ``/arm/state``, shoots (``/camera/trigger``), finds O, A, B (sub-pixel, ``markers.py``) and lifts
-them with Eq. 1 into the camera frame. :func:`~stud_perception.hand_eye.calibrate_hand_eye` solves
-the camera-to-tool transform; ``<output_dir>/hand_eye.yaml`` gets the result, accepted or refused
-with the reasons (:mod:`stud_perception.hand_eye_file`).
+the weld-tool pose from ``/arm/state``, shoots (``/camera/trigger``), finds O, A, B (sub-pixel,
+``markers.py``) and lifts them with Eq. 1 into the camera frame.
+:func:`~stud_perception.hand_eye.calibrate_hand_eye` solves the camera-to-tool transform;
+``<output_dir>/hand_eye.yaml`` gets the result, accepted or refused with the reasons
+(:mod:`stud_perception.hand_eye_file`).
 
 ``task:=verify``: a few views (:func:`~stud_cell.hand_eye_views.plan_check_views`), the residual
 of the hand-eye in use (``hand_eye_file`` or the typed value) with
@@ -38,21 +39,32 @@ from std_srvs.srv import Trigger
 from stud_welding_msgs.msg import ArmState, StudLayout
 from stud_welding_msgs.srv import MoveTo
 
-from stud_common import hand_eye_ros, ros_io
-from stud_perception import image_io
+from stud_cell.hand_eye_views import (
+    CalibrationView,
+    ViewAimer,
+    ViewPlanError,
+    board_centre_w,
+    plan_calibration_views,
+    plan_check_views,
+    station_view,
+)
+from stud_common import hand_eye_ros, names, ros_io
 from stud_common.hand_eye_in_use import camera_in_world
+from stud_common.ros_io import Param, three_numbers
 from stud_common.rotations import transform
-from stud_perception.hand_eye import (BoardShot, board_points_m, board_pose_from_marks, calibrate_hand_eye,
-                                      check_with_enough_views)
-from stud_perception.hand_eye_solvers import HandEyeError, rotation_angle_deg
+from stud_perception import image_io
+from stud_perception.hand_eye import (
+    BoardShot,
+    board_points_m,
+    board_pose_from_marks,
+    calibrate_hand_eye,
+    check_with_enough_views,
+)
 from stud_perception.hand_eye_file import calibration_record, check_record, write_yaml
+from stud_perception.hand_eye_solvers import HandEyeError, rotation_angle_deg
 from stud_perception.markers import MarkDetectorConfig, detect_marks
 from stud_perception.registration import layout_marks_m
-from stud_common.ros_io import Param, three_numbers
 from stud_perception.view_registration import config_for_layout
-from stud_cell.hand_eye_views import (CalibrationView, ViewAimer, ViewPlanError, board_centre_w,
-                                              plan_calibration_views, plan_check_views, station_view)
-from stud_common import names
 
 
 def _tilts(v) -> str | None:
@@ -118,11 +130,12 @@ class HandEyeCalibrator(Node):
         self.create_subscription(ArmState, names.ARM_STATE, self._keep("arm_state"), ros_io.RESULT_QOS,
                                  callback_group=cb)
         self.sync = ros_io.StampSync(["color", "depth", "info", "pose"], self._keep("view"),
-                                     slop_ns=int(self.p["sync_slop_s"] * 1e9), on_drop=ros_io.warn_dropped(self, "view"))
+                                     slop_ns=int(self.p["sync_slop_s"] * 1e9),
+                                     on_drop=ros_io.warn_dropped(self, "view"))
         for name, topic, typ in (("color", names.COLOR_IMAGE, Image), ("depth", names.DEPTH_IMAGE, Image),
                                  ("info", names.CAMERA_INFO, CameraInfo), ("pose", names.CAMERA_POSE, PoseStamped)):
-            self.create_subscription(typ, topic, functools.partial(self._add, name), ros_io.sensor_qos(self.p["sensor_qos"]),
-                                     callback_group=cb)
+            self.create_subscription(typ, topic, functools.partial(self._add, name),
+                                     ros_io.sensor_qos(self.p["sensor_qos"]), callback_group=cb)
         self.cli_move = self.create_client(MoveTo, names.ARM_MOVE_TO, callback_group=cb)
         self.cli_shot = self.create_client(Trigger, names.CAMERA_TRIGGER, callback_group=cb)
         self.diag = ros_io.Diagnostics(self)
@@ -365,6 +378,7 @@ class HandEyeCalibrator(Node):
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_cell hand_eye_calibrator`: spin until Ctrl-C or (``exit_when_done``) the verdict: 0 accepted."""
     return ros_io.spin_node(HandEyeCalibrator, args, multithreaded=True,
                             until=lambda node: node.exit_code if node.p["exit_when_done"] else None)
 

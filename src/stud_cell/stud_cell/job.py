@@ -36,18 +36,20 @@ from pathlib import Path
 
 import numpy as np
 
-from stud_common.vocabulary import TargetStatus
-from stud_perception.registration import local_to_world
-from stud_common.strict_json import write_json
-from stud_inspection import bend, qa_codes, qa_report, rework
 from stud_cell.board_search import BoardSearchError, board_radius_m, search_area, search_plan
 from stud_cell.cell_reach import CellReach
 from stud_cell.station_reach import StationGeometry, reachable_stations
 from stud_cell.stations import Station, StationPlan, footprint_m, plan_stations, reshoot_station
 from stud_cell.unreachable import UnreachableStuds
+from stud_common.strict_json import write_json
+from stud_common.vocabulary import TargetStatus
+from stud_inspection import bend, qa_codes, qa_report, rework
+from stud_perception.registration import local_to_world
 from stud_planner.matching.target_table import BestViewKey, choose_best
 
-from stud_cell.job_ports import (DONE, FAILED, IDLE, INSPECTING, MATCHING, MOVING, PAUSED,  # noqa: F401
+# The ports' names, re-exported: callers import the job's vocabulary from here. One statement kept
+# in its compact wrapping (isort would spread its 24 names one per line).
+from stud_cell.job_ports import (DONE, FAILED, IDLE, INSPECTING, MATCHING, MOVING, PAUSED,  # noqa: F401  # isort: skip
                                   REGISTERING, RESHOOT_STATUS_TEXTS, SHOOTING, WELDING, CellPorts, DriverLost,
                                   InspectionOutcome, InspectionUnavailable, JobAborted, JobConfig, Layout, MoveRefused,
                                   Registration, Target, View, WeldOutcome, table_targets)
@@ -163,7 +165,8 @@ class CellJob:
                                  board_radius_m(layout.marks_m, layout.mark_diameter_m or 0.02),
                                  None if self.reach is None else self._cameras_ok, max_shots)
         except BoardSearchError as exc:
-            raise JobAborted(f"no valid registration ({'; '.join(looked) or 'no registration station'}): {exc}") from None
+            raise JobAborted(f"no valid registration ({'; '.join(looked) or 'no registration station'}): "
+                             f"{exc}") from None
         last = ""
         for k, (xyz, yaw) in enumerate(self._search_order(search.poses), 1):
             self._status(REGISTERING, f"searching for the marking board: view {k}/{len(search.poses)} from "
@@ -250,7 +253,8 @@ class CellJob:
         self.ports.checkpoint()
         self._move(station.camera_xyz_w, station.yaw_rad)
         wanted = {ids[i] for i in station.stud_indices}
-        view = self._shoot_view(f"station {station.index}/{n}", station.camera_xyz_w, station.yaw_rad, frozenset(wanted))
+        view = self._shoot_view(f"station {station.index}/{n}", station.camera_xyz_w, station.yaw_rad,
+                                frozenset(wanted))
         if view is None:
             raise JobAborted(f"station {station.index}: no weld targets for any of its shots")
         usable = []
@@ -336,7 +340,8 @@ class CellJob:
                 self._station += 1
                 station = self._reshoot_station(studs_w[index[sid]], attempt, plane_z, index[sid])
                 if station is None:
-                    self.ports.warn(f"re-shoot {attempt + 1} of {sid} skipped: no camera pose beside it the arm reaches")
+                    self.ports.warn(f"re-shoot {attempt + 1} of {sid} skipped: "
+                                    "no camera pose beside it the arm reaches")
                     continue
                 self._status(MOVING, f"re-shoot {attempt + 1}/{c.reshoot_attempts} of {sid} "
                              f"({self.stud_report[sid]['status']}): camera to "
@@ -535,7 +540,8 @@ class CellJob:
         try:
             code = qa_codes.profile(c.qa_code, c.qa_overrides)
             judged = {n: float(c.qa_limits[n]) for n in qa_codes.LIMIT_NAMES
-                      if self._judged and isinstance(c.qa_limits.get(n), (int, float)) and c.qa_limits[n] != code.value(n)}
+                      if self._judged and isinstance(c.qa_limits.get(n), (int, float))
+                      and c.qa_limits[n] != code.value(n)}
             if self._judged and c.qa_limits.get("qa_code") not in (None, "", c.qa_code):
                 self.ports.warn(f"the inspector judged by qa_code {c.qa_limits['qa_code']!r}, the cell samples by "
                                 f"{c.qa_code!r}: the record lists the inspector's limits as overrides")
@@ -551,7 +557,8 @@ class CellJob:
         self.named.apply(self.stud_report, self.qa)
         self._status(state, message, studs_welded=welded,
                      studs_failed=max(0, len(self.stud_report) - welded) if self.stud_report else 0,
-                     unreachable=self.unreachable, unreachable_reasons=[self.named.reasons[s] for s in self.unreachable])
+                     unreachable=self.unreachable,
+                     unreachable_reasons=[self.named.reasons[s] for s in self.unreachable])
         c = self.c
         if c.report_file:
             # strict JSON: an unmatched stud's NaN position is null (RFC 8259 has no NaN)
@@ -575,5 +582,6 @@ class CellJob:
         return 0 if state == DONE and all_welded else 1
 
 
-__all__ = ["CellJob", "CellPorts", "DriverLost", "InspectionOutcome", "InspectionUnavailable", "JobAborted", "JobConfig",
-           "Layout", "MoveRefused", "RESHOOT_STATUS_TEXTS", "Registration", "Target", "View", "WeldOutcome"]
+__all__ = ["CellJob", "CellPorts", "DriverLost", "InspectionOutcome", "InspectionUnavailable", "JobAborted",
+           "JobConfig", "Layout", "MoveRefused", "RESHOOT_STATUS_TEXTS", "Registration", "Target", "View",
+           "WeldOutcome"]

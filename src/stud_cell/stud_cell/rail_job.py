@@ -34,14 +34,26 @@ import math
 
 import numpy as np
 
-from stud_cell.job import (MATCHING, MOVING, REGISTERING, WELDING, CellJob, CellPorts, JobAborted, JobConfig, Layout,
-                           MoveRefused, Registration, Target, View)
 from stud_cell.cell_reach import CellReach
-from stud_cell.rail_plan import (CarriageStop, Rail, RailPlan, RailPlanConfig, RailReach, plan_rail,
-                                 registration_views)
+from stud_cell.job import (
+    MATCHING,
+    MOVING,
+    REGISTERING,
+    WELDING,
+    CellJob,
+    CellPorts,
+    JobAborted,
+    JobConfig,
+    Layout,
+    MoveRefused,
+    Registration,
+    Target,
+    View,
+)
+from stud_cell.rail_plan import CarriageStop, Rail, RailPlan, RailPlanConfig, RailReach, plan_rail, registration_views
 from stud_cell.station_reach import StationGeometry
-from stud_perception.registration import local_to_world
 from stud_cell.stations import Station, StationPlan, reshoot_station
+from stud_perception.registration import local_to_world
 
 #: Carriage positions closer than this are the same (m): no move, no new registration.
 SAME_POSITION_M = 1e-6
@@ -400,7 +412,8 @@ class RailJob(CellJob):
             ok = [p for p, v in zip(poses, self.reach.cameras(poses)) if v.ok]
             if not ok:   # a later stop whose arm holds a view of it and welds its last target
                 later = next((s for s in self._visit[self._rank(stop.index) + 1:]
-                              if not self._verdict_at(r, s) and any(v.ok for v in self.rail.at(s.position_m).cameras(poses))),
+                              if not self._verdict_at(r, s)
+                              and any(v.ok for v in self.rail.at(s.position_m).cameras(poses))),
                              None)
                 if later is None:
                     self.named.name(sid, f"no camera pose the arm reaches from {self._where(stop)} or a later one "
@@ -447,7 +460,8 @@ class RailJob(CellJob):
         for sid, k in self._stud_stop.items():   # where each stud not welded was planned
             if not self.stud_report[sid]["welded"]:
                 self.stud_report[sid].setdefault("carriage_stop", k)
-        return {"rail": {"length_m": float(self.c.rail_length_m), "mount_xyz_m": [float(v) for v in self.c.rail_mount_xyz_m],
+        return {"rail": {"length_m": float(self.c.rail_length_m),
+                         "mount_xyz_m": [float(v) for v in self.c.rail_mount_xyz_m],
                          "moves": int(self.rail_moves), "planning_s": None if rp is None else float(rp.planning_s),
                          "reach_checks": None if rp is None else int(rp.reach_checks),
                          "unreachable_stations": {} if rp is None else {str(k): v for k, v in rp.unreachable.items()},

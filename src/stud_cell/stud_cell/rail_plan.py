@@ -45,11 +45,11 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from rm65_driver.weld.reach import Reach
-from stud_common.frames import world_T_base
-from stud_common.hand_eye_in_use import tool_in_world
 from stud_cell.cell_reach import CellReach, camera_pose_as_sent
 from stud_cell.station_reach import StationGeometry
 from stud_cell.stations import Station
+from stud_common.frames import world_T_base
+from stud_common.hand_eye_in_use import tool_in_world
 
 #: Carriage intervals (m): sorted, disjoint ``(lo, hi)`` pairs.
 Intervals = tuple[tuple[float, float], ...]
@@ -122,6 +122,7 @@ class RailPlanConfig:
 
 # -- intervals ------------------------------------------------------------------------------------
 def intersect(a: Intervals, b: Intervals) -> Intervals:
+    """The intersection of two sets of closed intervals (lo, hi) [m], sorted (empty when they do not overlap)."""
     out = []
     for lo1, hi1 in a:
         for lo2, hi2 in b:
@@ -291,7 +292,8 @@ class RailReach:
             self._stud_bands.update(offset_bands(new, self._stud_test, c.reach_span_m, c.prior_coarse_step_m,
                                                  c.prior_tolerance_m))
         m = c.prior_margin_m   # the prior is a prior: its band's ends are kept clear of
-        return [self._to_carriage(float(x), tuple((lo + m, hi - m) for lo, hi in self._stud_bands[k] if hi - lo > 2 * m))
+        return [self._to_carriage(float(x),
+                                  tuple((lo + m, hi - m) for lo, hi in self._stud_bands[k] if hi - lo > 2 * m))
                 for (x, _y), k in zip(xy, keys)]
 
     def surely_unreachable(self, xy_w, z_range_m: tuple[float, float]) -> list[str]:
@@ -451,7 +453,8 @@ def plan_rail(stations: Sequence[Station], studs_xy_w, rail_reach: RailReach, pr
                     feasible[i] = _without(feasible[i], q, rail_reach.config.tolerance_m)
             if not feasible[i] or last_round == 1:
                 feasible.pop(i)
-                unreachable[i] = (f"the reach test refuses the camera at {np.round(by_index[i].camera_xyz_w, 3).tolist()}"
+                unreachable[i] = (f"the reach test refuses the camera at "
+                                  f"{np.round(by_index[i].camera_xyz_w, 3).tolist()}"
                                   f" m from each of the carriage positions tried ({len(refused_at[i])})")
         if last_round == 1:
             placed = [(position, lo, hi, [i for i in group if i in feasible]) for position, lo, hi, group in placed]

@@ -20,11 +20,11 @@ leftovers, re-shoots, the reports); this node is its adapter to the cell:
 The reach test is the arm driver's own (``/arm/reach_config``, latched: stud_cell.cell_reach):
 stations are planned at poses it accepts, and every target is checked before it is sent.
 
-Progress goes to ``/cell/status`` (CellStatus, with the studs the cell cannot weld and why); ``/cell/start|pause|resume|stop`` (Trigger)
-drive it (``auto_start`` starts at once). With ``report_file`` a JSON report of every stud
-(the offline report's fields plus ``welded``) and with ``qa_dir`` the QA record are written at the
-end, also of a job stopped early; ``exit_when_done`` ends the process (exit 0 only when every stud
-was welded).
+Progress goes to ``/cell/status`` (CellStatus, with the studs the cell cannot weld and why);
+``/cell/start|pause|resume|stop`` (Trigger) drive it (``auto_start`` starts at once). With
+``report_file`` a JSON report of every stud (the offline report's fields plus ``welded``) and with
+``qa_dir`` the QA record are written at the end, also of a job stopped early; ``exit_when_done`` ends
+the process (exit 0 only when every stud was welded).
 """
 from __future__ import annotations
 
@@ -41,28 +41,32 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo
+from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
-from std_msgs.msg import String
 from stud_welding_msgs.msg import ArmState, CellStatus, Registration, StudLayout, WeldRecord, WeldTargetArray
 from stud_welding_msgs.srv import Inspect, MoveTo, RailMove
 
-from stud_common import ros_io
-from stud_common.executor_calls import ExecutorCalls
-from stud_common.stacks import dump_stacks_on_signal
-from stud_perception.camera_model import nadir_rotation
-from stud_common.vocabulary import CellState
 from rm65_driver.weld.reach import ReachConfig, ReachConfigError
 from stud_cell import job as cell_job
 from stud_cell.cell_reach import CellReach
 from stud_cell.job import DriverLost, InspectionUnavailable, JobAborted, MoveRefused
 from stud_cell.rail_job import RailJob
-from stud_cell.stations import StationPlanningError, footprint_m
-from stud_inspection.qa_params import SAMPLING_PARAMS, overrides
-from stud_planner.msg_convert import (inspection_extras, inspection_rows, layout_from_msg, registration_from_msg,
-                                      weld_target_table)
 from stud_cell.sequencer_params import PARAMS
-from stud_common import names
+from stud_cell.stations import StationPlanningError, footprint_m
+from stud_common import names, ros_io
+from stud_common.executor_calls import ExecutorCalls
+from stud_common.stacks import dump_stacks_on_signal
+from stud_common.vocabulary import CellState
+from stud_inspection.qa_params import SAMPLING_PARAMS, overrides
+from stud_perception.camera_model import nadir_rotation
+from stud_planner.msg_convert import (
+    inspection_extras,
+    inspection_rows,
+    layout_from_msg,
+    registration_from_msg,
+    weld_target_table,
+)
 
 #: /arm/welds: every weld of the session, also for a sequencer started late.
 WELDS_QOS = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -93,7 +97,8 @@ class CellSequencer(Node):
         self.exit_code: int | None = None
         self.cell_status = CellStatus(state=CellStatus.STATE_IDLE, state_text="idle", message="waiting for start")
         self.pub_status = self.create_publisher(CellStatus, names.CELL_STATUS, ros_io.LATCHED_QOS)
-        self.create_subscription(StudLayout, names.DRAWING_LAYOUT, self._on_layout, ros_io.LATCHED_QOS, callback_group=cb)
+        self.create_subscription(StudLayout, names.DRAWING_LAYOUT, self._on_layout, ros_io.LATCHED_QOS,
+                                 callback_group=cb)
         self.create_subscription(Registration, names.REGISTRATION_RESULT, self._on_registration, ros_io.LATCHED_QOS,
                                  callback_group=cb)
         self.create_subscription(WeldTargetArray, names.WELD_TARGETS, self._on_targets, ros_io.RESULT_QOS,
@@ -551,6 +556,7 @@ class CellSequencer(Node):
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_cell cell_sequencer`: spin until Ctrl-C or (``exit_when_done``) the job's end: 0 if all welded."""
     dump_stacks_on_signal()
     ros_io.init_node_process(args)
     node = CellSequencer()

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import math
 
-from stud_common.ros_io import Param, three_numbers
 from stud_cell.job_ports import JobConfig
+from stud_common.ros_io import Param, three_numbers
 from stud_inspection.qa_params import QA_CODE_PARAM, SAMPLING_PARAMS
 
 _JOB = JobConfig()  # the job's defaults are its own; the parameters expose them

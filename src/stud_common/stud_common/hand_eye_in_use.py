@@ -18,8 +18,15 @@ from typing import Any
 import numpy as np
 import yaml
 
-from stud_common.rotations import (float3, matrix_to_quaternion, matrix_to_rpy, quaternion_to_matrix, rpy_to_matrix,
-                                   rigid_inverse, transform)
+from stud_common.rotations import (
+    float3,
+    matrix_to_quaternion,
+    matrix_to_rpy,
+    quaternion_to_matrix,
+    rigid_inverse,
+    rpy_to_matrix,
+    transform,
+)
 
 FORMAT = "stud_welding/hand_eye 1"
 FRAME = "weld_tool"

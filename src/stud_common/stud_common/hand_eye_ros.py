@@ -17,11 +17,9 @@ from dataclasses import fields
 from rclpy.node import Node
 from std_msgs.msg import String
 
-from stud_common import ros_io
-from stud_common.hand_eye_in_use import HandEyeLimits
-from stud_common.hand_eye_in_use import HandEyeFileError, HandEyeInUse, resolve_hand_eye
+from stud_common import names, ros_io
+from stud_common.hand_eye_in_use import HandEyeFileError, HandEyeInUse, HandEyeLimits, resolve_hand_eye
 from stud_common.ros_io import Param, three_numbers
-from stud_common import names
 
 TOPIC = names.CALIBRATION_HAND_EYE
 LIMITS_NS = "hand_eye_limits"

@@ -65,9 +65,9 @@ INSPECTION_RECORD_BEND_TEST = "/inspection/record_bend_test"
 INSPECTION_BEND_TESTS = "/inspection/bend_tests"
 CALIBRATION_HAND_EYE = "/calibration/hand_eye"
 
-#: The four topics of one shot, by stream name ("color", "depth", "info", "pose"): a matching view's,
-#: or with ``inspection`` a post-weld inspection shot's.
 def shot_topics(inspection: bool = False) -> dict[str, str]:
+    """The four topics of one shot, by stream name ("color", "depth", "info", "pose"): a matching view's,
+    or with ``inspection`` a post-weld inspection shot's."""
     if inspection:
         return {"color": INSPECTION_COLOR_IMAGE, "depth": INSPECTION_DEPTH_IMAGE, "info": INSPECTION_CAMERA_INFO,
                 "pose": INSPECTION_CAMERA_POSE}

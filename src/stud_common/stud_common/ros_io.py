@@ -24,11 +24,10 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, Pose, Quaternion
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
-from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
-                       qos_profile_sensor_data)
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
-from stud_common.rotations import matrix_to_quaternion, quaternion_to_matrix
 from stud_common import names
+from stud_common.rotations import matrix_to_quaternion, quaternion_to_matrix
 from stud_common.stacks import dump_stacks_on_signal
 
 # -- QoS ------------------------------------------------------------------------------------------
@@ -53,6 +52,7 @@ class MessageError(ValueError):
 
 # -- Poses and stamps ------------------------------------------------------------------------------
 def pose_to_rt(pose: Pose) -> tuple[np.ndarray, np.ndarray]:
+    """A Pose -> rotation R (3, 3), translation t (3,) [m]; MessageError for a non-finite value or a zero quaternion."""
     q = pose.orientation
     values = {"position.x": pose.position.x, "position.y": pose.position.y, "position.z": pose.position.z,
               "orientation.x": q.x, "orientation.y": q.y, "orientation.z": q.z, "orientation.w": q.w}
@@ -68,16 +68,19 @@ def pose_to_rt(pose: Pose) -> tuple[np.ndarray, np.ndarray]:
 
 
 def rt_to_pose(R: np.ndarray, t: np.ndarray) -> Pose:
+    """Rotation R (3, 3) and translation t (3,) [m] -> a Pose."""
     x, y, z, w = matrix_to_quaternion(R)
     return Pose(position=Point(x=float(t[0]), y=float(t[1]), z=float(t[2])),
                 orientation=Quaternion(x=x, y=y, z=z, w=w))
 
 
 def stamp_to_ns(stamp: Time) -> int:
+    """A builtin_interfaces Time -> integer nanoseconds."""
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 def ns_to_stamp(ns: int) -> Time:
+    """Integer nanoseconds -> a builtin_interfaces Time."""
     return Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
 
 
@@ -171,8 +174,11 @@ def declare_params(node: Node, params: list[Param], on_change: Callable[[dict], 
     ``SystemExit(2)`` -- never a traceback, never a node that starts and fails later. At run time
     the same checks refuse the change through the parameter callback.
     """
-    from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterValueException,
-                                  ParameterUninitializedException)
+    from rclpy.exceptions import (
+        InvalidParameterTypeException,
+        InvalidParameterValueException,
+        ParameterUninitializedException,
+    )
 
     def current(p: Param) -> Any:
         # An empty list (a parameter file's [], -p name:=[]) has no ROS type: rclpy holds it as "not set".
@@ -414,8 +420,7 @@ def spin_node(node_factory: Callable[[], AnyNode], args: list[str] | None = None
     :data:`SPIN_WAKE_S` at least.
     A node with a ``shutdown()`` method has it called before its callbacks are drained."""
     import rclpy
-    from rclpy.executors import (Executor, ExternalShutdownException, MultiThreadedExecutor,
-                                   SingleThreadedExecutor)
+    from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 
     keep_freed_memory()
     dump_stacks_on_signal()

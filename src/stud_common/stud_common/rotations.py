@@ -17,6 +17,7 @@ def float3(values) -> tuple[float, float, float]:
 
 
 def quaternion_to_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
+    """Rotation matrix (3, 3) of the quaternion (x, y, z, w), normalised first; ValueError for a zero quaternion."""
     n = math.sqrt(x * x + y * y + z * z + w * w)
     if n < 1e-9:
         raise ValueError("zero quaternion has no rotation")
@@ -76,6 +77,7 @@ def rpy_to_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
 
 
 def matrix_to_rpy(R: np.ndarray) -> tuple[float, float, float]:
+    """Roll, pitch, yaw [rad] of a rotation matrix (3, 3), R = Rz(yaw) Ry(pitch) Rx(roll); roll 0 at gimbal lock."""
     R = np.asarray(R, dtype=np.float64)
     pitch = math.asin(max(-1.0, min(1.0, -R[2, 0])))
     if abs(R[2, 0]) < 1 - 1e-9:

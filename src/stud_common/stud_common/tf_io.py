@@ -14,8 +14,8 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from tf2_msgs.msg import TFMessage
 
-from stud_common.rotations import matrix_to_quaternion
 from stud_common import names
+from stud_common.rotations import matrix_to_quaternion
 
 #: /tf: as tf2_ros.TransformBroadcaster.
 TF_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
+
 from stud_common import names
+
 
 class Severity(enum.IntEnum):
     WARNING = 1    # needs the operator's attention; the job goes on

@@ -10,6 +10,7 @@ from stud_hmi.alarms import Code
 
 
 def same_hand_eye(a: dict, b: dict, tol_m: float = 1e-4, tol_deg: float = 0.01) -> bool:
+    """Whether two hand-eye summaries (``xyz_m``, ``rpy_deg``) agree within ``tol_m`` [m] and ``tol_deg`` [deg]."""
     try:
         return (all(abs(x - y) <= tol_m for x, y in zip(a["xyz_m"], b["xyz_m"], strict=True))
                 and all(abs(x - y) <= tol_deg for x, y in zip(a["rpy_deg"], b["rpy_deg"], strict=True)))
@@ -24,7 +25,8 @@ def hand_eye_text(s: dict) -> str:
     if s.get("source") == "file":
         rms = s.get("position_rms_mm")
         extra = f", residual {rms:.2f} mm" if isinstance(rms, (int, float)) and math.isfinite(rms) else ""
-        return f"file {os.path.basename(s.get('path') or '')} ({s.get('date') or 'undated'}{extra}): xyz [{xyz}] mm, rpy [{rpy}]°"
+        return (f"file {os.path.basename(s.get('path') or '')} ({s.get('date') or 'undated'}{extra}): "
+                f"xyz [{xyz}] mm, rpy [{rpy}]°")
     return f"typed values: xyz [{xyz}] mm, rpy [{rpy}]°"
 
 

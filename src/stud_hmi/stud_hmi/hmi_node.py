@@ -51,18 +51,25 @@ from sensor_msgs.msg import Image
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from stud_welding_msgs.action import WeldJob
-from stud_welding_msgs.msg import (ArmState, BendTestPlan, CellStatus, InspectionResult, Registration, ReworkDecision,
-                                   StudLayout, WeldTargetArray)
+from stud_welding_msgs.msg import (
+    ArmState,
+    BendTestPlan,
+    CellStatus,
+    InspectionResult,
+    Registration,
+    ReworkDecision,
+    StudLayout,
+    WeldTargetArray,
+)
 from stud_welding_msgs.srv import RecordBendTest, RecordRework, ResolveStud
 
-from stud_common import hand_eye_ros, ros_io
-from stud_perception import image_io
+from stud_common import hand_eye_ros, names, ros_io
 from stud_common.ros_io import Param, three_numbers
 from stud_hmi.model import STUD_DECISIONS, ArmInfo, ArmMode, CellInfo, CellView, TargetInfo, Timeouts
 from stud_hmi.part_plan import RM65_REACH_M, PartPlan, RailConfig, StationInfo
-from stud_inspection.inspector_node import REWORK_QOS
 from stud_hmi.server import INSPECTION_OVERLAY_URL, HmiServer, WebSocketConnection, default_static_dir
-from stud_common import names
+from stud_inspection.inspector_node import REWORK_QOS
+from stud_perception import image_io
 
 PARAMS = [
     Param("port", 8090, "TCP port of the HMI page and its WebSocket (/ws)", min=1, max=65535, read_only=True),
@@ -380,7 +387,8 @@ class HmiNode(Node):
             self.get_logger().warn(f"/inspection/result station {msg.station}: overlay_file {msg.overlay_file!r} "
                                    f"is not a readable PNG{where}: not shown", throttle_duration_sec=10.0)
         self.server.publish({"type": "inspection_overlay", "url": url, "station": int(msg.station),
-                             "file": os.path.basename(msg.overlay_file), "stamp": ros_io.stamp_to_ns(msg.header.stamp) * 1e-9})
+                             "file": os.path.basename(msg.overlay_file),
+                             "stamp": ros_io.stamp_to_ns(msg.header.stamp) * 1e-9})
 
     def _on_rework(self, msg: ReworkDecision) -> None:
         self.view.on_rework(msg.stud_id, msg.decision, time.time())
@@ -564,6 +572,7 @@ class HmiNode(Node):
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_hmi hmi`: spin until Ctrl-C; the process exit code."""
     return ros_io.spin_node(HmiNode, args)
 
 

@@ -26,12 +26,22 @@ from dataclasses import dataclass
 from typing import Any, Iterable
 
 from stud_common.vocabulary import ArmMode, CellState, TargetStatus
-from stud_inspection.operator_log import OperatorError, operator_name
 from stud_hmi.alarms import ALARMS, DIAG_CODE, STATE_SOURCES, Alarm, AlarmDef, AlarmList, Code, Severity
 from stud_hmi.calibration_display import HandEyeDisplay, hand_eye_text, same_hand_eye
 from stud_hmi.job_clock import ENDED_STATES, OPERATOR_STOP_TEXT, RUNNING_STATES, JobClock
-from stud_hmi.stud_table import (FINAL_WELD_STATES, STATUS_NOT_SEEN, STATUS_OUT_OF_VIEW, WELD_ACTIVE,
-                                         WELD_FAILED, WELD_NONE, WELD_SKIPPED, WELD_WELDED, StudTable, TargetInfo)
+from stud_hmi.stud_table import (
+    FINAL_WELD_STATES,
+    STATUS_NOT_SEEN,
+    STATUS_OUT_OF_VIEW,
+    WELD_ACTIVE,
+    WELD_FAILED,
+    WELD_NONE,
+    WELD_SKIPPED,
+    WELD_WELDED,
+    StudTable,
+    TargetInfo,
+)
+from stud_inspection.operator_log import OperatorError, operator_name
 
 __all__ = [
     "ArmMode", "CellState", "TargetStatus",
@@ -168,7 +178,8 @@ class CellView:
         if cell.state == CellState.FAILED and not cell.message.startswith(OPERATOR_STOP_TEXT):
             causes[Code.CELL_FAILED, src] = cell.message or "the job ended in failure"
         if cell.unreachable:
-            causes[Code.UNREACHABLE, src] = (f"{len(cell.unreachable)} stud(s) the arm cannot weld (see the stud table): "
+            causes[Code.UNREACHABLE, src] = (f"{len(cell.unreachable)} stud(s) the arm cannot weld "
+                                             "(see the stud table): "
                                              f"{', '.join(cell.unreachable[:10])}"
                                              f"{' …' if len(cell.unreachable) > 10 else ''}")
         self.alarms.update("cell", causes, now)

@@ -337,7 +337,8 @@ class PartPlan:
         part = bounds(np.vstack([xy, self.marks_xy()]))
         return {"type": "plan", "frame": frame, "registered": self.registered,
                 "registration": self.registration_message, "layout_revision": self.layout_revision,
-                "marker_min_px": MIN_MARKER_PX, "studs": studs, "bounds_m": None if part is None else [_r(v) for v in part],
+                "marker_min_px": MIN_MARKER_PX, "studs": studs,
+                "bounds_m": None if part is None else [_r(v) for v in part],
                 "marks": [{"label": label, "xy_m": [_r(p[0]), _r(p[1])], "d_m": _r(self._mark_diameter_m)}
                           for (label, _d), p in zip(self._marks, self.marks_xy())],
                 "states": [{"state": s.value, "label": s.label, "count": counts[s]} for s in PlanState],
@@ -367,5 +368,5 @@ def _detail(row: dict, state: PlanState, reason: str, xy: np.ndarray, frame: str
     return " · ".join(parts)
 
 
-__all__ = ["MIN_MARKER_PX", "NO_REASON", "RM65_REACH_M", "PartPlan", "PlanState", "RailConfig", "StationInfo", "bounds", "fit_view",
-           "footprint_corners", "in_footprint", "plan_state"]
+__all__ = ["MIN_MARKER_PX", "NO_REASON", "RM65_REACH_M", "PartPlan", "PlanState", "RailConfig", "StationInfo", "bounds",
+           "fit_view", "footprint_corners", "in_footprint", "plan_state"]

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stud_perception.camera_model import CameraModel
 from stud_common.rotations import frame_from_normal
+from stud_perception.camera_model import CameraModel
 
 
 @dataclass(frozen=True)

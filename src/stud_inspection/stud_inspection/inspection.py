@@ -34,9 +34,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from stud_perception.camera_model import CameraModel
 from stud_common.rotations import float3, frame_from_normal
 from stud_inspection.collar import CollarMeasurement, CollarSettings, measure_collar
+from stud_perception.camera_model import CameraModel
 
 
 class Verdict(str, enum.Enum):
@@ -393,8 +393,9 @@ def _judge_one(p, n, look: _Look, mine: np.ndarray, before, after, camera: Camer
     expected = np.pi * (radius * camera.fx / max(float(camera.world_to_camera(c[None])[0, 2]), 1e-6)) ** 2 * view_cos
     expected *= 0.81  # the inner disc, 0.9 of the radius, is what the cap fit uses
     if len(cap_pts) < max(lim.min_cap_points, lim.min_cap_fraction * expected):
-        return StudMeasurement(Verdict.NOT_INSPECTED, (f"its top is only partly seen ({len(cap_pts)} of ~{expected:.0f} "
-                                                       "points: hidden or cut off)",), cap_points=len(cap_pts))
+        return StudMeasurement(Verdict.NOT_INSPECTED,
+                               (f"its top is only partly seen ({len(cap_pts)} of ~{expected:.0f} "
+                                "points: hidden or cut off)",), cap_points=len(cap_pts))
     cos_an = float(a @ n)
     h_base = float((c - p) @ n) / cos_an
     base = c - h_base * a

@@ -39,13 +39,12 @@ from sensor_msgs.msg import CameraInfo, Image
 from stud_welding_msgs.msg import BendTest, BendTestPlan, InspectionResult, ReworkDecision, StudInspection
 from stud_welding_msgs.srv import Inspect, RecordBendTest, RecordRework
 
-from stud_common import ros_io
-from stud_perception import image_io
+from stud_common import names, ros_io
 from stud_common.ros_io import Param
 from stud_inspection import bend, qa_codes, qa_report, rework
 from stud_inspection.inspection import InspectionLimits, Verdict, draw_inspection_overlay, inspect_studs
 from stud_inspection.qa_params import LIMIT_PARAMS, QA_CODE_PARAM, overrides
-from stud_common import names
+from stud_perception import image_io
 
 _LIMITS = InspectionLimits()
 PARAMS = [
@@ -76,10 +75,12 @@ _VERDICT_CODE = {Verdict.PASS: StudInspection.VERDICT_PASS, Verdict.FAIL: StudIn
 
 
 #: Every rework decision of the session stays for a late subscriber (the HMI).
-REWORK_QOS = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+REWORK_QOS = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def rework_path(p: dict) -> Path:
+    """The rework decisions file: ``rework_file``, else in ``overlay_dir``, else in $ROS_HOME (~/.ros)/stud_welding."""
     if p["rework_file"]:
         return Path(p["rework_file"]).expanduser()
     if p["overlay_dir"]:
@@ -89,6 +90,7 @@ def rework_path(p: dict) -> Path:
 
 
 def bend_path(p: dict) -> Path:
+    """The bend-test file: ``bend_file``, else beside the rework decisions file (:func:`rework_path`)."""
     return Path(p["bend_file"]).expanduser() if p["bend_file"] else rework_path(p).with_name(bend.FILE_NAME)
 
 
@@ -127,7 +129,8 @@ def result_msg(targets, inspection, station: int, stamp, overlay_file: str, qa_c
             s.collar_height_mm = nan if c.height_mm is None else c.height_mm
             s.collar_gap_azimuth_deg = nan if c.gap_azimuth_deg is None else c.gap_azimuth_deg
         msg.studs.append(s)
-    msg.unexpected_objects = [Point(x=o.position_m[0], y=o.position_m[1], z=o.position_m[2]) for o in inspection.unexpected]
+    msg.unexpected_objects = [Point(x=o.position_m[0], y=o.position_m[1], z=o.position_m[2])
+                              for o in inspection.unexpected]
     msg.unexpected_heights_mm = [o.height_mm for o in inspection.unexpected]
     return msg
 
@@ -211,7 +214,8 @@ class InspectorNode(Node):
             return resp
         (stamp_ns, (depth, camera, color)), (depth_before, _cam, _c) = after, before
         ids = [t.stud_id for t in req.targets]
-        planned = np.array([(t.pose.position.x, t.pose.position.y, t.pose.position.z) for t in req.targets]).reshape(-1, 3)
+        planned = np.array([(t.pose.position.x, t.pose.position.y, t.pose.position.z)
+                            for t in req.targets]).reshape(-1, 3)
         normals = np.array([(t.normal.x, t.normal.y, t.normal.z) for t in req.targets]).reshape(-1, 3)
         welded = np.array([sid in set(req.welded_ids) for sid in ids], dtype=bool)
         inspection = inspect_studs(planned, normals, welded, depth_before, depth, camera, self.limits)
@@ -231,7 +235,8 @@ class InspectorNode(Node):
             counts[m.verdict.value] = counts.get(m.verdict.value, 0) + 1
         summary = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
         self.get_logger().info(f"station {req.station}: {summary}"
-                               + (f", {len(inspection.unexpected)} unexpected object(s)" if inspection.unexpected else ""))
+                               + (f", {len(inspection.unexpected)} unexpected object(s)"
+                                  if inspection.unexpected else ""))
         self.diag.set(self.diag.OK, f"station {req.station}: {summary}")
         resp.success, resp.message = True, summary
         return resp
@@ -345,6 +350,7 @@ def bend_plan_msg(doc: dict, stamp) -> BendTestPlan:
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_inspection inspector`: spin until Ctrl-C; the process exit code."""
     return ros_io.spin_node(InspectorNode, args, multithreaded=True)
 
 

@@ -140,7 +140,8 @@ class SamplingRules:
         for name in fields:
             if name in d:
                 v = d[name]["value"] if isinstance(d[name], Mapping) else d[name]
-                kw[name] = int(v) if name in ("lot_sample_min", "failure_neighbours", "preproduction_studs") else float(v)
+                integral = name in ("lot_sample_min", "failure_neighbours", "preproduction_studs")
+                kw[name] = int(v) if integral else float(v)
         return cls(**kw)
 
 

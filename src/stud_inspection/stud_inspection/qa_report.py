@@ -68,6 +68,7 @@ def empty_row(stud_id: str, drawing_xy_mm) -> dict:
 
 
 def summary_of(rows: list[dict]) -> dict:
+    """The number of studs per verdict, every verdict of :data:`VERDICTS` listed (0 included)."""
     counts = {v: 0 for v in VERDICTS}
     for r in rows:
         counts[r["verdict"]] += 1
@@ -249,7 +250,8 @@ def _stud_rows_html(doc: dict) -> tuple[str, str]:
             if b.get("result"):
                 bend += f" {e(b['result'])}"
         out.append(f"<tr class='{e(r['verdict'])}'><td>{e(r['stud_id'])}</td><td>{e(r['verdict'].replace('_', ' '))}"
-                   f"</td><td>{_fmt(m.get('lean_deg'))}</td><td>{_fmt((off[0] ** 2 + off[1] ** 2) ** 0.5) if off else ''}"
+                   f"</td><td>{_fmt(m.get('lean_deg'))}</td>"
+                   f"<td>{_fmt((off[0] ** 2 + off[1] ** 2) ** 0.5) if off else ''}"
                    f"</td><td>{_fmt(m.get('height_mm'))}</td><td>{collar}</td><td>{e('; '.join(r['reasons']))}</td>"
                    f"<td>{'' if r.get('station') is None else r['station']}</td><td>{bend}</td><td>{rework}</td></tr>")
     note = ("" if shown is rows else
@@ -283,7 +285,8 @@ def _bend_html(doc: dict) -> str:
                     f"<td>{_fmt(t.get('angle_deg'), 0)}&deg;</td><td class='result'>{res}"
                     f"{e(': ' + t['note']) if t.get('note') else ''}</td><td>{who}</td></tr>")
     return (f"<h2>Bend tests <small>{c['listed']} listed: {c['passed']} passed, {c['failed']} failed, "
-            f"{c['pending']} to do &middot; lot sample of {sampling['lot_sample']} from {sampling['lot_welded']} welded, "
+            f"{c['pending']} to do &middot; lot sample of {sampling['lot_sample']} "
+            f"from {sampling['lot_welded']} welded, "
             f"drawn with seed {sampling['seed']}</small></h2>"
             "<table class='bend'><tr><th>stud</th><th>why</th><th>angle</th><th>result</th><th>tested by</th></tr>"
             f"{''.join(rows) or '<tr><td colspan=5>none</td></tr>'}</table>")
@@ -294,7 +297,8 @@ body{font:8.5pt/1.25 sans-serif;margin:0;color:#000}
 @media screen{body{max-width:190mm;margin:1.5em auto}}
 h1{font-size:14pt;margin:0 0 .2em}h2{font-size:10pt;margin:.7em 0 .25em}h2 small{font-weight:normal;color:#333}
 p{margin:.25em 0}.note{color:#333;font-style:italic}
-table{border-collapse:collapse;width:100%;font-size:7.5pt}td,th{border:1px solid #999;padding:1px 3px;text-align:left;vertical-align:top}
+table{border-collapse:collapse;width:100%;font-size:7.5pt}\
+td,th{border:1px solid #999;padding:1px 3px;text-align:left;vertical-align:top}
 thead{display:table-header-group}tr{page-break-inside:avoid;break-inside:avoid}
 tr.pass td:nth-child(2){color:#187a18}tr.fail td:nth-child(2),tr.missing td:nth-child(2){color:#b00;font-weight:bold}
 tr.not_inspected td:nth-child(2){color:#a66b00}td.result{min-width:22mm}
@@ -320,11 +324,13 @@ def _html(doc: dict, overlays: list[Path]) -> str:
     lim = doc.get("limits") or {}
     design = (f"stud &Oslash;{lim['stud_diameter_mm']:g} mm, {lim['nominal_length_mm']:g} mm after welding"
               if "stud_diameter_mm" in lim and "nominal_length_mm" in lim else "")
-    return f"""<!doctype html><html><head><meta charset='utf-8'><title>Stud weld QA record {e(str(job.get('id', '')))}</title>
+    return f"""<!doctype html><html><head><meta charset='utf-8'>\
+<title>Stud weld QA record {e(str(job.get('id', '')))}</title>
 <style>{_CSS}</style></head><body>
 <h1>Stud weld QA record</h1>
 <p>Job <b>{e(str(job.get('id', '')))}</b> &middot; part <b>{e(str(job.get('part', '')))}</b> &middot; drawing
-<code>{e(str(job.get('drawing', '')))}</code> &middot; {e(str(job.get('date', '')))} &middot; job {e(str(job.get('state', '')))}
+<code>{e(str(job.get('drawing', '')))}</code> &middot; {e(str(job.get('date', '')))} &middot; \
+job {e(str(job.get('state', '')))}
 {('&middot; code <b>' + e(code['title']) + '</b>') if code else ''}{(' &middot; ' + design) if design else ''}</p>
 <p>{' &middot; '.join(f"{e(k.replace('_', ' '))}: <b>{v}</b>" for k, v in counts.items())}. Measured in 3D by the cell's
 camera after the welds (lean, base offset, standing height, collar: covered/seen degrees).</p>

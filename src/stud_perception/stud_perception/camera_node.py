@@ -34,23 +34,27 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import Trigger
 
-from stud_common import hand_eye_ros, ros_io
+from stud_common import hand_eye_ros, names, ros_io
+from stud_common.frames import RailDeviation, true_world_correction
+from stud_common.hand_eye_in_use import camera_in_world
+from stud_common.ros_io import Param, three_numbers
+from stud_common.rotations import transform, transform_xyz_rpy
 from stud_perception import image_io
 from stud_perception.camera_model import CameraModel
 from stud_perception.rectify import FISHEYE_MODELS, PINHOLE_MODELS, has_distortion
-from stud_common.ros_io import Param, three_numbers
-from stud_common.hand_eye_in_use import camera_in_world
-from stud_common.frames import RailDeviation, true_world_correction
-from stud_common.rotations import transform, transform_xyz_rpy
 from stud_perception.scene import demo_dome_scene
-from stud_perception.scene_cameras import (DEMO_FOV_DISTANCE_M, DEMO_FOV_WIDTH_M, DEMO_IMAGE_SIZE, distort_view,
-                                           view_camera)
+from stud_perception.scene_cameras import (
+    DEMO_FOV_DISTANCE_M,
+    DEMO_FOV_WIDTH_M,
+    DEMO_IMAGE_SIZE,
+    distort_view,
+    view_camera,
+)
 from stud_perception.scene_file import load_scene
 from stud_perception.scene_render import render
 from stud_perception.scene_sensor import MAX_DEPTH_NOISE_M
 from stud_perception.scene_solids import SceneError
 from stud_perception.welded_studs import DefectsByPosition, StudCylinder, welded_stud
-from stud_common import names
 
 OPTICAL_FRAME = "camera_color_optical_frame"
 
@@ -99,7 +103,8 @@ PARAMS = [
           "frame, used to render [m]; NaN: the believed hand-eye", validate=three_numbers("true_hand_eye_xyz_m"),
           nan_means="the believed hand-eye"),
     Param("true_hand_eye_rpy_deg", [math.nan] * 3, "sim only: the camera's TRUE orientation in the tool frame, "
-          "roll-pitch-yaw, used to render [deg]; NaN: the believed hand-eye", validate=three_numbers("true_hand_eye_rpy_deg"),
+          "roll-pitch-yaw, used to render [deg]; NaN: the believed hand-eye",
+          validate=three_numbers("true_hand_eye_rpy_deg"),
           nan_means="the believed hand-eye"),
     Param("true_rail_scale_ppm", 0.0, "sim only, with a rail: the carriage really travels (1 + this x 1e-6) m per "
           "metre the encoder counts, used to render [ppm]", min=-1e5, max=1e5),
@@ -216,7 +221,8 @@ class CameraNode(Node):
         R, t = self._true_pose(*ros_io.pose_to_rt(msg.tool_pose), msg.rail_position_m)
         scene_id, distance_m = self._defects.nearest(t)
         if scene_id is None:
-            self.get_logger().warn(f"weld of {msg.stud_id!r} at {np.round(t, 4).tolist()} m is {distance_m * 1e3:.1f} mm "
+            self.get_logger().warn(f"weld of {msg.stud_id!r} at {np.round(t, 4).tolist()} m "
+                                   f"is {distance_m * 1e3:.1f} mm "
                                    f"from the nearest scene stud (more than {self._defects.reach_m * 1e3:.1f} mm, half "
                                    "the scene's stud spacing): shown without a scene defect", throttle_duration_sec=5.0)
         defect = self.scene.weld_defects.get(scene_id) if scene_id is not None else None
@@ -311,6 +317,7 @@ class CameraNode(Node):
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_perception camera`: spin until Ctrl-C; the process exit code."""
     return ros_io.spin_node(CameraNode, args)
 
 

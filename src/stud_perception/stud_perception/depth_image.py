@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
 from enum import IntEnum
+from functools import lru_cache
 from typing import Literal
 
 import numpy as np
@@ -356,7 +356,8 @@ def _window_sizes(window: int, max_window: int, grow_step_px: int, fallback: str
 
 
 def fill_holes_at(depth_m: np.ndarray, ui: np.ndarray, vi: np.ndarray, window: int = 7, max_window: int = 31,
-                  min_valid: int = 1, min_plane_points: int = 8, grow_step_px: int = 4, chunk: int = 4096) -> FilledDepth:
+                  min_valid: int = 1, min_plane_points: int = 8, grow_step_px: int = 4,
+                  chunk: int = 4096) -> FilledDepth:
     """:func:`fill_depth_at` (``fallback="plane"``) of integer in-image pixels (ui, vi) (n,) that
     have no depth, without its general preparation (any shape, sub-pixel, out-of-image and direct
     queries): the same values, for callers that already know their pixels are holes (a matcher

@@ -34,8 +34,14 @@ import numpy as np
 
 from stud_common.hand_eye_in_use import HandEyeLimits
 from stud_common.rotations import matrix_to_quaternion, matrix_to_rpy, rigid_inverse, transform
-from stud_perception.hand_eye_solvers import (HandEyeError, project_so3, rotation_angle_deg, rotation_exp, rotation_log,
-                                              solve_ax_xb)
+from stud_perception.hand_eye_solvers import (
+    HandEyeError,
+    project_so3,
+    rotation_angle_deg,
+    rotation_exp,
+    rotation_log,
+    solve_ax_xb,
+)
 from stud_perception.hand_eye_spread import CheckLimits, check_limits, measure_mark_noise, solution_covariance
 
 __all__ = ["BoardShot", "MarkCheck", "HandEyeResult", "HandEyeCheck",
@@ -75,8 +81,9 @@ def rebase_camera_pose(T_world_cam: np.ndarray, T_tool_cam_recorded: np.ndarray,
                        T_tool_cam_in_use: np.ndarray) -> np.ndarray:
     """A camera pose made with one hand-eye, re-made with another: the tool pose it came from
     (``T_world_cam @ inv(T_tool_cam_recorded)``) times the hand-eye in use. All 4x4 rigid transforms."""
-    return np.asarray(T_world_cam, dtype=np.float64) @ rigid_inverse(np.asarray(T_tool_cam_recorded, dtype=np.float64)) \
-        @ np.asarray(T_tool_cam_in_use, dtype=np.float64)
+    return (np.asarray(T_world_cam, dtype=np.float64)
+            @ rigid_inverse(np.asarray(T_tool_cam_recorded, dtype=np.float64))
+            @ np.asarray(T_tool_cam_in_use, dtype=np.float64))
 
 
 # -- per shot -----------------------------------------------------------------------------------------
@@ -523,8 +530,8 @@ def check_hand_eye(shots: list[BoardShot], T_tool_cam: np.ndarray, drawing_marks
         spread = check_spread(X_shots, T_world_board_shots, T_world_tool, marks, board_pts, limits, reference_views)
         if not spread.conclusive:
             remedy = (f"take at least {spread.views_needed} views" if spread.views_needed else
-                      f"no number of views will do: the calibration's own {reference_views} shots leave it too uncertain "
-                      "at this noise; recalibrate with more poses")
+                      f"no number of views will do: the calibration's own {reference_views} shots leave it "
+                      "too uncertain at this noise; recalibrate with more poses")
             problems.append(f"inconclusive: {spread.describe()}, so an error of {limits.check_max_mm:g} mm / "
                             f"{limits.check_max_deg:g} deg could hide in it; {remedy}")
         elif mm > spread.limit_mm or deg > spread.limit_deg:

@@ -32,9 +32,8 @@ import numpy as np
 import yaml
 
 from stud_common.hand_eye_in_use import CHILD_FRAME, FORMAT, FRAME, HandEyeInUse
-from stud_perception.hand_eye import HandEyeCheck, HandEyeResult
 from stud_common.rotations import matrix_to_quaternion, matrix_to_rpy
-
+from stud_perception.hand_eye import HandEyeCheck, HandEyeResult
 
 
 # -- writing ----------------------------------------------------------------------------------------

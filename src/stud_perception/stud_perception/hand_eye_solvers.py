@@ -42,6 +42,7 @@ def rotation_exp(w: np.ndarray) -> np.ndarray:
 
 
 def skew(v) -> np.ndarray:
+    """The cross-product matrix (3, 3) of a 3-vector v: ``skew(v) @ w == np.cross(v, w)``."""
     x, y, z = np.asarray(v, dtype=np.float64).reshape(3)
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 

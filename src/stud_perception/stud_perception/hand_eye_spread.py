@@ -163,6 +163,7 @@ def check_limits(cov_x: np.ndarray, noise: MarkNoise, views: int, catch_mm: floa
     needed = views
     if not conclusive:
         # b^2 = K (1/n + 1/n_ref): the check's share falls with its views, the calibration's does not
-        inv_n = min((catch / 2) ** 2 / (b ** 2 / (1.0 / views + r)) - r for b, catch in ((b_mm, catch_mm), (b_deg, catch_deg)))
+        inv_n = min((catch / 2) ** 2 / (b ** 2 / (1.0 / views + r)) - r
+                    for b, catch in ((b_mm, catch_mm), (b_deg, catch_deg)))
         needed = max(views + 1, math.ceil(1.05 / inv_n)) if inv_n > 0 else 0
     return CheckLimits(noise, b_mm, b_deg, catch_mm - b_mm, catch_deg - b_deg, conclusive, views, needed)

@@ -21,7 +21,6 @@ from stud_perception.camera_model import CameraModel, CameraModelError
 from stud_perception.depth_image import DepthImageError, depth_image_to_m
 from stud_perception.rectify import Rectifier, rectifier_for
 
-
 _ENCODINGS = {  # encoding -> (dtype, channels)
     "rgb8": (np.uint8, 3), "bgr8": (np.uint8, 3), "rgba8": (np.uint8, 4), "bgra8": (np.uint8, 4),
     "mono8": (np.uint8, 1), "8UC1": (np.uint8, 1), "8UC3": (np.uint8, 3),
@@ -122,10 +121,12 @@ def _depth_to_metres(msg: Image) -> np.ndarray:
     try:  # the one mm -> m conversion (depth_image), at the message edge
         return depth_image_to_m(image_to_numpy(msg), msg.encoding)
     except DepthImageError:
-        raise MessageError(f"depth encoding '{msg.encoding}' is not supported; expected 16UC1 (mm) or 32FC1 (m)") from None
+        raise MessageError(f"depth encoding '{msg.encoding}' is not supported; "
+                           "expected 16UC1 (mm) or 32FC1 (m)") from None
 
 
 def camera_info_to_K(msg: CameraInfo) -> np.ndarray:
+    """The intrinsic matrix K (3, 3) [px] of a CameraInfo; MessageError when fx or fy is not positive."""
     K = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
     if K[0, 0] <= 0 or K[1, 1] <= 0:
         raise MessageError(f"camera_info K has fx={K[0, 0]}, fy={K[1, 1]}: not calibrated?")

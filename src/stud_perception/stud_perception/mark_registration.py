@@ -13,8 +13,8 @@ Pipeline of :func:`register_view_on_marks`:
    station's, which the rail's error puts a few millimetres off here), the drawing mark whose
    predicted world position lies nearest, within ``gate_m`` (each mark and each disc used once,
    nearest pairs first); without a prior, the board's O, A, B triple by its distances and
-   handedness, as the board's registration finds it (:func:`~stud_perception.markers.detect_marks`), whose Eq. 3 registration is
-   then the prior for the rest;
+   handedness, as the board's registration finds it (:func:`~stud_perception.markers.detect_marks`),
+   whose Eq. 3 registration is then the prior for the rest;
 3. the least-squares fit over all named marks, then once more after naming again with that fit (a
    mark just outside the gate of a poor prior joins); a mark farther than ``max_residual_m`` from
    the fit refuses the registration (a wrong association shows there: two marks swapped cannot be
@@ -40,8 +40,14 @@ import numpy as np
 from stud_perception.camera_model import CameraModel
 from stud_perception.depth_image import FillRule
 from stud_perception.markers import MarkCandidates, MarkDetection, MarkDetectorConfig, MarkStatus, find_mark_candidates
-from stud_perception.registration import (BOARD_LABELS, MarkRegistration, RegistrationError, fit_marks, local_to_world,
-                                          registration_from_marks)
+from stud_perception.registration import (
+    BOARD_LABELS,
+    MarkRegistration,
+    RegistrationError,
+    fit_marks,
+    local_to_world,
+    registration_from_marks,
+)
 from stud_perception.view_registration import ViewRegistration
 
 

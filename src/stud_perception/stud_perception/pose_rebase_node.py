@@ -17,12 +17,10 @@ from __future__ import annotations
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 
-from stud_common import hand_eye_ros, ros_io
+from stud_common import hand_eye_ros, names, ros_io
+from stud_common.ros_io import Param, three_numbers
 from stud_common.rotations import transform, transform_xyz_rpy
 from stud_perception.hand_eye import rebase_camera_pose
-from stud_common.ros_io import Param, three_numbers
-from stud_common import names
-
 
 PARAMS = [
     ros_io.SENSOR_QOS_PARAM,
@@ -47,7 +45,8 @@ class PoseRebaseNode(Node):
         self.T_recorded = transform_xyz_rpy(self.p["recorded_hand_eye_xyz_m"], self.p["recorded_hand_eye_rpy_deg"])
         self.T_in_use = self.in_use.T_tool_cam
         self.pub = self.create_publisher(PoseStamped, self.p["output_topic"], ros_io.CAMERA_PUB_QOS)
-        self.create_subscription(PoseStamped, self.p["input_topic"], self._on_pose, ros_io.sensor_qos(self.p["sensor_qos"]))
+        self.create_subscription(PoseStamped, self.p["input_topic"], self._on_pose,
+                                 ros_io.sensor_qos(self.p["sensor_qos"]))
         self.count = 0
         self.diag = ros_io.Diagnostics(self)
         self.diag.set(self.diag.OK, f"waiting for {self.p['input_topic']}")
@@ -66,6 +65,7 @@ class PoseRebaseNode(Node):
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_perception pose_rebase`: spin until Ctrl-C; the process exit code."""
     return ros_io.spin_node(PoseRebaseNode, args)
 
 

@@ -34,6 +34,7 @@ class RectifyError(ValueError):
 
 
 def has_distortion(D) -> bool:
+    """Whether the distortion coefficients ``D`` (any shape) hold a non-zero one."""
     d = np.asarray(D, dtype=np.float64).ravel()
     return bool(d.size and np.any(d != 0))
 

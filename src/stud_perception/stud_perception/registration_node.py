@@ -33,15 +33,19 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import Trigger
 from stud_welding_msgs.msg import Registration, StudLayout
 
-from stud_common import ros_io
+from stud_common import names, ros_io
+from stud_common.ros_io import Param
 from stud_perception import image_io
 from stud_perception.mark_registration import MarkFitConfig, RegistrationTrail
 from stud_perception.markers import MarkDetectorConfig
-from stud_perception.registration import (BOARD_LABELS, MarkRegistration, layout_marks_m, layout_reference_marks_m,
-                                          local_to_world)
-from stud_common.ros_io import Param
+from stud_perception.registration import (
+    BOARD_LABELS,
+    MarkRegistration,
+    layout_marks_m,
+    layout_reference_marks_m,
+    local_to_world,
+)
 from stud_perception.view_registration import config_for_layout, draw_registration_overlay, register_view
-from stud_common import names
 
 PARAMS = [
     ros_io.SENSOR_QOS_PARAM,
@@ -83,10 +87,12 @@ class RegistrationNode(Node):
         self.create_timer(1.0, self.diag.publish)
         self.create_subscription(StudLayout, names.DRAWING_LAYOUT, self._on_layout, ros_io.LATCHED_QOS)
         self.sync = ros_io.StampSync(["color", "depth", "info", "pose"], self._on_view,
-                                     slop_ns=int(self.p["sync_slop_s"] * 1e9), on_drop=ros_io.warn_dropped(self, "view"))
+                                     slop_ns=int(self.p["sync_slop_s"] * 1e9),
+                                     on_drop=ros_io.warn_dropped(self, "view"))
         for name, topic, typ in (("color", names.COLOR_IMAGE, Image), ("depth", names.DEPTH_IMAGE, Image),
                                  ("info", names.CAMERA_INFO, CameraInfo), ("pose", names.CAMERA_POSE, PoseStamped)):
-            self.create_subscription(typ, topic, functools.partial(self.sync.add, name), ros_io.sensor_qos(self.p["sensor_qos"]))
+            self.create_subscription(typ, topic, functools.partial(self.sync.add, name),
+                                     ros_io.sensor_qos(self.p["sensor_qos"]))
         self.create_service(Trigger, names.REGISTRATION_TRIGGER, self._on_trigger)
         self.get_logger().info("waiting for /drawing/layout and a synchronised RGB-D view")
 
@@ -187,6 +193,7 @@ def registration_msg(reg: MarkRegistration, message: str, stamp) -> Registration
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_perception registration`: spin until Ctrl-C; the process exit code."""
     return ros_io.spin_node(RegistrationNode, args)
 
 

@@ -34,8 +34,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stud_perception.scene_solids import Component, Dome, Girder, Plate, Pose2D, SceneError, finite_pair
-from stud_perception.welded_studs import (DEFAULT_COLLAR_HEIGHT_M, DEFAULT_COLLAR_WIDTH_M, DEFAULT_STUD_DIAMETER_M,
-                                         DEFAULT_STUD_LENGTH_M)
+from stud_perception.welded_studs import (
+    DEFAULT_COLLAR_HEIGHT_M,
+    DEFAULT_COLLAR_WIDTH_M,
+    DEFAULT_STUD_DIAMETER_M,
+    DEFAULT_STUD_LENGTH_M,
+)
 
 # Surface ids of :attr:`stud_perception.scene_render.RenderedView.surface_id`.
 SURFACE_NONE = -1
@@ -85,7 +89,8 @@ class ReferenceMark:
             raise SceneError(f"reference_marks label must be a name other than O, A, B (e.g. 'M1'), got "
                              f"{self.label!r}")
         object.__setattr__(self, "label", self.label.strip())
-        object.__setattr__(self, "drawing_xy_m", finite_pair(self.drawing_xy_m, f"reference_marks {self.label} drawing_xy_m"))
+        object.__setattr__(self, "drawing_xy_m",
+                           finite_pair(self.drawing_xy_m, f"reference_marks {self.label} drawing_xy_m"))
 
 
 @dataclass(frozen=True)
@@ -309,8 +314,8 @@ def girder_scene(
     ``studs_per_row`` studs ``stud_spacing_m`` apart across it every ``row_pitch_m`` (as bridge decks
     use), the marking board on the table beside its start (O 0.1 m before it, A along the rail), and
     reference marks ``M1``, ``M2``, ... every ``mark_pitch_m`` along it, alternately ``mark_offset_m``
-    right and left of its centreline (with the default pitches half a row pitch from the stud rows), so a camera view of the
-    demo's field (0.46 x 0.345 m, the long side along the rail) sees two or three of them anywhere
+    right and left of its centreline (with the default pitches half a row pitch from the stud rows), so a camera
+    view of the demo's field (0.46 x 0.345 m, the long side along the rail) sees two or three of them anywhere
     along the part. ``board_origin_xy_m``: where the board's O lies in world (A along +X, B along +Y);
     default 0.1 m before the start, 0.15 m beside the girder's right edge.
 

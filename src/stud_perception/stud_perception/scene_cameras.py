@@ -28,7 +28,8 @@ def _raw_to_pinhole_maps(K: tuple, D: tuple, fisheye: bool, w: int, h: int) -> t
     if fisheye:
         ideal = cv2.fisheye.undistortPoints(raw, K_arr, D_arr.reshape(4, 1), P=K_arr)
     else:
-        ideal = cv2.undistortPoints(raw, K_arr, D_arr, P=K_arr, criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-9))
+        ideal = cv2.undistortPoints(raw, K_arr, D_arr, P=K_arr,
+                                    criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-9))
     return (ideal[:, 0, 0].reshape(h, w).astype(np.float32), ideal[:, 0, 1].reshape(h, w).astype(np.float32))
 
 

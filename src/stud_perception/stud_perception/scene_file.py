@@ -10,8 +10,15 @@ import numpy as np
 
 from stud_perception.scene import MarkingBoard, ReferenceMark, SceneSpec
 from stud_perception.scene_solids import Component, Cylinder, Dome, Girder, Plate, Pose2D, SceneError, Trough
-from stud_perception.welded_studs import (DEFAULT_COLLAR_HEIGHT_M, DEFAULT_COLLAR_WIDTH_M, DEFAULT_STUD_DIAMETER_M,
-                                         DEFAULT_STUD_LENGTH_M, WeldDefectError, parse_weld_defects)
+from stud_perception.welded_studs import (
+    DEFAULT_COLLAR_HEIGHT_M,
+    DEFAULT_COLLAR_WIDTH_M,
+    DEFAULT_STUD_DIAMETER_M,
+    DEFAULT_STUD_LENGTH_M,
+    WeldDefectError,
+    parse_weld_defects,
+)
+
 
 # -- plain-dict / file form -----------------------------------------------------------------------
 def _take(d: dict, name: str, allowed: set[str]) -> dict:

@@ -15,8 +15,18 @@ import numpy as np
 
 from stud_perception.camera_model import CameraModel
 from stud_perception.depth_image import depth_mm_to_m
-from stud_perception.scene import (SURFACE_BOARD, SURFACE_COLLAR, SURFACE_COMPONENT, SURFACE_NONE, SURFACE_OBSTACLE,
-                                   SURFACE_STUD, SURFACE_TABLE, SceneSpec, surface_height, surface_normal)
+from stud_perception.scene import (
+    SURFACE_BOARD,
+    SURFACE_COLLAR,
+    SURFACE_COMPONENT,
+    SURFACE_NONE,
+    SURFACE_OBSTACLE,
+    SURFACE_STUD,
+    SURFACE_TABLE,
+    SceneSpec,
+    surface_height,
+    surface_normal,
+)
 from stud_perception.scene_sensor import sensor_depth_mm, specular_mask
 from stud_perception.scene_solids import Component, SceneError
 from stud_perception.welded_studs import StudCollar, StudCylinder
@@ -167,7 +177,8 @@ def _stud_mark_coverage(scene, camera, hit_x, hit_y, depth, px_m_per_depth):
         # cross with arms along the drawing axes, arm width a fifth of its length
         lx, ly = cy * ex + sy * ey, -sy * ex + cy * ey
         arm = r_m / 5
-        return np.minimum(np.maximum(np.abs(lx) - r_m, np.abs(ly) - arm), np.maximum(np.abs(ly) - r_m, np.abs(lx) - arm))
+        return np.minimum(np.maximum(np.abs(lx) - r_m, np.abs(ly) - arm),
+                          np.maximum(np.abs(ly) - r_m, np.abs(lx) - arm))
 
     return _patch_coverage(camera, np.column_stack([xy, z]), r_m, hit_x, hit_y, depth, px_m_per_depth,
                            signed_distance)

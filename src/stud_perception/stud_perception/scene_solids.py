@@ -1,10 +1,10 @@
 """The synthetic scene's solids: the 2D drawing -> world pose and the parts' surfaces.
 
 Every solid (a dome, a horizontal cylinder section, a trough, a cambered girder flange, a flat or
-tilted plate; the marking board and the obstacles are plates too) is a prism over a footprint on the working plane (world
-z = 0, z up, metres) capped by a height field, with its exact top height and outward normal at any
-world (x, y) and an analytic ray intersection (:mod:`stud_perception.scene_render` casts one ray
-per pixel through them). :class:`SceneError` is the one error of every scene module.
+tilted plate; the marking board and the obstacles are plates too) is a prism over a footprint on the
+working plane (world z = 0, z up, metres) capped by a height field, with its exact top height and
+outward normal at any world (x, y) and an analytic ray intersection (:mod:`stud_perception.scene_render`
+casts one ray per pixel through them). :class:`SceneError` is the one error of every scene module.
 """
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import ClassVar, Union
 
 import numpy as np
+
 
 class SceneError(ValueError):
     """A scene description that cannot be rendered (names the field and the value)."""

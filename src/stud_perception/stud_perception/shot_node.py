@@ -7,10 +7,10 @@ the camera pose at that moment (the paper's "move, then take one overhead shot")
 depth, info matched by stamp within ``sync_slop_s``) stamped at least ``settle_s`` after the
 request, and republishes it on ``/camera/color/image_raw``, ``/camera/depth/image_raw``,
 ``/camera/color/camera_info`` with ``/camera/pose`` = the last ``/arm/state`` tool pose x the
-hand-eye transform (``hand_eye_*`` or ``hand_eye_file``), all with the frame's stamp. Point the ``input_*_topic`` parameters at the
-driver's topics (depth must be registered/aligned to colour). ``/camera/trigger_inspection`` takes a
-post-weld inspection shot the same way and publishes it under ``/camera/inspection/``
-(stud_common.names.shot_topics), where the matcher does not look.
+hand-eye transform (``hand_eye_*`` or ``hand_eye_file``), all with the frame's stamp. Point the
+``input_*_topic`` parameters at the driver's topics (depth must be registered/aligned to colour).
+``/camera/trigger_inspection`` takes a post-weld inspection shot the same way and publishes it under
+``/camera/inspection/`` (stud_common.names.shot_topics), where the matcher does not look.
 """
 from __future__ import annotations
 
@@ -24,11 +24,9 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import Trigger
 from stud_welding_msgs.msg import ArmState
 
-from stud_common import hand_eye_ros, ros_io
-from stud_perception.camera_node import OPTICAL_FRAME, camera_pose_from_tool
+from stud_common import hand_eye_ros, names, ros_io
 from stud_common.ros_io import Param
-from stud_common import names
-
+from stud_perception.camera_node import OPTICAL_FRAME, camera_pose_from_tool
 
 PARAMS = [
     Param("input_color_topic", "/camera_driver/color/image_raw", "the driver's colour image topic"),
@@ -124,6 +122,7 @@ class ShotNode(Node):
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_perception shot`: spin until Ctrl-C; the process exit code."""
     return ros_io.spin_node(ShotNode, args, multithreaded=True)
 
 

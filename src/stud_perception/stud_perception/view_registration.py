@@ -37,7 +37,8 @@ def register_view(color_bgr: np.ndarray, depth_m: np.ndarray, camera: CameraMode
     ``config.mark_diameter_m`` should be the drawing's mark diameter."""
     detection = detect_marks(color_bgr, depth_m, camera, drawing_marks_m, config)
     if not detection.ok:
-        return ViewRegistration(False, f"marks not found ({detection.status.value}): {detection.message}", detection, None)
+        return ViewRegistration(False, f"marks not found ({detection.status.value}): {detection.message}",
+                                detection, None)
     O, A, B = detection.marks_world_m
     try:
         reg = registration_from_marks(O, A, B, drawing_marks=drawing_marks_m, tol_m=config.distance_tol_m,

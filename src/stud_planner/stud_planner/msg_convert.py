@@ -19,6 +19,7 @@ from stud_planner.matching.target_table import TargetTable, centre_offset
 
 
 def layout_to_msg(layout: drawing.DrawingLayout, stamp=None) -> StudLayout:
+    """A DrawingLayout -> StudLayout message (frame ``drawing``, metres), stamped ``stamp`` when given."""
     msg = StudLayout()
     if stamp is not None:
         msg.header.stamp = stamp
@@ -49,6 +50,7 @@ class LayoutView:
 
 
 def layout_from_msg(msg: StudLayout) -> LayoutView:
+    """A StudLayout message -> :class:`LayoutView` (stud ids, centres (N, 2), marks; metres, drawing frame)."""
     return LayoutView(
         ids=[s.id for s in msg.studs],
         xy_m=np.array([(s.x, s.y) for s in msg.studs], dtype=np.float64).reshape(-1, 2),

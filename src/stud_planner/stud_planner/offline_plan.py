@@ -30,14 +30,14 @@ import struct
 import sys
 import time
 from dataclasses import dataclass, replace
-from typing import Any
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from stud_common import ros_io
-from stud_perception import image_io
+from stud_common import names, ros_io
 from stud_common.strict_json import write_json
+from stud_perception import image_io
 from stud_perception.mark_registration import MarkFitConfig, RegistrationTrail
 from stud_perception.markers import MarkDetectorConfig
 from stud_perception.registration import MarkRegistration
@@ -47,7 +47,6 @@ from stud_planner.drawing.limits import add_limit_arguments, cli_hint, limits_fr
 from stud_planner.matching.gun_clearance import GunModel
 from stud_planner.matching.target_table import TargetTable
 from stud_planner.matching.view_targets import ALGORITHMS, PlannerConfig, draw_targets_overlay, plan_view
-from stud_common import names
 
 DEFAULT_TOPICS = {"color": names.COLOR_IMAGE, "depth": names.DEPTH_IMAGE,
                   "info": names.CAMERA_INFO, "pose": names.CAMERA_POSE}
@@ -274,9 +273,9 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
          images_rectified: bool = False, drawing_limits: DrawingLimits | None = None) -> dict:
     """Run the offline planning and return the report (see the module docstring). ``report["warnings"]``
     lists what the user must know about the result (a damaged bag read anyway, drawing circles left
-    out for non-finite or out-of-range values). Raw images with lens distortion are rectified; ``images_rectified``: they were already (see
-    :func:`image_io.camera_model_from_msgs`). ``drawing_limits``: the drawing's work budget (a drawing
-    beyond it is a PlanError naming the block, its level and the count, before the bag is read)."""
+    out for non-finite or out-of-range values). Raw images with lens distortion are rectified; ``images_rectified``:
+    they were already (see :func:`image_io.camera_model_from_msgs`). ``drawing_limits``: the drawing's work budget
+    (a drawing beyond it is a PlanError naming the block, its level and the count, before the bag is read)."""
     topics = topics or DEFAULT_TOPICS
     try:
         layout = read_layout(drawing, limits=drawing_limits)
@@ -337,7 +336,8 @@ def plan(drawing: Path, bag: Path, algorithm: str = "batch", topics: dict[str, s
         "targets": targets, "warnings": warnings, "view_stamps_ns": [v.stamp_ns for v in views],
     }
     if references:
-        report["registrations"] = [_registration_entry(i, views[i].stamp_ns, r) for i, r in sorted(registrations.items())]
+        report["registrations"] = [_registration_entry(i, views[i].stamp_ns, r)
+                                   for i, r in sorted(registrations.items())]
     return report
 
 
@@ -411,6 +411,8 @@ def _registration_entry(view: int, stamp_ns: int, r: MarkRegistration) -> dict:
 
 
 def write_csv(report: dict, path: Path) -> None:
+    """The report's targets as CSV at ``path``, a row per stud: status, world position [m], unit normal,
+    inclination [deg], XY error [mm], view."""
     fields = ["stud_id", "status", "x_m", "y_m", "z_m", "nx", "ny", "nz", "inclination_deg", "xy_error_mm", "view"]
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
@@ -423,6 +425,7 @@ def write_csv(report: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """`ros2 run stud_planner plan`: plan a drawing on a recorded bag; 0 done, 2 on an error (one line)."""
     parser = argparse.ArgumentParser(prog="plan", description="Weld targets for a drawing from a recorded sensor bag.")
     parser.add_argument("--drawing", required=True, type=Path, help="DXF drawing with studs and marks O, A, B")
     parser.add_argument("--bag", required=True, type=Path, help="rosbag2 MCAP bag (folder or .mcap)")

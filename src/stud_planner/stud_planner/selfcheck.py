@@ -78,6 +78,7 @@ def _check(timeout_s: float) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """`ros2 run stud_planner selfcheck`: 0 when the echo came back the same, 1 when not, 130 on Ctrl-C."""
     parser = argparse.ArgumentParser(prog="selfcheck", description=__doc__.splitlines()[0])
     parser.add_argument("--echo", action="store_true", help="be the echoing second process")
     parser.add_argument("--timeout", type=float, default=20.0, help="seconds to wait for the other process")

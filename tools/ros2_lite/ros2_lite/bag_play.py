@@ -21,9 +21,8 @@ import sys
 import time
 from dataclasses import dataclass, field
 
-from stud_bag import BagError, BagReader, Qos, message_class
-
 from ros2_lite.stop_flag import StopFlag
+from stud_bag import BagError, BagReader, Qos, message_class
 
 LOG_NAME = "rosbag2_player"
 LATCHED_DEPTH = 10  # rosbag2: the recorded profile with default history (keep last 10)

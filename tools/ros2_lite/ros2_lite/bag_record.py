@@ -18,10 +18,9 @@ import threading
 import time
 from dataclasses import dataclass, field
 
+from ros2_lite.stop_flag import StopFlag
 from stud_bag import BagError, BagWriter, Qos, message_class
 from stud_bag.metadata import INFINITE_NS
-
-from ros2_lite.stop_flag import StopFlag
 
 SUBSCRIPTION_DEPTH = 100  # reader history: absorbs a burst while the writer thread is busy
 LOG_NAME = "rosbag2_recorder"

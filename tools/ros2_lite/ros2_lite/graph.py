@@ -31,8 +31,13 @@ def add_spin_time(parser: argparse.ArgumentParser) -> None:
 
 
 def add_qos_arguments(parser: argparse.ArgumentParser, verb: str, default_profile: str) -> None:
-    from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSLivelinessPolicy, QoSPresetProfiles,
-                           QoSReliabilityPolicy)
+    from rclpy.qos import (
+        QoSDurabilityPolicy,
+        QoSHistoryPolicy,
+        QoSLivelinessPolicy,
+        QoSPresetProfiles,
+        QoSReliabilityPolicy,
+    )
 
     parser.add_argument("--qos-profile", choices=QoSPresetProfiles.short_keys(), default=default_profile,
                         help=f"Quality of service preset profile to {verb} with (default: {default_profile})")
@@ -53,8 +58,13 @@ def qos_overridden(args: argparse.Namespace) -> bool:
 def qos_from_args(args: argparse.Namespace):
     """The preset ``--qos-profile`` with the ``--qos-*`` overrides applied (as ros2cli)."""
     from rclpy.duration import Duration
-    from rclpy.qos import (QoSDurabilityPolicy, QoSHistoryPolicy, QoSLivelinessPolicy, QoSPresetProfiles,
-                           QoSReliabilityPolicy)
+    from rclpy.qos import (
+        QoSDurabilityPolicy,
+        QoSHistoryPolicy,
+        QoSLivelinessPolicy,
+        QoSPresetProfiles,
+        QoSReliabilityPolicy,
+    )
 
     profile = QoSPresetProfiles.get_from_short_key(args.qos_profile)
     if args.qos_history:

@@ -11,10 +11,15 @@ import math
 import threading
 import time
 
-from ros2_lite.graph import (ProbeNode, add_qos_arguments, add_spin_time, is_hidden_name, qos_from_args,
-                             qos_overridden)
-from ros2_lite.msg_yaml import InterfaceError, interface_class, is_message, message_to_yaml, parse_values, \
-    set_message_fields
+from ros2_lite.graph import ProbeNode, add_qos_arguments, add_spin_time, is_hidden_name, qos_from_args, qos_overridden
+from ros2_lite.msg_yaml import (
+    InterfaceError,
+    interface_class,
+    is_message,
+    message_to_yaml,
+    parse_values,
+    set_message_fields,
+)
 
 DEFAULT_TRUNCATE_LENGTH = 128
 HZ_WINDOW = 10000

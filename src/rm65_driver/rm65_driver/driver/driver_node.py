@@ -57,26 +57,29 @@ import numpy as np
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from stud_welding_msgs.action import WeldJob
 from std_msgs.msg import String
+from stud_welding_msgs.action import WeldJob
 from stud_welding_msgs.msg import WeldTarget
 
-from stud_common import hand_eye_ros, ros_io
-from stud_common.vocabulary import WeldPhase
-
-from rm65_driver.driver.params import (PARAMS, default_journal, goal_tolerances, job_config, job_config_problem,
-                                       rail_axis)
+from rm65_driver.driver.params import (
+    PARAMS,
+    default_journal,
+    goal_tolerances,
+    job_config,
+    job_config_problem,
+    rail_axis,
+)
 from rm65_driver.driver.services import DriverServices
 from rm65_driver.driver.shared_state import DriverState
 from rm65_driver.driver.status import DriverStatus
 from rm65_driver.kinematics.rm65 import D6_BY_VARIANT, DHModel, RM65Kinematics
 from rm65_driver.protocol.arm_client import ArmClient, ArmError
 from rm65_driver.rail.control import RailControl, target_in_base
+from rm65_driver.weld.goal_checks import GoalTolerances, check_target_fields
 from rm65_driver.weld.weld_job import JobResult, StudTarget
 from rm65_driver.weld.weld_sequence import WeldSequence
-from rm65_driver.weld.goal_checks import GoalTolerances, check_target_fields
-from stud_common import names
-
+from stud_common import hand_eye_ros, names, ros_io
+from stud_common.vocabulary import WeldPhase
 
 # -- message <-> core conversions --------------------------------------------------------------
 

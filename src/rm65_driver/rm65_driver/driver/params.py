@@ -15,16 +15,15 @@ import os
 
 import numpy as np
 
-from stud_common import hand_eye_ros
-from stud_common.ros_io import Param, three_numbers
-from stud_common.vocabulary import OnDisconnect, StudOrder, choices
-
 from rm65_driver.kinematics.rm65 import D6_BY_VARIANT, DHModel, RM65Kinematics
 from rm65_driver.protocol import messages as P
 from rm65_driver.rail.axis import RailAxis, RailRequestError
+from rm65_driver.weld.goal_checks import GoalTolerances
 from rm65_driver.weld.safety import SafetyChecker, SafetyLimits
 from rm65_driver.weld.weld_job import WeldParams
-from rm65_driver.weld.goal_checks import GoalTolerances
+from stud_common import hand_eye_ros
+from stud_common.ros_io import Param, three_numbers
+from stud_common.vocabulary import OnDisconnect, StudOrder, choices
 
 
 def default_journal() -> str:
@@ -48,28 +47,31 @@ PARAMS = [
     Param("reply_timeout_s", 1.0, "wait for a command's reply [s]", min=0.1, max=10.0),
     Param("state_rate_hz", 10.0, "arm state polling and /arm/state, /joint_states rate [Hz] "
           "(RealMan: poll no faster than every 20 ms)", min=0.5, max=50.0),
-    Param("standoff_m", _WELD.standoff_m, "approach distance from the surface along the normal [m]", min=0.005, max=0.3),
+    Param("standoff_m", _WELD.standoff_m, "approach distance from the surface along the normal [m]",
+          min=0.005, max=0.3),
     Param("stud_length_mm", 0.0, "the welded stud's standing height [mm, as the inspection's nominal_length_mm]: "
           "the gun is pulled straight off the whole stud before it moves sideways, so standoff_m must be at least "
           "this plus stud_clearance_m (refused otherwise); 0: not known, not checked", min=0.0, max=1000.0),
-    Param("stud_clearance_m", _WELD.stud_clearance_m, "how far the gun's foot clears the welded stud's top at the end of the "
-          "retract [m]", min=0.0, max=0.1),
-    Param("min_stud_spacing_m", _WELD.min_stud_spacing_m, "the room the gun's foot needs around its axis beside a welded stud (foot "
-          "radius + stud head radius + margin): a stud closer to one already welded is refused, the neighbour "
-          "named; 0: not checked [m]", min=0.0, max=0.5),
+    Param("stud_clearance_m", _WELD.stud_clearance_m, "how far the gun's foot clears the welded stud's top at the "
+          "end of the retract [m]", min=0.0, max=0.1),
+    Param("min_stud_spacing_m", _WELD.min_stud_spacing_m, "the room the gun's foot needs around its axis beside a "
+          "welded stud (foot radius + stud head radius + margin): a stud closer to one already welded is refused, "
+          "the neighbour named; 0: not checked [m]", min=0.0, max=0.5),
     Param("tool_offset_m", _WELD.tool_offset_m, "flange -> weld-gun tip along the flange z axis (weld_tool frame) [m]",
           min=0.0, max=0.5),
     Param("plunge_m", _WELD.plunge_m, "how far beyond the surface the tip is commanded (gun spring travel) [m]",
           min=0.0, max=0.02),
-    Param("tool_payload_kg", _WELD.tool_payload_kg, "weld gun mass for the controller's tool frame [kg]", min=0.0, max=5.0),
+    Param("tool_payload_kg", _WELD.tool_payload_kg, "weld gun mass for the controller's tool frame [kg]",
+          min=0.0, max=5.0),
     Param("tool_frame_name", _WELD.tool_frame_name, "controller tool frame name (<= 10 characters)",
           validate=lambda v: None if 0 < len(v) <= 10 else f"tool_frame_name {v!r} must be 1..10 characters"),
-    Param("trigger_io", _WELD.trigger_io, "digital output that triggers the weld gun (controller DO 1..4, tool DO 1..2); "
-          "it sources 2 mA at most: use an external relay module", min=1, max=4),
+    Param("trigger_io", _WELD.trigger_io, "digital output that triggers the weld gun (controller DO 1..4, "
+          "tool DO 1..2); it sources 2 mA at most: use an external relay module", min=1, max=4),
     Param("trigger_on_tool", _WELD.trigger_on_tool, "trigger through the tool-flange DO instead of the controller DO"),
     Param("set_io_mode", _WELD.set_io_mode, "switch the trigger IO to output mode before a job (Gen-3 controllers)"),
     Param("pulse_s", _WELD.pulse_s, "trigger pulse length [s]", min=0.0, max=5.0),
-    Param("dwell_s", _WELD.dwell_s, "hold still after the pulse while the gun completes the weld [s]", min=0.0, max=10.0),
+    Param("dwell_s", _WELD.dwell_s, "hold still after the pulse while the gun completes the weld [s]",
+          min=0.0, max=10.0),
     Param("joint_speed_pct", _WELD.joint_speed_pct, "joint-move speed [% of max]", min=1, max=100),
     Param("preferred_joint_signs", [0, 0, 0, 0, 0, 0], "the arm's working branch for /arm/move_to (camera "
           "stations, registration): the sign wanted of each joint J1..J6, -1 / +1, 0 = either; a solution in it "
@@ -94,11 +96,11 @@ PARAMS = [
           validate=three_numbers("workspace_min_m")),
     Param("workspace_max_m", list(_LIMITS.workspace_max_m), "workspace box upper corner, world [m]",
           validate=three_numbers("workspace_max_m")),
-    Param("max_tool_tilt_deg", _LIMITS.max_tool_tilt_deg, "how far this cell's gun may lean from vertical (hose, cable, gun body) -- a "
-          "property of the cell: studs are welded along the surface normal at any slope up to it [deg]",
-          min=0.0, max=90.0),
-    Param("yaw_step_deg", _LIMITS.yaw_step_deg, "the free rotation about the stud's axis is searched in these steps for the "
-          "reachable solution nearest the current joints [deg]", min=1.0, max=180.0),
+    Param("max_tool_tilt_deg", _LIMITS.max_tool_tilt_deg, "how far this cell's gun may lean from vertical "
+          "(hose, cable, gun body) -- a property of the cell: studs are welded along the surface normal at any "
+          "slope up to it [deg]", min=0.0, max=90.0),
+    Param("yaw_step_deg", _LIMITS.yaw_step_deg, "the free rotation about the stud's axis is searched in these "
+          "steps for the reachable solution nearest the current joints [deg]", min=1.0, max=180.0),
     # A weld target's normal is the authority; its orientation must agree (weld/goal_checks.py)
     Param("target_normal_length_tol", 1e-3, "a weld target's normal must be a unit vector within this (| |n| - 1 |): "
           "a zero or NaN normal is refused, named", min=1e-9, max=0.1),
@@ -106,8 +108,10 @@ PARAMS = [
           "(| |q| - 1 |) is normalised, beyond it refused", min=1e-9, max=0.5),
     Param("target_axis_tol_deg", 1.0, "a weld target whose pose z axis is farther than this from its normal is "
           "refused: the two disagree on the weld direction [deg]", min=0.01, max=30.0),
-    Param("motion_timeout_s", _WELD.motion_timeout_s, "a motion that has not arrived by then aborts the job [s]", min=1.0, max=600.0),
-    Param("reconnect_timeout_s", _WELD.reconnect_timeout_s, "reconnection attempts before a job aborts [s]", min=0.5, max=300.0),
+    Param("motion_timeout_s", _WELD.motion_timeout_s, "a motion that has not arrived by then aborts the job [s]",
+          min=1.0, max=600.0),
+    Param("reconnect_timeout_s", _WELD.reconnect_timeout_s, "reconnection attempts before a job aborts [s]",
+          min=0.5, max=300.0),
     Param("on_disconnect", _WELD.on_disconnect.value, "after a connection loss mid-weld: 'continue' with the next "
           "studs or 'abort'",
           choices=choices(OnDisconnect)),

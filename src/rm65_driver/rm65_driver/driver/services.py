@@ -2,7 +2,8 @@
 resolve_stud and resolve_journal.
 
 :class:`DriverServices` is a member of :class:`~rm65_driver.driver.driver_node.DriverNode` (it creates
-the services; the state they act on is the node's :class:`~rm65_driver.driver.shared_state.DriverState`). The e-stop is a *software* stop (``set_arm_stop`` + trigger output low + a
+the services; the state they act on is the node's :class:`~rm65_driver.driver.shared_state.DriverState`).
+The e-stop is a *software* stop (``set_arm_stop`` + trigger output low + a
 latch that refuses new jobs until ``false`` on ``/arm/estop``), not a safety-rated one.
 ``move_to`` checks the workspace box (m) and the reach test (:mod:`rm65_driver.weld.reach`: the IK within the
 joint limits, as the planner checks the pose) before anything moves.
@@ -14,7 +15,6 @@ arm trajectory, and is refused during a weld job; stop and e-stop stop the carri
 """
 from __future__ import annotations
 
-
 import numpy as np
 from rclpy.callback_groups import CallbackGroup
 from rclpy.node import Node
@@ -22,14 +22,13 @@ from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 from stud_welding_msgs.srv import MoveTo, RailMove, ResolveJournal, ResolveStud
 
-from stud_common import names, ros_io
-from stud_common.hand_eye_in_use import tool_in_world
-
 from rm65_driver.driver.shared_state import DriverState
 from rm65_driver.journal.records import JournalError
 from rm65_driver.journal.repair import ACTION_ACCEPT_INTACT, ACTION_LOAD_BACKUP, repair_journal
 from rm65_driver.protocol.arm_client import ArmCommandError, ArmError
 from rm65_driver.rail.axis import RailRequestError
+from stud_common import names, ros_io
+from stud_common.hand_eye_in_use import tool_in_world
 
 #: ResolveJournal.action -> journal.repair.repair_journal action
 JOURNAL_ACTIONS = {ResolveJournal.Request.ACTION_ACCEPT_INTACT: ACTION_ACCEPT_INTACT,

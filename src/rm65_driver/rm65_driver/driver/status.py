@@ -23,13 +23,12 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from stud_welding_msgs.msg import ArmState, WeldRecord
 
-from stud_common import frames, names, ros_io
-from stud_common.hand_eye_in_use import camera_in_world
-from stud_common.vocabulary import WeldPhase
-
 from rm65_driver.driver.shared_state import DriverState
 from rm65_driver.journal.scan import JournalCorrupt
 from rm65_driver.protocol.arm_client import ArmError
+from stud_common import frames, names, ros_io
+from stud_common.hand_eye_in_use import camera_in_world
+from stud_common.vocabulary import WeldPhase
 
 JOINT_NAMES = [f"joint{i}" for i in range(1, 7)]
 RAIL_JOINT = frames.RAIL_JOINT  # prismatic world -> carriage, m (with a rail)

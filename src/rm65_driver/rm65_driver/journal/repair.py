@@ -17,8 +17,6 @@ import uuid
 from pathlib import Path
 from typing import Any, Iterable
 
-from stud_common.vocabulary import JournalStatus
-
 from rm65_driver.journal.files import atomic_write, free_name
 from rm65_driver.journal.records import (
     RECOVERED,
@@ -39,6 +37,7 @@ from rm65_driver.journal.scan import (
     scan_file,
     uncertain_from_torn,
 )
+from stud_common.vocabulary import JournalStatus
 
 _log = logging.getLogger("rm65_driver.journal.writer")  # the journal's one logger, whichever part writes
 

@@ -34,8 +34,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
 
-from stud_common.vocabulary import JournalStatus
-
 from rm65_driver.journal.records import (
     STARTED,
     TORN_TAIL,
@@ -46,6 +44,7 @@ from rm65_driver.journal.records import (
     parse_line,
     studs_in,
 )
+from stud_common.vocabulary import JournalStatus
 
 
 @dataclass(frozen=True)
@@ -134,6 +133,7 @@ def record_key(ln: ScanLine) -> tuple[Any, ...]:
 
 
 def scan_file(path: Path) -> FileScan:
+    """A journal file checked line by line: intact records, damage, a tolerated torn tail (``exists``: file found)."""
     s = FileScan(path)
     try:
         s.data = path.read_bytes()
@@ -251,6 +251,7 @@ class OpenPlan:
 
 
 def uncertain_from_torn(s: FileScan) -> tuple[str, ...]:
+    """The studs a torn last line leaves uncertain: those it names, else the last stud started if still uncertain."""
     assert s.torn is not None
     named = studs_in(s.torn.raw)
     if named:
@@ -328,7 +329,8 @@ def plan_open(path: Path) -> OpenPlan:
             why = f"the journal has {len(pk) - len(mk)} record(s) more than its mirror (from journal line {where_p})"
             backup = p.path
         else:
-            why = f"journal and mirror disagree from record {common + 1} (journal line {where_p}, mirror line {where_m})"
+            why = (f"journal and mirror disagree from record {common + 1} "
+                   f"(journal line {where_p}, mirror line {where_m})")
             backup = None
         dmg = [Damage(p.path, where_p if isinstance(where_p, int) else len(p.data.split(b"\n")), why)]
         raise _report(p, m, f"{p.path}: {why}", backup=backup, keep=common, damage=dmg)

@@ -29,8 +29,6 @@ import zlib
 from pathlib import Path
 from typing import Any
 
-from stud_common.vocabulary import JournalStatus
-
 from rm65_driver.journal.files import atomic_write, fsync_dir, write_all
 from rm65_driver.journal.records import (
     DECISION_NOT_WELDED,
@@ -48,6 +46,7 @@ from rm65_driver.journal.records import (
     record_crc,
 )
 from rm65_driver.journal.scan import JournalCorrupt, plan_open
+from stud_common.vocabulary import JournalStatus
 
 _log = logging.getLogger(__name__)
 

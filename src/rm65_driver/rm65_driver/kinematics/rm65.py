@@ -135,10 +135,14 @@ def matrix_to_quat_xyzw(R: np.ndarray) -> np.ndarray:
     # Shepperd's method, all four branches computed and the best-conditioned one picked.
     cand = np.stack(
         [
-            np.stack([m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1], 1 + tr], -1),
-            np.stack([1 + 2 * m[..., 0, 0] - tr, m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0], m[..., 2, 1] - m[..., 1, 2]], -1),
-            np.stack([m[..., 0, 1] + m[..., 1, 0], 1 + 2 * m[..., 1, 1] - tr, m[..., 1, 2] + m[..., 2, 1], m[..., 0, 2] - m[..., 2, 0]], -1),
-            np.stack([m[..., 0, 2] + m[..., 2, 0], m[..., 1, 2] + m[..., 2, 1], 1 + 2 * m[..., 2, 2] - tr, m[..., 1, 0] - m[..., 0, 1]], -1),
+            np.stack([m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1],
+                      1 + tr], -1),
+            np.stack([1 + 2 * m[..., 0, 0] - tr, m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0],
+                      m[..., 2, 1] - m[..., 1, 2]], -1),
+            np.stack([m[..., 0, 1] + m[..., 1, 0], 1 + 2 * m[..., 1, 1] - tr, m[..., 1, 2] + m[..., 2, 1],
+                      m[..., 0, 2] - m[..., 2, 0]], -1),
+            np.stack([m[..., 0, 2] + m[..., 2, 0], m[..., 1, 2] + m[..., 2, 1], 1 + 2 * m[..., 2, 2] - tr,
+                      m[..., 1, 0] - m[..., 0, 1]], -1),
         ],
         -2,
     )  # (..., 4, 4): branch, (x, y, z, w)
@@ -320,7 +324,8 @@ class RM65Kinematics:
 
     @staticmethod
     def in_reach(position_flange_m) -> bool:
-        """Coarse reach test: the flange point lies in the 610 mm sphere around the shoulder (docs/RM65_PROTOCOL.md §3.1).
+        """Coarse reach test: the flange point lies in the 610 mm sphere around the shoulder
+        (docs/RM65_PROTOCOL.md §3.1).
 
         Necessary, not sufficient (the cylinder above/below the base and orientation are not
         checked): the IK is the real test.

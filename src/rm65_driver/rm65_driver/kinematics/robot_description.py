@@ -27,10 +27,9 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
+from rm65_driver.kinematics.rm65 import D6_BY_VARIANT, JOINT_LIMITS_DEG, JOINT_MAX_SPEED_DEG_S, DHModel
 from stud_common import frames
 from stud_common.rotations import matrix_to_rpy, rpy_to_matrix
-
-from rm65_driver.kinematics.rm65 import D6_BY_VARIANT, JOINT_LIMITS_DEG, JOINT_MAX_SPEED_DEG_S, DHModel
 
 JOINT_NAMES = tuple(f"joint{i}" for i in range(1, 7))
 LINK_NAMES = tuple(f"link{i}" for i in range(1, 7))

@@ -134,7 +134,8 @@ class ArmClient:
             self.get_state(timeout_s=max(t, self.reply_timeout_s))
         except ArmError as exc:
             self._close_socket(f"no answer after connect: {exc}")
-            raise ArmConnectionError(f"{self.host}:{self.port} accepted the connection but did not answer: {exc}") from exc
+            raise ArmConnectionError(f"{self.host}:{self.port} accepted the connection but did not answer: "
+                                     f"{exc}") from exc
         _log.info("connected to RM65 controller at %s:%d", self.host, self.port)
 
     def reconnect(self, deadline_s: float) -> None:
@@ -234,7 +235,8 @@ class ArmClient:
         with self._state_lock:
             sock = self._sock
         if sock is None:
-            raise ArmConnectionError(f"not connected to {self.host}:{self.port} ({self.last_error or 'never connected'})")
+            raise ArmConnectionError(f"not connected to {self.host}:{self.port} "
+                                     f"({self.last_error or 'never connected'})")
         with self._send_lock:
             try:
                 sock.sendall(data)
@@ -249,7 +251,8 @@ class ArmClient:
         pending = _Pending(P.expected_reply_tags(command))
         with self._state_lock:
             if self._sock is None:
-                raise ArmConnectionError(f"not connected to {self.host}:{self.port} ({self.last_error or 'never connected'})")
+                raise ArmConnectionError(f"not connected to {self.host}:{self.port} "
+                                         f"({self.last_error or 'never connected'})")
             self._pending.append(pending)
         try:
             self._send(msg)
@@ -447,7 +450,9 @@ class ArmClient:
 
     def move_axis_and_wait(self, msg: dict[str, Any], device: int, timeout_s: float = 30.0,
                            stop_count: int | None = None) -> None:
-        """An external axis's position move (the rail: :func:`rm65_driver.rail.axis.expand_set_pos`) and the wait for its arrival.
+        """An external axis's position move and the wait for its arrival.
+
+        The rail's move is :func:`rm65_driver.rail.axis.expand_set_pos`.
 
         The axis reports its end with an arrival message of its own ``device`` (4: expansion joint,
         3: lift); arm waits ignore those and this one ignores the arm's. A refusal raises

@@ -45,9 +45,7 @@ class ProtocolError(ValueError):
     """A message that is not valid protocol (not JSON, not an object, missing fields)."""
 
 
-# --------------------------------------------------------------------------------------------
-# Framing
-# --------------------------------------------------------------------------------------------
+# -- Framing ---------------------------------------------------------------------------------------
 
 
 def encode(message: dict[str, Any], pretty: bool = False) -> bytes:
@@ -136,9 +134,7 @@ def decode_frame(frame: bytes | str) -> dict[str, Any]:
     return msg
 
 
-# --------------------------------------------------------------------------------------------
-# Units (§1.3)
-# --------------------------------------------------------------------------------------------
+# -- Units (§1.3) ----------------------------------------------------------------------------------
 
 
 def _to_int_list(values: Iterable[float], scale: float) -> list[int]:
@@ -175,9 +171,8 @@ def position_to_wire(xyz_m: Sequence[float]) -> list[int]:
     return _to_int_list(xyz_m, 1e6)
 
 
-# --------------------------------------------------------------------------------------------
-# Command builders (§1.4 – §1.11). Each returns the dict to send; units are SI on the way in.
-# --------------------------------------------------------------------------------------------
+# -- Command builders (§1.4 – §1.11) ---------------------------------------------------------------
+# Each returns the dict to send; units are SI on the way in.
 
 MOTION_COMMANDS = frozenset({"movej", "movej_p", "movel"})
 
@@ -213,10 +208,12 @@ def simple(command: str, **fields: Any) -> dict[str, Any]:
 
 
 def get_current_arm_state() -> dict[str, Any]:
+    """Query the joints, the tool pose and the errors (answered in one of three formats, §1.6)."""
     return {"command": "get_current_arm_state"}
 
 
 def get_joint_degree() -> dict[str, Any]:
+    """Query the joint angles (0.001 deg on the wire), §1.6."""
     return {"command": "get_joint_degree"}
 
 
@@ -226,22 +223,27 @@ def set_arm_stop() -> dict[str, Any]:
 
 
 def set_arm_slow_stop() -> dict[str, Any]:
+    """Slow stop on the path, §1.5."""
     return {"command": "set_arm_slow_stop"}
 
 
 def set_arm_pause() -> dict[str, Any]:
+    """Pause on the path (:func:`set_arm_continue` resumes), §1.5."""
     return {"command": "set_arm_pause"}
 
 
 def set_arm_continue() -> dict[str, Any]:
+    """Resume a paused trajectory, §1.5."""
     return {"command": "set_arm_continue"}
 
 
 def clear_system_err() -> dict[str, Any]:
+    """Clear the controller's system error, §1.6."""
     return {"command": "clear_system_err"}
 
 
 def get_arm_current_trajectory() -> dict[str, Any]:
+    """Query the motion running (``type`` movej / movel / none and its data), §1.5."""
     return {"command": "get_arm_current_trajectory"}
 
 
@@ -254,25 +256,30 @@ def set_manual_tool_frame(name: str, tool_pose6: Sequence[float], payload_kg: fl
 
 
 def set_change_tool_frame(name: str) -> dict[str, Any]:
+    """Make tool frame ``name`` (1..10 chars) the current one, §1.7."""
     _check_frame_name(name)
     return {"command": "set_change_tool_frame", "tool_name": name}
 
 
 def get_current_tool_frame() -> dict[str, Any]:
+    """Query the current tool frame (name, pose, payload, centre of mass), §1.7."""
     return {"command": "get_current_tool_frame"}
 
 
 def set_manual_work_frame(name: str, frame_pose6: Sequence[float]) -> dict[str, Any]:
+    """Define work frame ``name`` (1..10 chars) at base-frame pose ``frame_pose6`` [m, m, m, rad, rad, rad], §1.7."""
     _check_frame_name(name)
     return {"command": "set_manual_work_frame", "frame_name": name, "frame_pose": pose_to_wire(frame_pose6)}
 
 
 def set_change_work_frame(name: str) -> dict[str, Any]:
+    """Make work frame ``name`` (1..10 chars) the current one, §1.7."""
     _check_frame_name(name)
     return {"command": "set_change_work_frame", "frame_name": name}
 
 
 def get_current_work_frame() -> dict[str, Any]:
+    """Query the current work frame (name and pose), §1.7."""
     return {"command": "get_current_work_frame"}
 
 
@@ -292,14 +299,17 @@ def set_DO_state(io_num: int, state: bool | int) -> dict[str, Any]:
 
 
 def get_IO_state(io_num: int) -> dict[str, Any]:
+    """Query controller IO ``IO_Num`` (1..4), §1.8."""
     return {"command": "get_IO_state", "IO_Num": int(io_num)}
 
 
 def get_IO_output() -> dict[str, Any]:
+    """Query the levels of the controller's digital outputs, §1.8."""
     return {"command": "get_IO_output"}
 
 
 def get_IO_input() -> dict[str, Any]:
+    """Query the levels of the controller's digital inputs, §1.8."""
     return {"command": "get_IO_input"}
 
 
@@ -314,6 +324,7 @@ def set_tool_DO_state(io_num: int, state: bool | int) -> dict[str, Any]:
 
 
 def get_tool_IO_state() -> dict[str, Any]:
+    """Query the tool-flange IO's modes and levels (two of each), §1.8."""
     return {"command": "get_tool_IO_state"}
 
 
@@ -337,9 +348,7 @@ HANDSHAKE_COMMANDS: tuple[str, ...] = (
     "get_DH_data",
 )
 
-# --------------------------------------------------------------------------------------------
-# Reply matching
-# --------------------------------------------------------------------------------------------
+# -- Reply matching --------------------------------------------------------------------------------
 
 #: Query -> the ``state`` (or ``command``) tag of its reply, where that differs from the command name.
 REPLY_TAG: dict[str, str] = {
@@ -432,9 +441,7 @@ def reply_ok(command: str, msg: dict[str, Any]) -> bool:
     return bool(msg[key])
 
 
-# --------------------------------------------------------------------------------------------
-# Reply parsing
-# --------------------------------------------------------------------------------------------
+# -- Reply parsing ---------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -447,6 +454,7 @@ class TrajectoryEvent:
 
 
 def parse_trajectory_event(msg: dict[str, Any]) -> TrajectoryEvent:
+    """The arrival message ``current_trajectory_state`` as a :class:`TrajectoryEvent`; ProtocolError for any other."""
     if not is_trajectory_event(msg):
         raise ProtocolError(f"not a {TRAJECTORY_STATE} message: {msg!r}")
     return TrajectoryEvent(
@@ -517,9 +525,7 @@ def arm_state_message(joints_rad, pose6, error_codes: Sequence[int] = (), err_fo
     return {"state": "current_arm_state", "arm_state": st}
 
 
-# --------------------------------------------------------------------------------------------
-# Error codes (§1.12, DOCS json/errorList.md)
-# --------------------------------------------------------------------------------------------
+# -- Error codes (§1.12, DOCS json/errorList.md) ---------------------------------------------------
 
 ERROR_CODES: dict[int, str] = {
     0x0000: "normal",

@@ -1,1 +1,4 @@
-"""The rail under the arm: the controller's expansion joint (device 4) -- its axis and messages, and the driver's control of it."""
+"""The rail under the arm: the controller's expansion joint (device 4).
+
+Its axis and messages, and the driver's control of it.
+"""

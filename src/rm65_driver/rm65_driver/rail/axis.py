@@ -143,6 +143,7 @@ def expand_set_speed(speed_pct: int) -> dict[str, Any]:
 
 
 def expand_get_state() -> dict[str, Any]:
+    """Query the expansion joint's state: ``pos`` in counts, current, flags, mode (docs/RM65_PROTOCOL.md §4.2)."""
     return {"command": EXPAND_GET_STATE}
 
 

@@ -20,13 +20,19 @@ from typing import Sequence
 
 import numpy as np
 
-from stud_common.frames import world_T_base
-
 from rm65_driver.protocol.arm_client import ArmClient, ArmCommandError
 from rm65_driver.protocol.messages import ProtocolError
-from rm65_driver.rail.axis import (DEVICE_EXPAND, RailAxis, RailReading, expand_get_state, expand_set_pos,
-                                   expand_set_speed, parse_expand_state)
+from rm65_driver.rail.axis import (
+    DEVICE_EXPAND,
+    RailAxis,
+    RailReading,
+    expand_get_state,
+    expand_set_pos,
+    expand_set_speed,
+    parse_expand_state,
+)
 from rm65_driver.weld.weld_job import StudTarget
+from stud_common.frames import world_T_base
 
 
 class RailControl:
@@ -102,6 +108,9 @@ class RailControl:
 
 
 def target_in_base(target: StudTarget, world_T_base_: np.ndarray) -> StudTarget:
-    """A stud target given in ``world`` -> the same stud in the arm's base frame (``world_T_base_``: the base in world)."""
+    """A stud target given in ``world`` -> the same stud in the arm's base frame.
+
+    ``world_T_base_`` (4, 4): the base in world.
+    """
     B = np.linalg.inv(world_T_base_)
     return StudTarget(target.stud_id, B[:3, :3] @ target.position + B[:3, 3], B[:3, :3] @ target.normal)

@@ -12,9 +12,8 @@ import logging
 import threading
 import time
 
-from stud_common.vocabulary import WeldPhase
-
 from rm65_driver.weld.weld_job import PhaseCallback, StudTarget
+from stud_common.vocabulary import WeldPhase
 
 _log = logging.getLogger("rm65_driver.weld.weld_sequence")  # the weld job's one logger, whichever part writes
 

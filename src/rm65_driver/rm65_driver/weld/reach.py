@@ -38,10 +38,17 @@ from typing import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
+from rm65_driver.kinematics.rm65 import (
+    D6_BY_VARIANT,
+    JOINT_LIMITS_DEG,
+    SHOULDER_M,
+    WORKING_RADIUS_M,
+    DHModel,
+    RM65Kinematics,
+    rotation_vector,
+    tool_pose_facing,
+)
 from stud_common.hand_eye_in_use import tool_in_world
-
-from rm65_driver.kinematics.rm65 import (D6_BY_VARIANT, JOINT_LIMITS_DEG, SHOULDER_M, WORKING_RADIUS_M, DHModel, RM65Kinematics,
-                         rotation_vector, tool_pose_facing)
 
 _EYE16 = tuple(float(v) for v in np.eye(4).ravel())
 
@@ -341,7 +348,8 @@ class Reach:
             q[idx] = np.clip(q[idx] + dq, lo, hi)
         return q.reshape(K, S, 6), converged.reshape(K, S), (e_pos + 0.1 * e_rot).reshape(K, S)
 
-    def _pick(self, q: np.ndarray, converged: np.ndarray, q_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _pick(self, q: np.ndarray, converged: np.ndarray,
+              q_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per target: the chosen solution (K, 6) -- converged, in the preferred branch if any is,
         nearest ``q_ref`` (J6's 2 pi copies taken nearest it) --, whether one exists (K,) and
         whether it is in the branch (K,)."""

@@ -108,7 +108,8 @@ class SafetyChecker:
         if key not in self._reach:
             d6 = float(self.kin.dh.d[5])
             rm65 = DHModel.rm65(d6)
-            if not all(np.array_equal(getattr(self.kin.dh, f), getattr(rm65, f)) for f in ("a", "alpha", "d", "offset")):
+            if not all(np.array_equal(getattr(self.kin.dh, f), getattr(rm65, f))
+                       for f in ("a", "alpha", "d", "offset")):
                 raise ValueError("the reach test knows the RM65's DH table only")
             self._reach[key] = Reach(ReachConfig(
                 standoff_m=key[0], plunge_m=key[1], tool_T=tuple(np.asarray(self.tool_T, float).ravel()),
@@ -146,7 +147,8 @@ class SafetyChecker:
 
     def check_points(self, points_m: np.ndarray, what: str) -> str | None:
         """All points (N, 3, base frame) inside the workspace box (world)?"""
-        pts = np.atleast_2d(np.asarray(points_m, dtype=np.float64)) @ self.world_T_base[:3, :3].T + self.world_T_base[:3, 3]
+        pts = (np.atleast_2d(np.asarray(points_m, dtype=np.float64)) @ self.world_T_base[:3, :3].T
+               + self.world_T_base[:3, 3])
         lo, hi = np.asarray(self.limits.workspace_min_m), np.asarray(self.limits.workspace_max_m)
         bad = np.any((pts < lo - 1e-9) | (pts > hi + 1e-9), axis=1)
         if bad.any():
@@ -194,10 +196,11 @@ class SafetyChecker:
     def check_target(self, position_m: ArrayLike, normal: ArrayLike, standoff_m: float,
                      q_current: np.ndarray, plunge_m: float = 0.0) -> TargetCheck:
         """Plan and check one stud (position and normal in the base frame; the verdict is taken in world
-        with the base at :attr:`world_T_base`, as the planner takes it): the reach verdict (:meth:`Reach.stud`: gun tilt, approach pose on
-        the normal at ``standoff_m`` and contact pose ``plunge_m`` beyond the surface in the workspace
-        and reachable inside the joint limits for some rotation about the stud's axis, the straight
-        descent and retract feasible) -- refused with its reason, prefixed ``unreachable:`` --, then
+        with the base at :attr:`world_T_base`, as the planner takes it): the reach verdict
+        (:meth:`Reach.stud`: gun tilt, approach pose on the normal at ``standoff_m`` and contact pose
+        ``plunge_m`` beyond the surface in the workspace and reachable inside the joint limits for some
+        rotation about the stud's axis, the straight descent and retract feasible) -- refused with its reason,
+        prefixed ``unreachable:`` --, then
         the way there from ``q_current`` (:func:`~rm65_driver.weld.reach_move.plan_move`: the rotation and
         solution nearest the current joints whose joint move stays in the workspace, or a detour)."""
         reach = self.reach_for(standoff_m, plunge_m)

@@ -33,17 +33,22 @@ from typing import Callable
 
 import numpy as np
 
-from stud_common.vocabulary import JournalStatus, WeldPhase
-
 from rm65_driver.journal.records import JournalError
 from rm65_driver.journal.writer import Journal
 from rm65_driver.kinematics.rm65 import matrix_to_pose6
-from rm65_driver.protocol.arm_client import (ArmClient, ArmCommandError, ArmConnectionError, ArmError, ArmStopped,
-                                             ArmTimeout)
+from rm65_driver.protocol.arm_client import (
+    ArmClient,
+    ArmCommandError,
+    ArmConnectionError,
+    ArmError,
+    ArmStopped,
+    ArmTimeout,
+)
 from rm65_driver.weld.job_control import JobControl, JobEnded
 from rm65_driver.weld.safety import SafetyChecker, StudPlan, TargetCheck
 from rm65_driver.weld.weld_job import JobResult, StudTarget, WeldedCallback, WeldParams
 from rm65_driver.weld.welded_neighbours import nearest_welded
+from stud_common.vocabulary import JournalStatus, WeldPhase
 
 #: Journal statuses of a stud that stands on the part (an uncertain one may)
 _STANDING = (JournalStatus.WELDED, JournalStatus.UNCERTAIN)

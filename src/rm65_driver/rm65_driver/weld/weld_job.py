@@ -18,7 +18,6 @@ import numpy as np
 from stud_common.vocabulary import OnDisconnect, StudOrder, WeldPhase, choices
 
 
-
 @dataclass(frozen=True)
 class StudTarget:
     """One stud to weld: ``position`` (3,) m on the surface and unit outward ``normal`` (3,), in ``world``

@@ -54,8 +54,6 @@ from typing import Sequence
 
 import numpy as np
 
-from stud_common.vocabulary import JournalStatus, OnDisconnect, StudOrder, WeldPhase
-
 from rm65_driver.journal.records import JournalError
 from rm65_driver.journal.writer import Journal
 from rm65_driver.kinematics.rm65 import tool_pose_facing
@@ -65,6 +63,7 @@ from rm65_driver.weld.safety import SafetyChecker
 from rm65_driver.weld.stud_cycle import StudCycle
 from rm65_driver.weld.stud_order import order_by_path
 from rm65_driver.weld.weld_job import JobResult, PhaseCallback, StudTarget, WeldedCallback, WeldParams, new_job_id
+from stud_common.vocabulary import JournalStatus, OnDisconnect, StudOrder, WeldPhase
 
 _log = logging.getLogger(__name__)
 

@@ -121,10 +121,10 @@ Warnings (``DrawingLayout.warnings``, one line each) and errors
 from stud_planner.drawing.circles import collect_circles, read_circles
 from stud_planner.drawing.dxf_file import load_document
 from stud_planner.drawing.layout import read_layout
-from stud_planner.drawing.options import LayoutOptions
 from stud_planner.drawing.layout_types import CircleSet, DrawingError, DrawingLayout, Mark, Stud
 from stud_planner.drawing.limits import DrawingLimitError, DrawingLimits
 from stud_planner.drawing.neighbours import close_pairs
+from stud_planner.drawing.options import LayoutOptions
 from stud_planner.drawing.units import UNITS, units_to_metres
 
 __all__ = ["DrawingError", "DrawingLimitError", "DrawingLimits", "Stud", "Mark", "DrawingLayout", "CircleSet",

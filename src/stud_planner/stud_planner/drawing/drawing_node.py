@@ -16,11 +16,10 @@ from rclpy.node import Node
 from stud_welding_msgs.msg import StudLayout
 from stud_welding_msgs.srv import LoadDrawing
 
-from stud_common import ros_io
+from stud_common import names, ros_io
 from stud_common.ros_io import Param
 from stud_planner.drawing import DrawingError, DrawingLimitError, DrawingLimits, LayoutOptions, read_layout
 from stud_planner.msg_convert import layout_poses, layout_to_msg
-from stud_common import names
 
 PARAMS = [
     Param("drawing_file", "", "DXF drawing with stud circles and the marks O, A, B"),
@@ -111,6 +110,7 @@ class DrawingNode(Node):
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_planner drawing`: spin until Ctrl-C; the process exit code."""
     return ros_io.spin_node(DrawingNode, args)
 
 

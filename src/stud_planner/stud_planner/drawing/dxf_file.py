@@ -16,9 +16,8 @@ import ezdxf
 import numpy as np
 from ezdxf import recover
 
-from stud_planner.drawing.plain_circles import PlainCircles, split_plain_circles
 from stud_planner.drawing.layout_types import DrawingError, one_line
-
+from stud_planner.drawing.plain_circles import PlainCircles, split_plain_circles
 
 # -- reading the file ------------------------------------------------------------------------------
 _BINARY_SENTINEL = b"AutoCAD Binary DXF\r\n\x1a\x00"

@@ -60,25 +60,30 @@ def write_layout_dxf(
     """Write a DXF with stud circles, the three marks O, A, B and any reference marks; return the path.
 
     Args:
+        path: the DXF file to write (its folder is created).
         studs_xy_m: (N, 2) stud centres, drawing frame, metres.
         marks_xy_m: {"O": (x, y), "A": ..., "B": ...}, drawing frame, metres; further entries
             (``"M1": (x, y)``, ...) are reference marks, drawn on the mark layer like O, A, B.
         stud_diameter_m: one diameter for all studs or one per stud (m).
-        dxfversion: "R12", "R2000", "R2004", "R2007", "R2010", "R2013", "R2018" (R12 files
-            carry no units: coordinates are written in ``units`` all the same).
-        units: "mm", "cm", "m", "in", "ft", ... or "unitless" ($INSUNITS 0, coordinates in
-            ``unitless_as``).
+        mark_diameter_m: the diameter of every mark circle (m).
+        dxfversion: "R12", "R2000", ... "R2018" (R12 files carry no units: coordinates are in ``units`` all the same).
+        units: "mm", "cm", "m", "in", "ft", ... or "unitless" ($INSUNITS 0, coordinates in ``unitless_as``).
+        unitless_as: the unit of the coordinates when ``units`` is "unitless".
         stud_layer: one layer for all studs or one per stud.
-        labels: write TEXT (``label_kind="text"``) or MTEXT (``"mtext"``, R2000+) labels O/A/B
-            (M1, ...) next to the marks.
+        mark_layer: the layer of the mark circles.
+        labels: write TEXT (``label_kind="text"``) or MTEXT (``"mtext"``, R2000+) labels O/A/B (M1, ...) by the marks.
+        label_layer: the layer of those labels.
+        label_kind: "text" or "mtext".
         as_blocks: studs as INSERTs of block ``STUD`` (a circle of diameter ``1 / block_scale``
-            on layer 0, off the block origin, with a non-zero base point) with
-            ``block_rotation_deg``, scale ``block_scale x stud diameter`` and ``mirror_blocks``
-            (negative x scale); ``nested_blocks`` wraps it in a block
-            ``STUD_GROUP`` that inserts ``STUD`` rotated by 30 deg at scale 0.5.
+            on layer 0, off the block origin, with a non-zero base point).
+        block_rotation_deg: the INSERTs' rotation (degrees).
+        block_scale: the INSERTs' scale is ``block_scale x stud diameter``.
+        mirror_blocks: INSERTs with a negative x scale.
+        nested_blocks: wrap ``STUD`` in a block ``STUD_GROUP`` that inserts it rotated by 30 deg at scale 0.5.
         ocs_flip: plain circles (and INSERTs) written with extrusion (0, 0, -1), OCS coordinates.
-        origin_wcs_m, rotation_deg, mirror_frame: where the drawing frame sits in the WCS
-            (metres, degrees; ``mirror_frame`` flips the WCS y axis, so B ends up clockwise from A).
+        origin_wcs_m: where the drawing frame's origin sits in the WCS (metres).
+        rotation_deg: the drawing frame's rotation in the WCS (degrees, counter-clockwise).
+        mirror_frame: flip the WCS y axis, so B ends up clockwise from A.
         binary: write binary DXF.
     """
     path = Path(path)

@@ -410,7 +410,8 @@ class EntityCollector:
         if self.expanded + k * n > self.limits.max_expanded_entities:
             where = f"block {stack[-1]!r}" if stack else "modelspace"
             raise DrawingLimitError(
-                f"{self.source}: block {name!r} (nesting level {len(stack) + 1}) placed {k:,} time{'s' if k != 1 else ''} in {where} "
+                f"{self.source}: block {name!r} (nesting level {len(stack) + 1}) "
+                f"placed {k:,} time{'s' if k != 1 else ''} in {where} "
                 f"would expand {k * n:,} entities ({k:,} x {n:,}; {self.expanded:,} expanded before), beyond the "
                 f"limit max_expanded_entities = {self.limits.max_expanded_entities:,}", "max_expanded_entities",
                 self.expanded + k * n)

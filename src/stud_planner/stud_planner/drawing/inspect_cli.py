@@ -22,7 +22,6 @@ from typing import Sequence
 import numpy as np
 
 from stud_common.strict_json import write_json
-
 from stud_planner.drawing import DrawingError, DrawingLayout, LayoutOptions, read_layout, units_to_metres
 from stud_planner.drawing.limits import add_limit_arguments, cli_hint, limits_from_args
 
@@ -94,7 +93,8 @@ def summary(layout: DrawingLayout) -> str:
         f"file:         {L.source_file}",
         f"DXF version:  {L.dxf_version} ({L.dxf_release}), read with "
         + ("ezdxf.readfile" if L.read_mode == "read" else "ezdxf.recover (file was damaged)"),
-        f"units:        {u}" + (" (assumed: the drawing is unitless)" if L.units_assumed else f" ($INSUNITS {L.insunits})")
+        f"units:        {u}"
+        + (" (assumed: the drawing is unitless)" if L.units_assumed else f" ($INSUNITS {L.insunits})")
         + f", {L.metres_per_unit:g} m per unit",
     ]
     counts = {lay: 0 for lay in L.stud_layers}
@@ -109,13 +109,15 @@ def summary(layout: DrawingLayout) -> str:
     rule = {"labels": "by their O/A/B labels", "geometry": "by geometry (right angle at O, B counter-clockwise from A)"}
     lines.append(f"marks:        found {rule.get(L.marks_rule, L.marks_rule)} [marks_rule={L.marks_rule}]")
     for m in L.marks.values():
-        lines.append(f"  {m.name}  WCS ({m.wcs_x:.3f}, {m.wcs_y:.3f}) {u}  ->  drawing ({_z(m.x_m):.4f}, {_z(m.y_m):.4f}) m,"
+        lines.append(f"  {m.name}  WCS ({m.wcs_x:.3f}, {m.wcs_y:.3f}) {u}  ->  "
+                     f"drawing ({_z(m.x_m):.4f}, {_z(m.y_m):.4f}) m,"
                      f" diameter {m.diameter_m * 1e3:.2f} mm, layer {m.layer}")
     O, A = L.mark_o, L.mark_a
     heading = math.degrees(math.atan2(A.wcs_y - O.wcs_y, A.wcs_x - O.wcs_x))
     lines.append(f"frame:        origin O, x toward A (|OA| {_fmt_len(A.x_m)}, heading {heading:.2f} deg in WCS), "
                  f"y toward B (|OB| {_fmt_len(math.hypot(L.mark_b.x_m, L.mark_b.y_m))}), "
-                 f"angle AOB {L.angle_aob_deg:.3f} deg, " + ("MIRRORED w.r.t. the DXF" if L.mirrored else "right-handed"))
+                 f"angle AOB {L.angle_aob_deg:.3f} deg, "
+                 + ("MIRRORED w.r.t. the DXF" if L.mirrored else "right-handed"))
     if L.reference_marks:
         lines.append(f"reference marks: {len(L.reference_marks)} ({L.reference_marks[0].name} .. "
                      f"{L.reference_marks[-1].name}), drawing frame")

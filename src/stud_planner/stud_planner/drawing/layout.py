@@ -11,8 +11,8 @@ from typing import Any, Sequence
 
 import ezdxf.lldxf.const as dxfconst
 import numpy as np
-from stud_common.rotations import float3
 
+from stud_common.rotations import float3
 from stud_planner.drawing.circles import read_circles
 from stud_planner.drawing.frame import drawing_frame, marks_in_frame
 from stud_planner.drawing.layers import format_patterns, layer_matcher
@@ -104,7 +104,8 @@ def _diameter_filter(path: Path, cs: CircleSet, idx: np.ndarray, opts: LayoutOpt
     idx, diam = idx[keep], diam[keep]
     if idx.size == 0:
         raise DrawingError(
-            f"{path}: no studs found: no circles on layer(s) {format_patterns(opts.stud_layers)} pass the diameter filter"
+            f"{path}: no studs found: no circles on layer(s) {format_patterns(opts.stud_layers)} "
+            "pass the diameter filter"
             f"{cs.skipped_summary()}; layers: {cs.layer_summary()}"
         )
     return idx, diam
@@ -196,8 +197,8 @@ def _build_layout(path: Path, cs: CircleSet, opts: LayoutOptions) -> DrawingLayo
     is_stud = np.array([hit[lay] for lay in cs.layers], dtype=bool)
     if not is_stud.any():
         raise DrawingError(
-            f"{path}: no studs found: no circles on layer(s) {format_patterns(opts.stud_layers)}{cs.skipped_summary()}; "
-            f"layers: {cs.layer_summary()}"
+            f"{path}: no studs found: no circles on layer(s) {format_patterns(opts.stud_layers)}"
+            f"{cs.skipped_summary()}; layers: {cs.layer_summary()}"
         )
 
     choice = identify_marks(path, cs, opts, stud_match)

@@ -116,9 +116,9 @@ def identify_marks(path: Path, cs: CircleSet, options: LayoutOptions,
         if extra:
             at = ", ".join(f"({xy[k, 0]:g}, {xy[k, 1]:g})" for k in extra[:5]) + (", ..." if len(extra) > 5 else "")
             raise DrawingError(
-                f"{path}: marks ambiguous: {len(extra)} unlabelled circle(s) {where} at {at} (drawing units) in a drawing "
-                f"with reference marks {', '.join(refs)}: label each mark circle (O, A, B or M1, M2, ...) or move "
-                "other circles off the mark layer"
+                f"{path}: marks ambiguous: {len(extra)} unlabelled circle(s) {where} at {at} (drawing units) "
+                f"in a drawing with reference marks {', '.join(refs)}: label each mark circle (O, A, B or M1, M2, ...) "
+                "or move other circles off the mark layer"
             )
         marks.update(refs)
         return MarkChoice(marks, rule, warns + board_warns, _members(marks, on_layer, xy, dup_tol_units))

@@ -11,7 +11,8 @@ class TooDenseError(Exception):
     far denser than the radius (a drawing in metres read as mm puts everything in one cell)."""
 
 
-def close_pairs(xy: np.ndarray, radius: float, max_candidates: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def close_pairs(xy: np.ndarray, radius: float,
+                max_candidates: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Index pairs (i < j) of points closer than ``radius``, and their distances.
 
     Grid hash with cell = radius: each point is compared with its own cell and four forward

@@ -1,5 +1,6 @@
-"""The options of reading a stud layout: one frozen configuration, changed with :meth:`LayoutOptions.with_changes`
-(as ezdxf's drawing add-on configures its frontend), handed to every step of :func:`~stud_planner.drawing.read_layout`."""
+"""The options of reading a stud layout: one frozen configuration, changed with
+:meth:`LayoutOptions.with_changes` (as ezdxf's drawing add-on configures its frontend), handed to every step of
+:func:`~stud_planner.drawing.read_layout`."""
 from __future__ import annotations
 
 import dataclasses

@@ -275,7 +275,8 @@ def _without_entities(tags: _Tags, first: np.ndarray, stop: np.ndarray) -> str:
     orig_first = tags.orig[first]
     orig_stop = tags.orig[stop]  # the next entity's tag (never a circle's: ENDSEC at the latest)
     spans = orig_stop - orig_first
-    drop[np.repeat(orig_first, spans) + (np.arange(int(spans.sum())) - np.repeat(np.cumsum(spans) - spans, spans))] = True
+    drop[np.repeat(orig_first, spans)
+         + (np.arange(int(spans.sum())) - np.repeat(np.cumsum(spans) - spans, spans))] = True
     keep_lines = np.repeat(~drop, 2)
     kept = list(itertools.compress(tags.lines, keep_lines.tolist()))
     return "\n".join(kept) + "\n"

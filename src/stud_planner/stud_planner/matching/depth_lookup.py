@@ -9,7 +9,6 @@ import numpy as np
 
 from stud_perception.depth_image import FillRule, SampleStatus, fill_holes_at, sample_depth_bilinear
 
-
 #: Up to this many new pixels in one call, the holes around them are filled with them (see
 #: :meth:`PixelFills._with_holes_around`); beyond, the per-pixel cost of filling dominates.
 PREFETCH_BELOW = 128

@@ -13,10 +13,9 @@ from typing import Iterator
 
 import numpy as np
 
+from stud_common.vocabulary import TargetStatus
 from stud_perception.camera_model import CameraModel
 from stud_perception.depth_image import FillRule
-from stud_common.vocabulary import TargetStatus
-
 
 #: Margin (m) added around the heights the depth image shows (:func:`observed_z_range`).
 Z_RANGE_MARGIN_M = 0.05

@@ -31,9 +31,9 @@ and publishes
 
 Colour is needed only for the overlay, so the node subscribes to ``/camera/color/image_raw`` only
 while ``/weld_targets/overlay`` or its ``compressed`` topic has a subscriber (and ``publish_overlay``
-is true), and the colour never holds back ``/weld_targets``: the overlay of a view follows when its colour image (same stamp)
-arrives. A 1280x960 colour frame costs as much transport as the matching (the lazy subscription of
-ROS image pipelines).
+is true), and the colour never holds back ``/weld_targets``: the overlay of a view follows when its
+colour image (same stamp) arrives. A 1280x960 colour frame costs as much transport as the matching
+(the lazy subscription of ROS image pipelines).
 
 The depth noise's correlation (it widens the normals' 1-sigma) is measured on a frame and reused
 for the same camera's next frames at the same pose (``noise_correlation_reuse_s``); it is measured
@@ -67,16 +67,21 @@ from std_msgs.msg import Header
 from stud_welding_msgs.msg import Registration, StudLayout, WeldTargetArray
 from visualization_msgs.msg import MarkerArray
 
-from stud_common import ros_io
-from stud_perception import image_io
+from stud_common import names, ros_io
 from stud_common.ros_io import Param
+from stud_perception import image_io
 from stud_planner.matching.gun_clearance import GunModel
-from stud_planner.msg_convert import LayoutView, layout_from_msg, registration_from_msg
 from stud_planner.matching.target_cdr import weld_target_array_cdr
 from stud_planner.matching.target_markers import target_markers
-from stud_planner.matching.view_targets import (ALGORITHMS, NoiseMemory, PlannerConfig, draw_targets_overlay, plan_view,
-                                               view_noise_correlation)
-from stud_common import names
+from stud_planner.matching.view_targets import (
+    ALGORITHMS,
+    NoiseMemory,
+    PlannerConfig,
+    draw_targets_overlay,
+    plan_view,
+    view_noise_correlation,
+)
+from stud_planner.msg_convert import LayoutView, layout_from_msg, registration_from_msg
 
 _PLAN = PlannerConfig()  # the planner's defaults are its own; the parameters expose them
 PARAMS = [
@@ -179,10 +184,13 @@ class MatcherNode(Node):
         self.create_subscription(Registration, names.REGISTRATION_RESULT, self._on_registration,
                                  QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                                             durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        self.sync = ros_io.StampSync(["depth", "info", "pose"], self._on_view, slop_ns=int(self.p["sync_slop_s"] * 1e9), on_drop=ros_io.warn_dropped(self, "view"))
+        self.sync = ros_io.StampSync(["depth", "info", "pose"], self._on_view,
+                                     slop_ns=int(self.p["sync_slop_s"] * 1e9),
+                                     on_drop=ros_io.warn_dropped(self, "view"))
         for name, topic, typ in (("depth", names.DEPTH_IMAGE, Image),
                                  ("info", names.CAMERA_INFO, CameraInfo), ("pose", names.CAMERA_POSE, PoseStamped)):
-            self.create_subscription(typ, topic, functools.partial(self._on_input, name), ros_io.sensor_qos(self.p["sensor_qos"]))
+            self.create_subscription(typ, topic, functools.partial(self._on_input, name),
+                                     ros_io.sensor_qos(self.p["sensor_qos"]))
         self._update_color_subscription()
         self.get_logger().info(f"matcher '{self.p['algorithm']}' waiting for /drawing/layout, /registration/result "
                                "and synchronised RGB-D views")
@@ -284,7 +292,8 @@ class MatcherNode(Node):
         max_age = self.p["max_registration_age_s"]
         age = (ros_io.stamp_to_ns(stamp) - ros_io.stamp_to_ns(self.registration.header.stamp)) * 1e-9
         if max_age > 0 and age > max_age:
-            return f"registration is stale ({age:.1f} s older than the view, limit {max_age:.1f} s): targets not published"
+            return (f"registration is stale ({age:.1f} s older than the view, limit {max_age:.1f} s): "
+                    "targets not published")
         return None
 
     # -- one view ------------------------------------------------------------------------------------
@@ -366,14 +375,16 @@ class MatcherNode(Node):
         widened = targets.sigma_inflation()
         summary = (f"view {self.view_index}: {counts.get('ok', 0)}/{len(targets.ids)} ok "
                    f"({', '.join(f'{k} {v}' for k, v in sorted(counts.items()) if k != 'ok') or 'no failures'}), "
-                   f"{targets.algorithm} {targets.match_time_s * 1e3:.1f} ms, {targets.matches.total_iterations} iterations"
+                   f"{targets.algorithm} {targets.match_time_s * 1e3:.1f} ms, "
+                   f"{targets.matches.total_iterations} iterations"
                    + (f", normal sigma x{widened:.1f} for the depth noise's correlation" if widened >= 1.5 else "")
                    + ("" if noise_age_s is None else f", noise correlation of a frame {noise_age_s:.2f} s before"))
         self.get_logger().info(summary)
         self.diag.set(self.diag.OK, summary, last_match_time_ms=f"{targets.match_time_s * 1e3:.2f}",
                       normal_sigma_inflation=f"{widened:.2f}",
                       noise_correlation_from=("this frame" if noise_age_s is None
-                                              else f"a frame {noise_age_s:.2f} s before"), **{f"count_{k}": v for k, v in counts.items()})
+                                              else f"a frame {noise_age_s:.2f} s before"),
+                      **{f"count_{k}": v for k, v in counts.items()})
 
     def _publish_overlay(self, targets, decoded: image_io.DepthView, color_msg: Image) -> None:
         try:
@@ -413,11 +424,13 @@ class MatcherNode(Node):
                 self.diag.values[f"{name}_rate_hz"] = f"{rate:.2f}"
             else:
                 self.diag.values[f"{name}_age_s"] = ("not subscribed (no overlay subscriber)"
-                                                     if name == "color" and self._color_sub is None else "never received")
+                                                     if name == "color" and self._color_sub is None
+                                                     else "never received")
         self.diag.publish()
 
 
 def main(args=None) -> int:
+    """`ros2 run stud_planner matcher`: spin until Ctrl-C; the process exit code."""
     return ros_io.spin_node(MatcherNode, args)
 
 

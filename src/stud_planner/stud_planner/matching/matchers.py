@@ -33,10 +33,19 @@ import numpy as np
 from stud_perception.camera_model import CameraModel, VerticalLines
 from stud_perception.depth_image import FillRule
 from stud_planner.matching.depth_lookup import PixelFills, depth_at_subpixel
-from stud_planner.matching.match_common import (Z_RANGE_MARGIN_M, MatchingError, MatchResult, MatchResults,
-                                                MatchStatus, check_inputs, empty_results, line_in_view_z_interval,
-                                                observed_z_range)
+from stud_planner.matching.match_common import (
+    Z_RANGE_MARGIN_M,
+    MatchingError,
+    MatchResult,
+    MatchResults,
+    MatchStatus,
+    check_inputs,
+    empty_results,
+    line_in_view_z_interval,
+    observed_z_range,
+)
 from stud_planner.matching.paper_baselines import match_bfs, match_fpm, xy_jacobian_at_height
+
 
 # ---------------------------------------------------------------------------------------------
 # Batch: ours
@@ -111,8 +120,8 @@ class _SecantSearch:
     g < 0 above) with g there, and whether its last sample straddled a depth step."""
 
     def __init__(self, xy: np.ndarray, depth: np.ndarray, camera: CameraModel, lines: VerticalLines, out: dict,
-                 zlo: np.ndarray, zhi: np.ndarray, *, tol_m: float, converge_xy_m: float, z_bracket_tol_m: float, hole_window_px: int,
-                 hole_max_window_px: int, discontinuity_m: float) -> None:
+                 zlo: np.ndarray, zhi: np.ndarray, *, tol_m: float, converge_xy_m: float, z_bracket_tol_m: float,
+                 hole_window_px: int, hole_max_window_px: int, discontinuity_m: float) -> None:
         n = xy.shape[0]
         self.xy, self.depth, self.camera, self.out, self.zlo, self.zhi = xy, depth, camera, out, zlo, zhi
         self.tol_m, self.converge_xy_m, self.z_bracket_tol_m = tol_m, converge_xy_m, z_bracket_tol_m

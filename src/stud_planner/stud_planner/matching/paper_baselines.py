@@ -18,9 +18,16 @@ import numpy as np
 
 from stud_perception.camera_model import CameraModel
 from stud_perception.depth_image import Fallback, FillRule, fill_depth_at
-from stud_planner.matching.match_common import (MatchingError, MatchResults, MatchStatus, check_inputs,
-                                                depth_samples, empty_results, line_in_view_z_interval,
-                                                observed_z_range)
+from stud_planner.matching.match_common import (
+    MatchingError,
+    MatchResults,
+    MatchStatus,
+    check_inputs,
+    depth_samples,
+    empty_results,
+    line_in_view_z_interval,
+    observed_z_range,
+)
 
 
 def _depth_at_pixel(depth_m: np.ndarray, u: int, v: int, window_px: int, fallback: Fallback) -> tuple[float, FillRule]:
@@ -189,8 +196,8 @@ def match_fpm(
     with ``window_order="nearest_first"`` is the cheap variant (~9 per stud).
     Missing depth: the paper's 7x7 mean, then (``hole_fallback``) the plane-fit fallback.
     A stud not matched within tolerance: OUT_OF_VIEW if its vertical line never enters the image
-    (heights in ``z_range_m``, default :func:`observed_z_range`), NO_DEPTH if no pixel of the final window had depth, else
-    NOT_CONVERGED (the best pixel evaluated is reported).
+    (heights in ``z_range_m``, default :func:`observed_z_range`), NO_DEPTH if no pixel of the final window had
+    depth, else NOT_CONVERGED (the best pixel evaluated is reported).
     """
     xy, depth = check_inputs(targets_xy_w, depth_m, camera)
     out = empty_results("fpm", xy.shape[0])

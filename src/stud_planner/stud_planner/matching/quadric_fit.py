@@ -18,7 +18,6 @@ import numpy as np
 from stud_perception.camera_model import CameraModel
 from stud_planner.matching.window_moments import BLOCK_PX, BlockMoments, powers_of
 
-
 #: Quadric terms of the fit in the window's normalised image coordinates: 1, a, b, a^2, ab, b^2.
 N_TERMS = 6
 
@@ -202,8 +201,8 @@ def _inverse_spd(A: np.ndarray) -> np.ndarray:
     """Inverses (n, m, m) of symmetric positive (semi-)definite matrices (n, m, m), by a Cholesky
     factorisation written out over the batch: np.linalg.inv pays a per-matrix overhead that
     dominates at 6x6 for many matrices; for fewer than :data:`_LAPACK_BELOW` positive definite
-    ones, LAPACK's (the same values up to rounding). A pivot that rounding leaves at or below zero is clamped to a tiny positive
-    value, so a degenerate window gets a huge (honest) covariance instead of NaN."""
+    ones, LAPACK's (the same values up to rounding). A pivot that rounding leaves at or below zero is clamped to a
+    tiny positive value, so a degenerate window gets a huge (honest) covariance instead of NaN."""
     if A.shape[0] < _LAPACK_BELOW:
         try:
             np.linalg.cholesky(A)  # raises unless every matrix is positive definite

@@ -36,12 +36,18 @@ from enum import IntEnum
 
 import numpy as np
 
-from stud_perception.camera_model import CameraModel
 from stud_common.rotations import frame_from_normal
 from stud_common.rotations import matrix_to_quaternion as quaternion_from_matrix
+from stud_perception.camera_model import CameraModel
 from stud_planner.matching.noise_correlation import NoiseCorrelation, measure_noise_correlation
-from stud_planner.matching.quadric_fit import (N_TERMS, fast_fits, fit_inverse_depth, frame_noise_m,
-                                               InverseDepthFit, window_blocks)
+from stud_planner.matching.quadric_fit import (
+    N_TERMS,
+    InverseDepthFit,
+    fast_fits,
+    fit_inverse_depth,
+    frame_noise_m,
+    window_blocks,
+)
 from stud_planner.matching.window_moments import BlockMoments
 
 #: Paper: M16x150 shear stud, tool-top offset along the normal.
@@ -105,7 +111,8 @@ def inclination_deg(normal_w: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(n[..., 2], -1.0, 1.0)))
 
 
-def offset_along_normal(points_w: np.ndarray, normals_w: np.ndarray, offset_m: float = M16X150_TOP_OFFSET_M) -> np.ndarray:
+def offset_along_normal(points_w: np.ndarray, normals_w: np.ndarray,
+                        offset_m: float = M16X150_TOP_OFFSET_M) -> np.ndarray:
     """Points (..., 3) moved ``offset_m`` along the unit normals (e.g. the tool top of an M16x150 stud)."""
     return np.asarray(points_w, dtype=np.float64) + offset_m * np.asarray(normals_w, dtype=np.float64)
 

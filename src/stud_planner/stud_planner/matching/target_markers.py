@@ -25,6 +25,7 @@ _UNKNOWN_BGR = (0, 0, 255)
 
 
 def status_rgba(status: int) -> tuple[float, float, float, float]:
+    """RViz colour (r, g, b, a in 0..1) of a target status: the overlay's :data:`STATUS_BGR`; an unknown one red."""
     b, g, r = STATUS_BGR.get(int(status), _UNKNOWN_BGR)
     return (r / 255.0, g / 255.0, b / 255.0, 1.0)
 

@@ -24,17 +24,22 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from stud_common.vocabulary import VIEW_DEPENDENT, MatchAlgorithm, TargetStatus, choices
 from stud_perception.camera_model import CameraModel
 from stud_perception.registration import local_to_world
-from stud_common.vocabulary import VIEW_DEPENDENT, MatchAlgorithm, TargetStatus, choices
 from stud_planner.matching.gun_clearance import Clearance, GunModel, gun_clearance
 from stud_planner.matching.match_common import observed_heights, z_range_of
 from stud_planner.matching.matchers import MatchResults, MatchStatus, match_batch, match_bfs, match_fpm
 from stud_planner.matching.noise_correlation import NoiseCorrelation
+from stud_planner.matching.surface_pose import (
+    SurfaceFitConfig,
+    SurfacePoses,
+    SurfaceStatus,
+    estimate_surface_poses_for_matches,
+    frame_noise_correlation,
+    offset_along_normal,
+)
 from stud_planner.matching.target_table import STATUS_TEXTS, TargetTable, centre_offset
-from stud_planner.matching.surface_pose import (SurfaceFitConfig, SurfacePoses, SurfaceStatus,
-                                                estimate_surface_poses_for_matches, frame_noise_correlation,
-                                                offset_along_normal)
 
 # The target statuses are stud_common.vocabulary.TargetStatus (the WeldTarget.STATUS_* values); the
 # names below are the arrays' spelling of them.
@@ -260,7 +265,8 @@ class NoiseMemory:
 
     def _same_camera(self, camera: CameraModel) -> bool:
         was = self._camera
-        if was is None or (was.width, was.height) != (camera.width, camera.height) or not np.array_equal(was.K, camera.K):
+        if (was is None or (was.width, was.height) != (camera.width, camera.height)
+                or not np.array_equal(was.K, camera.K)):
             return False
         cos_turn = 0.5 * (np.trace(was.R_wc.T @ camera.R_wc) - 1.0)
         return bool(np.linalg.norm(was.t_wc - camera.t_wc) <= self.max_shift_m
