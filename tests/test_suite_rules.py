@@ -44,7 +44,9 @@ def test_a_missing_corpus_skips_with_its_reason_locally_and_fails_under_ci(tmp_p
 
 def test_the_code_passes_the_linter():
     """pyproject.toml's ruff rules over src/, tests/, tools/ and bench/: no unused import or variable, no undefined
-    or shadowed name. Run `ruff check` to see the findings, `ruff check --fix` fixes most."""
+    or shadowed name, lines of at most 120 characters, imports in isort's order, a docstring on every public
+    function of src/ that names its arguments when it lists them. Run `ruff check` to see the findings,
+    `ruff check --fix` fixes most (the import order among them)."""
     ruff = Path(sys.executable).with_name("ruff")
     done = subprocess.run([str(ruff), "check", "--output-format", "concise", "src", "tests", "tools", "bench"],
                           cwd=TESTS.parent, capture_output=True, text=True, timeout=120)
