@@ -14,6 +14,7 @@ import pytest
 from stud_cell import job as cell_job
 from stud_cell.job import CellJob, DriverLost, InspectionOutcome, InspectionUnavailable, JobAborted, JobConfig
 from stud_cell.stations import footprint_m
+from stud_common.vocabulary import CellState
 from stud_inspection.rework import append_record, make_record
 
 
@@ -35,7 +36,7 @@ class FakeCell:
         self.inspections: list[dict] = []
         self.moves: list[tuple] = []
         self.shots: list[str] = []
-        self.states: list[str] = []
+        self.states: list[CellState] = []
         self.log: list[str] = []
         self._stop = False
         self._view = 0
@@ -144,7 +145,7 @@ def run(cell, tmp_path, **config):
 def test_a_clean_job_welds_every_stud_once_and_inspects_each_station_after_its_welds(tmp_path):
     cell = FakeCell(grid())
     job, state, code, qa = run(cell, tmp_path)
-    assert (state, code) == ("done", 0), cell.log
+    assert (state, code) == (CellState.DONE, 0), cell.log
     assert sorted(cell.journal) == sorted(cell.studs) and len(cell.journal) == len(set(cell.journal))
     inspected = [sid for i in cell.inspections for sid in i["ids"]]
     assert sorted(inspected) == sorted(cell.studs)
@@ -155,7 +156,7 @@ def test_a_clean_job_welds_every_stud_once_and_inspects_each_station_after_its_w
     assert all(r["planned"]["normal"] == [0.0, 0.0, 1.0] and r["measured"]["height_mm"] == 49.8 for r in qa["studs"])
     assert {(tmp_path / "qa" / f"qa_report.{ext}").exists() for ext in ("json", "csv", "html")} == {True}
     # the inspection states come after each station's welds
-    assert cell.states.index("inspecting") > cell.states.index("welding")
+    assert cell.states.index(CellState.INSPECTING) > cell.states.index(CellState.WELDING)
 
 
 def test_every_defect_is_reported_with_its_reason_and_a_failed_stud_is_never_welded_again(tmp_path):
@@ -183,14 +184,14 @@ def test_decisions_taken_during_the_job_are_in_its_qa_record_and_a_damaged_file_
     with open(decisions, "a") as f:
         f.write("not json\n")
     job, state, code, qa = run(FakeCell(grid()), tmp_path, rework_file=str(decisions))
-    assert state == "done" and qa["summary"]["pass"] == len(grid())   # the record is written all the same
+    assert state == CellState.DONE and qa["summary"]["pass"] == len(grid())   # the record is written all the same
     assert any("without the rework decisions" in line and "rework_decisions.jsonl:2" in line for line in job.ports.log)
 
 
 def test_a_job_stopped_early_still_writes_the_qa_record_and_the_rest_are_not_welded(tmp_path):
     cell = FakeCell(grid(), stop_after_welds=3)
     job, state, code, qa = run(cell, tmp_path)
-    assert state == "failed" and code == 1 and "stopped" in qa["job"]["message"]
+    assert state == CellState.FAILED and code == 1 and "stopped" in qa["job"]["message"]
     rows = {r["stud_id"]: r for r in qa["studs"]}
     welded = set(cell.journal)
     assert welded and len(welded) < len(cell.studs)
@@ -206,7 +207,7 @@ def test_a_job_stopped_early_still_writes_the_qa_record_and_the_rest_are_not_wel
 def test_without_an_inspector_welded_studs_are_not_inspected_with_the_reason_never_passed(tmp_path):
     cell = FakeCell(grid(3, 2), inspector=False)
     job, state, code, qa = run(cell, tmp_path)
-    assert (state, code) == ("done", 0)
+    assert (state, code) == (CellState.DONE, 0)
     assert qa["summary"]["not_inspected"] == len(cell.studs) and qa["summary"]["pass"] == 0
     assert all("not available" in r["reasons"][0] for r in qa["studs"])
 
@@ -221,7 +222,7 @@ def test_inspection_off_says_so(tmp_path):
 def test_a_driver_that_loses_the_job_gets_it_again_and_its_journal_welds_nothing_twice(tmp_path):
     cell = FakeCell(grid(3, 2), lose_driver_once=True)
     job, state, code, qa = run(cell, tmp_path)
-    assert (state, code) == ("done", 0)
+    assert (state, code) == (CellState.DONE, 0)
     assert len(cell.weld_calls) > job.stations_total             # a resend happened
     assert sorted(cell.journal) == sorted(cell.studs) and len(cell.journal) == len(set(cell.journal))
 
@@ -236,7 +237,7 @@ def test_a_stud_its_station_cannot_use_is_welded_from_another_view_and_inspected
 
     cell = FakeCell(studs, status_of=status_of)
     job, state, code, qa = run(cell, tmp_path)
-    assert (state, code) == ("done", 0), cell.log
+    assert (state, code) == (CellState.DONE, 0), cell.log
     assert cell.journal.count("S0010") == 1
     rows = {r["stud_id"]: r for r in qa["studs"]}
     assert rows["S0010"]["verdict"] == "pass"
@@ -245,7 +246,7 @@ def test_a_stud_its_station_cannot_use_is_welded_from_another_view_and_inspected
 def test_a_stud_no_view_can_use_is_shot_again_and_never_welded_blind(tmp_path):
     cell = FakeCell(grid(3, 2), status_of=lambda sid, cam: "normal_uncertain" if sid == "S0003" else "ok")
     job, state, code, qa = run(cell, tmp_path, reshoot_attempts=2)
-    assert state == "done" and code == 1                    # not every stud welded
+    assert state == CellState.DONE and code == 1                    # not every stud welded
     assert "S0003" not in cell.journal
     assert [w for w in cell.shots if w.startswith("re-shoot")] == ["re-shoot of S0003"] * 2
     rows = {r["stud_id"]: r for r in qa["studs"]}
@@ -257,7 +258,7 @@ def test_an_invalid_registration_ends_the_job_with_the_reason_and_the_records(tm
     cell = FakeCell(grid(2, 2))
     cell.register = lambda attempts=0: cell_job.Registration(False, "mark B not found", np.eye(3), math.nan)
     job, state, code, qa = run(cell, tmp_path)
-    assert state == "failed" and "mark B not found" in qa["job"]["message"]
+    assert state == CellState.FAILED and "mark B not found" in qa["job"]["message"]
     assert qa["summary"]["not_welded"] == 4 and not cell.journal
 
 
@@ -270,14 +271,14 @@ def test_an_internal_error_ends_the_job_with_a_state_not_a_vanished_thread(tmp_p
 
     cell.weld = weld
     job, state, code, qa = run(cell, tmp_path)
-    assert state == "failed" and "boom" in qa["job"]["message"] and code == 1
+    assert state == CellState.FAILED and "boom" in qa["job"]["message"] and code == 1
 
 
 def test_fewest_stations_covers_the_plate_with_fewer_stations_and_welds_every_stud_once(tmp_path):
     grid_job, *_ = run(FakeCell(grid()), tmp_path / "grid")
     cell = FakeCell(grid())
     job, state, code, qa = run(cell, tmp_path / "few", fewest_stations=True)
-    assert (state, code) == ("done", 0)
+    assert (state, code) == (CellState.DONE, 0)
     assert job.stations_total < grid_job.stations_total
     assert sorted(cell.journal) == sorted(cell.studs) and qa["summary"]["pass"] == len(cell.studs)
 
@@ -344,7 +345,7 @@ def test_plan_and_the_cell_keep_the_same_view_of_a_stud_two_views_saw(tmp_path, 
                                                            "F2": (xy[:, 0].max() + 1.2, 0.0)}
     cell = ViewsOfADome(studs, far_views)
     job, state, code, qa = run(cell, tmp_path)
-    assert (state, code) == ("done", 0), cell.log
+    assert (state, code) == (CellState.DONE, 0), cell.log
     welded = {e["stud_id"]: e for e in json.loads((tmp_path / "weld_report.json").read_text())["targets"]}
     for sid in ids:
         assert welded[sid]["welded"] and welded[sid]["view"] == planned[sid]["view"], sid

@@ -17,6 +17,7 @@ from rm65_driver.weld.safety import SafetyChecker, SafetyLimits
 from stud_cell import job as cell_job
 from stud_cell.cell_reach import CellReach
 from stud_cell.job import CellJob, JobConfig, MoveRefused
+from stud_common.vocabulary import CellState
 from stud_perception.scene_solids import Dome
 from test_cell_job import FakeCell
 
@@ -130,7 +131,7 @@ def test_without_a_registration_station_the_board_is_found_from_reachable_views(
     studs = dome_studs((0.25, 0.05), 0.2, 0.05, [(0.0, 1, 0.0), (0.05, 4, 0.0)])
     cell = ReachCell(studs, board_o=(0.16, -0.14))
     job, state, report, qa = run(cell, tmp_path, registration_station_xyz_m=())
-    assert state == "done", cell.log
+    assert state == CellState.DONE, cell.log
     assert 1 <= cell.registrations <= 16 and not cell.unplanned_moves
     assert any("marking board found from the camera at" in line for line in cell.log)
     assert sorted(cell.journal) == sorted(studs)
@@ -139,7 +140,7 @@ def test_without_a_registration_station_the_board_is_found_from_reachable_views(
 def test_a_board_nowhere_to_be_seen_ends_the_job_saying_where_it_looked_and_what_to_set(tmp_path):
     cell = ReachCell(dome_studs((0.25, 0.0), 0.2, 0.05, [(0.0, 1, 0.0)]), board_o=(2.0, 2.0))
     job, state, report, qa = run(cell, tmp_path, board_search_max_shots=4)
-    assert state == "failed" and not cell.journal
+    assert state == CellState.FAILED and not cell.journal
     message = qa["job"]["message"]
     assert "the registration station [0.225, -0.29, 0.285] m: no dark circular marks found" in message, message
     assert "4 search pose(s) over x 0.00..0.65 m, y -0.55..0.55 m" in message
@@ -150,7 +151,7 @@ def test_a_board_nowhere_to_be_seen_ends_the_job_saying_where_it_looked_and_what
 def test_studs_the_arm_cannot_weld_are_named_with_the_reason_before_anything_is_sent_for_them(tmp_path):
     cell = ReachCell(NEAR_DOME)
     job, state, report, qa = run(cell, tmp_path)
-    assert state == "done", cell.log
+    assert state == CellState.DONE, cell.log
     refused = {sid for sid, (p, n) in NEAR_DOME.items() if not DRIVER.check_target(p, n, 0.06, HOME).ok}
     assert len(refused) == 3   # the three on the side facing the arm (issue 34 measured three)
     sent = {sid for ids in cell.weld_calls for sid in ids}
@@ -178,7 +179,7 @@ def test_a_station_the_arm_refuses_costs_that_station_and_the_job_goes_on(tmp_pa
         f"T{k}": v for k, v in enumerate(dome_studs((0.25, 0.12), 0.2, 0.05, [(0.0, 1, 0.0)]).values())}}
     cell = ReachCell(studs, refuse=lambda xyz: xyz[1] > 0.05 and xyz[2] > 0.3)
     job, state, report, qa = run(cell, tmp_path, fov_width_m=0.30)  # a narrow view: a station for each
-    assert state == "done" and job.stations_total == 2, cell.log
+    assert state == CellState.DONE and job.stations_total == 2, cell.log
     assert cell.journal == ["S0001"]
     targets = {t["stud_id"]: t for t in report["targets"]}
     assert targets["T0"]["status"] == "unreachable" and "camera station" in targets["T0"]["reason"]
@@ -203,7 +204,7 @@ def test_every_camera_station_the_plan_sends_is_one_the_driver_accepts(tmp_path,
     assert not REACH.camera_ok((*centre, PLANE_Z + 0.40))   # the station the grid puts over them: out of reach
     cell = ReachCell(studs)
     job, state, report, qa = run(cell, tmp_path)
-    assert state == "done" and not cell.unplanned_moves, cell.log
+    assert state == CellState.DONE and not cell.unplanned_moves, cell.log
     assert job.stations_total == 1 and cell.moves[1][0] != (*centre, PLANE_Z + 0.40)
     targets = {t["stud_id"]: t for t in report["targets"]}
     assert all(t["welded"] or t["status"] == "unreachable" for t in targets.values())

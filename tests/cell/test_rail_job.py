@@ -20,6 +20,7 @@ from stud_cell.cell_reach import CellReach
 from stud_cell.job import JobConfig, MoveRefused
 from stud_cell.rail_job import RailJob
 from stud_common.frames import RailDeviation, true_world_correction, world_T_base
+from stud_common.vocabulary import CellState
 from stud_perception.scene import ReferenceMark, girder_scene, surface_height, surface_normal
 from test_cell_job import FakeCell
 
@@ -199,7 +200,7 @@ def girder_run(tmp_path_factory):
 
 def test_every_stud_of_a_girder_longer_than_the_arm_is_welded_once_on_the_true_stud(girder_run):
     cell, job, state, report, qa = girder_run
-    assert state == "done", cell.log
+    assert state == CellState.DONE, cell.log
     assert sorted(cell.journal) == sorted(cell.studs) and len(cell.journal) == len(set(cell.journal))
     assert not cell.unplanned_moves
     # the rail's error at the far carriage positions is millimetres: had a target been welded with another
@@ -264,7 +265,7 @@ def test_a_stud_beyond_the_rails_reach_is_named_before_any_motion_and_the_rest_w
     cell.truth[far] = (p, np.array([0.0, 0.0, 1.0]))
     cell.drawing[far] = scene.drawing_to_world.apply_inverse(p[None, :2])[0]
     job, state, report, qa = run(cell, tmp_path)
-    assert state == "done", cell.log
+    assert state == CellState.DONE, cell.log
     targets = {t["stud_id"]: t for t in report["targets"]}
     assert targets[far]["status"] == "unreachable" and "from any carriage position 0..2 m" in targets[far]["reason"]
     assert sorted(cell.journal) == sorted(set(cell.studs) - {far})
@@ -281,7 +282,7 @@ def test_a_stud_its_carriage_position_cannot_weld_is_deferred_to_a_later_one_and
     tilt = math.radians(35.0)
     cell = RailCell(scene, rail_length_m=3.0, normals={sid: (math.sin(tilt), 0.0, math.cos(tilt))})
     job, state, report, qa = run(cell, tmp_path)
-    assert state == "done" and sorted(cell.journal) == sorted(cell.studs), cell.log
+    assert state == CellState.DONE and sorted(cell.journal) == sorted(cell.studs), cell.log
     stops = report["rail"]["stops"]
     planned = next(s for s in stops if sid in s["studs"])
     welded = next(s for s in stops if s["position_m"] == pytest.approx(cell.welded_at[sid]))
@@ -303,7 +304,7 @@ def test_the_board_is_searched_for_along_the_rail_the_carriage_moving_to_reach_e
     assert board[:, 0].min() > 1.2 and not cell.here().camera_ok((*board.mean(axis=0), 0.35), 0.0)
     job, state, report, qa = run(cell, tmp_path, registration_station_xyz_m=(),
                                  board_search_area_xy_m=(1.2, -0.6, 1.9, -0.1))
-    assert state == "done", cell.log
+    assert state == CellState.DONE, cell.log
     assert any("marking board found from the camera at" in line for line in cell.log)
     first = next(k for k, e in enumerate(cell.events) if e[0] == "register" and e[2])
     assert cell.events[0][0] == "rail" and cell.events[first][1] > 0.8   # moved before the board was seen
@@ -319,7 +320,7 @@ def test_without_reference_marks_a_carriage_position_out_of_the_boards_reach_say
     error there is not corrected (the welds land that much off: the cell cannot know better)."""
     cell = RailCell(paired_marks_girder(1.8), rail_length_m=2.5, marks=False)
     job, state, report, qa = run(cell, tmp_path)
-    assert state == "done", cell.log
+    assert state == CellState.DONE, cell.log
     regs = [s["registration"] for s in report["rail"]["stops"]]
     carried = [r for r in regs if r["source"] == "carried over"]
     assert carried and all(r["extrapolated_m"] > 0.3 for r in carried)

@@ -42,7 +42,7 @@ from stud_cell.station_reach import StationGeometry, reachable_stations
 from stud_cell.stations import Station, StationPlan, footprint_m, plan_stations, reshoot_station
 from stud_cell.unreachable import UnreachableStuds
 from stud_common.strict_json import write_json
-from stud_common.vocabulary import TargetStatus
+from stud_common.vocabulary import CellState, TargetStatus
 from stud_inspection import bend, qa_codes, qa_report, rework
 from stud_perception.registration import local_to_world
 from stud_planner.matching.target_table import BestViewKey, choose_best
@@ -81,7 +81,7 @@ class CellJob:
         self._judged = False                       # an inspection reported the limits it judged with
 
     # -- the job ----------------------------------------------------------------------------------
-    def run(self) -> tuple[str, int]:
+    def run(self) -> tuple[CellState, int]:
         try:
             state, message = self._job()
         except JobAborted as exc:
@@ -90,7 +90,7 @@ class CellJob:
             state, message = FAILED, f"internal error: {exc!r}"
         return state, self.finish(state, message)
 
-    def _job(self) -> tuple[str, str]:
+    def _job(self) -> tuple[CellState, str]:
         ports = self.ports
         self.layout = layout = ports.wait_layout()
         for sid, (x, y) in zip(layout.ids, layout.xy_m):
@@ -485,7 +485,7 @@ class CellJob:
         self.ports.move_camera(xyz, yaw)
         self._camera_at = (tuple(xyz), float(yaw))
 
-    def _status(self, state: str, message: str, **fields) -> None:
+    def _status(self, state: CellState, message: str, **fields) -> None:
         self.state, self.message = state, message
         self.ports.status(state, message, **fields)
 
@@ -550,7 +550,7 @@ class CellJob:
             self.ports.warn(f"QA record written without its code profile and bend tests: {exc}")
             return None
 
-    def finish(self, state: str, message: str) -> int:
+    def finish(self, state: CellState, message: str) -> int:
         """Write the weld report and the QA record (also after an early stop); the exit code: 0 only
         when the job is done and every stud welded."""
         welded = self.welded_count()
@@ -562,13 +562,13 @@ class CellJob:
         c = self.c
         if c.report_file:
             # strict JSON: an unmatched stud's NaN position is null (RFC 8259 has no NaN)
-            write_json(c.report_file, {"state": state, "message": message, "stations": int(self.stations_total),
+            write_json(c.report_file, {"state": state.text, "message": message, "stations": int(self.stations_total),
                                        "unreachable": list(self.unreachable),
                                        "unreachable_reasons": dict(self.named.reasons),
                                        "targets": list(self.stud_report.values()), **self._report_extras()})
         if c.qa_dir and self.qa:
             job = {"id": c.job_id, "part": c.part, "drawing": self.layout.source_file if self.layout else "",
-                   "state": state, "message": message, **self._report_extras(qa=True)}
+                   "state": state.text, "message": message, **self._report_extras(qa=True)}
             with qa_report.locked(Path(c.qa_dir)):
                 doc = qa_report.write_qa_report(Path(c.qa_dir), job, c.qa_limits, self.qa_rows(state == DONE),
                                                 self.unexpected, [Path(f) for f in self.overlays],
@@ -582,6 +582,6 @@ class CellJob:
         return 0 if state == DONE and all_welded else 1
 
 
-__all__ = ["CellJob", "CellPorts", "DriverLost", "InspectionOutcome", "InspectionUnavailable", "JobAborted",
-           "JobConfig", "Layout", "MoveRefused", "RESHOOT_STATUS_TEXTS", "Registration", "Target", "View",
+__all__ = ["CellJob", "CellPorts", "CellState", "DriverLost", "InspectionOutcome", "InspectionUnavailable",
+           "JobAborted", "JobConfig", "Layout", "MoveRefused", "RESHOOT_STATUS_TEXTS", "Registration", "Target", "View",
            "WeldOutcome"]

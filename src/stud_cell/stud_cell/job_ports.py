@@ -16,10 +16,12 @@ from stud_inspection import qa_codes
 from stud_inspection.inspection import InspectionLimits
 from stud_planner.matching.target_table import TargetTable
 
-#: Job states (CellStatus state_text): stud_common.vocabulary's, by name.
+#: The job's states: CellState's members by their names (``cell_job.DONE is CellState.DONE``). The job keeps
+#: and reports a CellState; its ``text`` (``"done"``) is only for the edges: CellStatus ``state_text``, the
+#: weld report and the QA record, logs.
 IDLE, REGISTERING, MOVING, SHOOTING, MATCHING, WELDING, INSPECTING, PAUSED, DONE, FAILED = (
-    s.text for s in (CellState.IDLE, CellState.REGISTERING, CellState.MOVING, CellState.SHOOTING, CellState.MATCHING,
-                     CellState.WELDING, CellState.INSPECTING, CellState.PAUSED, CellState.DONE, CellState.FAILED))
+    CellState.IDLE, CellState.REGISTERING, CellState.MOVING, CellState.SHOOTING, CellState.MATCHING,
+    CellState.WELDING, CellState.INSPECTING, CellState.PAUSED, CellState.DONE, CellState.FAILED)
 
 
 class JobAborted(Exception):
@@ -128,7 +130,7 @@ class CellPorts(Protocol):
     def weld(self, targets: list[Target]) -> WeldOutcome: ...            # DriverLost: the driver lost the job
     def inspect(self, station: int, view: View, targets: list[Target], welded_ids: list[str],
                 after_ns: int) -> InspectionOutcome: ...                # InspectionUnavailable
-    def status(self, state: str, message: str, **fields) -> None: ...
+    def status(self, state: CellState, message: str, **fields) -> None: ...
     def checkpoint(self) -> None: ...                                    # honours pause and stop
     # With a rail (JobConfig.rail_length_m > 0; rail_job.RailJob) -- a cell without one need not have these:
     def move_rail(self, position_m: float) -> float: ...                 # carriage there, the arm still; where it

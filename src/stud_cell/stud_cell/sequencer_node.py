@@ -70,8 +70,6 @@ from stud_planner.msg_convert import (
 
 #: /arm/welds: every weld of the session, also for a sequencer started late.
 WELDS_QOS = QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-STATE_TEXT = {int(s): s.text for s in CellState}  # CellStatus.STATE_* (tests: the same constants)
-STATE_OF_TEXT = {text: state for state, text in STATE_TEXT.items()}
 
 
 class CellSequencer(Node):
@@ -95,7 +93,8 @@ class CellSequencer(Node):
         self._worker: threading.Thread | None = None
         self.job: cell_job.CellJob | None = None
         self.exit_code: int | None = None
-        self.cell_status = CellStatus(state=CellStatus.STATE_IDLE, state_text="idle", message="waiting for start")
+        self.cell_status = CellStatus(state=int(CellState.IDLE), state_text=CellState.IDLE.text,
+                                      message="waiting for start")
         self.pub_status = self.create_publisher(CellStatus, names.CELL_STATUS, ros_io.LATCHED_QOS)
         self.create_subscription(StudLayout, names.DRAWING_LAYOUT, self._on_layout, ros_io.LATCHED_QOS,
                                  callback_group=cb)
@@ -235,25 +234,22 @@ class CellSequencer(Node):
         _state, self.exit_code = self.job.run()
 
     # -- cell_job.CellPorts ---------------------------------------------------------------------
-    def status(self, state: str, message: str, **fields) -> None:
+    def status(self, state: CellState, message: str, **fields) -> None:
         if "unreachable" in fields and "unreachable_reasons" not in fields:
             fields["unreachable_reasons"] = [self._unreachable_reason(sid) for sid in fields["unreachable"]]
-        self._set_state(STATE_OF_TEXT[state], message, **fields)
+        changed = (state, message) != (self.cell_status.state, self.cell_status.message)
+        st = self.cell_status
+        st.state, st.state_text, st.message = int(state), state.text, message
+        for k, v in fields.items():
+            setattr(self.cell_status, k, v)
+        self.publish_status()
+        if changed:
+            self.get_logger().info(f"[{state.text}] {message}")
 
     def _unreachable_reason(self, stud_id: str) -> str:
         """Why the job cannot weld ``stud_id``: its QA row's reason, as the QA record says it."""
         reasons = self.job.qa.get(stud_id, {}).get("reasons") if self.job is not None else None
         return reasons[0] if reasons else "unreachable"
-
-    def _set_state(self, state: int, message: str, **fields) -> None:
-        changed = (state, message) != (self.cell_status.state, self.cell_status.message)
-        st = self.cell_status
-        st.state, st.state_text, st.message = state, STATE_TEXT[state], message
-        for k, v in fields.items():
-            setattr(self.cell_status, k, v)
-        self.publish_status()
-        if changed:
-            self.get_logger().info(f"[{STATE_TEXT[state]}] {message}")
 
     def checkpoint(self) -> None:
         """Between steps: honour stop and pause."""
