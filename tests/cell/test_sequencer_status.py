@@ -101,6 +101,7 @@ def test_the_status_carries_the_camera_footprint_and_the_reasons_of_unreachable_
                "/cell/status with the unreachable studs")
     assert list(got.unreachable_reasons) == ["unreachable: no camera station the arm reaches covers it", "unreachable"]
     assert list(got.camera_xyz_m) == pytest.approx([0.3, -0.1, PLANE_Z + 0.1])
+    assert (got.state, got.state_text) == (CellStatus.STATE_REGISTERING, "registering")  # the job's CellState, sent
     # a job that names its reasons itself is taken at its word
     sequencer.status(cell_job.REGISTERING, "registered", unreachable=["S2"], unreachable_reasons=["its own"])
     assert list(sequencer.cell_status.unreachable_reasons) == ["its own"]
