@@ -30,6 +30,7 @@ for _pkg in ("stud_common", "rm65_driver", "rm65_sim"):  # run from a checkout, 
 import numpy as np  # noqa: E402
 
 from rm65_driver.protocol.arm_client import ArmClient, ArmStopped  # noqa: E402
+from rm65_sim.config import SimulatorConfig
 from rm65_sim.simulator import ArmSimulator  # noqa: E402
 
 HOME_DEG = (0.0, -30.0, -100.0, 0.0, -50.0, 0.0)
@@ -49,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--stops", type=int, default=50)
     args = parser.parse_args(argv)
-    sim = ArmSimulator(host="127.0.0.1", port=0, time_scale=1.0, initial_joints_deg=HOME_DEG)
+    sim = ArmSimulator(host="127.0.0.1", port=0, config=SimulatorConfig(time_scale=1.0, initial_joints_deg=HOME_DEG))
     sim.start()
     client = ArmClient("127.0.0.1", sim.port, connect_timeout_s=1.0, reply_timeout_s=1.0, backoff_s=(0.02, 0.2))
     client.connect()

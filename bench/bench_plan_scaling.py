@@ -56,7 +56,7 @@ def write_drawing(path: Path, n_studs: int) -> Path:
     import numpy as np
 
     from stud_planner.drawing import read_layout
-    from stud_planner.drawing.dxf_writer import write_scene_drawing
+    from stud_planner.drawing.dxf_writer import LayoutDxfOptions, write_scene_drawing
 
     demo = read_layout(DEMO_DRAWING)
     marks = {k: (m.x_m, m.y_m) for k, m in demo.marks.items()}
@@ -72,7 +72,8 @@ def write_drawing(path: Path, n_studs: int) -> Path:
         if side <= 2000 else np.zeros(len(grid), bool)
     grid = grid[~near][:extra]
     studs = np.vstack([own, grid])
-    return write_scene_drawing(path, studs, marks, stud_diameter_m=0.019, mark_diameter_m=demo.mark_diameter_m)
+    return write_scene_drawing(path, studs, marks,
+                               LayoutDxfOptions(stud_diameter_m=0.019, mark_diameter_m=demo.mark_diameter_m))
 
 
 def _rss_mb() -> float:

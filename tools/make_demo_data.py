@@ -63,7 +63,7 @@ from stud_perception.scene import MarkingBoard, SceneSpec, girder_scene, surface
 from stud_perception.scene_file import scene_from_dict, scene_to_dict  # noqa: E402
 from stud_perception.scene_solids import Cylinder, Dome, Pose2D  # noqa: E402
 from stud_planner.drawing import read_layout  # noqa: E402
-from stud_planner.drawing.dxf_writer import write_layout_dxf  # noqa: E402
+from stud_planner.drawing.dxf_writer import LayoutDxfOptions, write_layout_dxf  # noqa: E402
 
 DATA = REPO / "src" / "stud_planner" / "data"
 CONFIG = REPO / "src" / "stud_perception" / "config"
@@ -266,8 +266,9 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         dxf, scene_file = DATA / f"{part}_demo.dxf", CONFIG / f"{part}_scene.json"
         marks = {**dict(zip("OAB", scene.board.marks_drawing_m)), **scene.reference_marks_drawing_m}
-        write_layout_dxf(dxf, np.asarray(scene.studs_drawing_m), marks, stud_diameter_m=0.016,
-                         mark_diameter_m=scene.board.mark_diameter_m, dxfversion="R2010", units="mm")
+        write_layout_dxf(dxf, np.asarray(scene.studs_drawing_m), marks,
+                         LayoutDxfOptions(stud_diameter_m=0.016, mark_diameter_m=scene.board.mark_diameter_m,
+                                          dxfversion="R2010", units="mm"))
         scene = scene_with_drawing_ids(scene, dxf)
         write_json(scene_file, scene_to_dict(scene))
         xy = scene.studs_world_xy_m

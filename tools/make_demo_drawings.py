@@ -21,10 +21,10 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 try:
-    from stud_planner.drawing.dxf_writer import write_scene_drawing
+    from stud_planner.drawing.dxf_writer import LayoutDxfOptions, write_scene_drawing
 except ImportError:  # run from a checkout without the workspace sourced
     sys.path.insert(0, str(REPO / "src" / "stud_planner"))
-    from stud_planner.drawing.dxf_writer import write_scene_drawing
+    from stud_planner.drawing.dxf_writer import LayoutDxfOptions, write_scene_drawing
 
 DATA_DIR = REPO / "src" / "stud_planner" / "data"
 MAX_COMMITTED_BYTES = 50_000
@@ -35,7 +35,8 @@ FLAT_PLATE_STUDS = np.array([(0.075 + 0.15 * i, 0.1 + 0.1 * j) for j in range(3)
 
 
 def write_flat_plate(path: str | Path) -> Path:
-    return write_scene_drawing(path, FLAT_PLATE_STUDS, FLAT_PLATE_MARKS, rotation_deg=15.0, origin_wcs_m=(1.2, 0.8))
+    return write_scene_drawing(path, FLAT_PLATE_STUDS, FLAT_PLATE_MARKS,
+                               LayoutDxfOptions(rotation_deg=15.0, origin_wcs_m=(1.2, 0.8)))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

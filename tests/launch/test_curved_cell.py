@@ -14,7 +14,7 @@ from stud_perception.scene import MarkingBoard, SceneSpec
 from stud_perception.scene_file import load_scene, scene_from_dict, scene_to_dict
 from stud_perception.scene_solids import Plate, Pose2D, Trough
 from stud_planner.drawing import read_layout
-from stud_planner.drawing.dxf_writer import write_layout_dxf
+from stud_planner.drawing.dxf_writer import LayoutDxfOptions, write_layout_dxf
 from test_cell_ros import REPO, free_port
 
 BOARD_POSE = Pose2D(0.16, -0.34, 0.0)  # the bundled parts' board (tools/make_demo_data.py)
@@ -26,8 +26,9 @@ def part_files(tmp_path, scene: SceneSpec):
     """A drawing of ``scene``'s studs and the scene with the drawing's stud ids."""
     dxf = tmp_path / "part.dxf"
     marks = dict(zip("OAB", scene.board.marks_drawing_m))
-    write_layout_dxf(dxf, np.asarray(scene.studs_drawing_m), marks, stud_diameter_m=0.016,
-                     mark_diameter_m=scene.board.mark_diameter_m, dxfversion="R2010", units="mm")
+    write_layout_dxf(dxf, np.asarray(scene.studs_drawing_m), marks,
+                     LayoutDxfOptions(stud_diameter_m=0.016, mark_diameter_m=scene.board.mark_diameter_m,
+                                      dxfversion="R2010", units="mm"))
     layout = read_layout(dxf)
     ids = [layout.studs[int(np.argmin(np.linalg.norm(layout.studs_xy_m() - p, axis=1)))].id
            for p in np.asarray(scene.studs_drawing_m)]

@@ -20,7 +20,7 @@ from stud_perception.scene import MarkingBoard, ReferenceMark, SceneSpec, surfac
 from stud_perception.scene_file import scene_to_dict
 from stud_perception.scene_solids import Girder, Pose2D
 from stud_planner.drawing import read_layout
-from stud_planner.drawing.dxf_writer import write_layout_dxf
+from stud_planner.drawing.dxf_writer import LayoutDxfOptions, write_layout_dxf
 from test_cell_ros import free_port
 from test_curved_cell import BOARD_POSE
 
@@ -50,8 +50,9 @@ def part_files(tmp_path, scene: SceneSpec):
     dxf = tmp_path / "girder.dxf"
     marks = {**dict(zip("OAB", scene.board.marks_drawing_m)),
              **{m.label: m.drawing_xy_m for m in scene.reference_marks}}
-    write_layout_dxf(dxf, np.asarray(scene.studs_drawing_m), marks, stud_diameter_m=0.016,
-                     mark_diameter_m=scene.board.mark_diameter_m, dxfversion="R2010", units="mm")
+    write_layout_dxf(dxf, np.asarray(scene.studs_drawing_m), marks,
+                     LayoutDxfOptions(stud_diameter_m=0.016, mark_diameter_m=scene.board.mark_diameter_m,
+                                      dxfversion="R2010", units="mm"))
     layout = read_layout(dxf)
     assert sorted(m.name for m in layout.reference_marks) == sorted(m.label for m in scene.reference_marks)
     ids = [layout.studs[int(np.argmin(np.linalg.norm(layout.studs_xy_m() - p, axis=1)))].id

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from stud_planner.drawing import inspect_cli as drawing_inspect
-from stud_planner.drawing.dxf_writer import write_layout_dxf
+from stud_planner.drawing.dxf_writer import LayoutDxfOptions, write_layout_dxf
 from stud_planner.drawing.inspect_cli import main
 
 REPO = Path(__file__).resolve().parents[2]
@@ -22,7 +22,8 @@ STUDS = np.array([(0.05 + 0.1 * i, 0.05 + 0.08 * j) for j in range(3) for i in r
 
 @pytest.fixture
 def plate(tmp_path) -> Path:
-    return write_layout_dxf(tmp_path / "plate.dxf", STUDS, MARKS, rotation_deg=20.0, origin_wcs_m=(1.0, 2.0))
+    return write_layout_dxf(tmp_path / "plate.dxf", STUDS, MARKS,
+                            LayoutDxfOptions(rotation_deg=20.0, origin_wcs_m=(1.0, 2.0)))
 
 
 def one_error_line(capsys, code: int) -> str:
@@ -49,7 +50,8 @@ def test_summary_names_version_units_layers_marks_frame_and_warnings(plate, caps
 
 def test_geometry_rule_and_warnings_are_reported(tmp_path, capsys):
     studs = np.vstack([STUDS, [[-0.05, 0.1]]])
-    path = write_layout_dxf(tmp_path / "g.dxf", studs, MARKS, labels=False, units="unitless", unitless_as="cm")
+    path = write_layout_dxf(tmp_path / "g.dxf", studs, MARKS,
+                            LayoutDxfOptions(labels=False, units="unitless", unitless_as="cm"))
     assert main([str(path), "--units-if-unitless", "cm"]) == 0
     out = capsys.readouterr().out
     assert "marks_rule=geometry" in out and "right angle at O, B counter-clockwise from A" in out
@@ -78,7 +80,8 @@ def test_png_preview_is_written(plate, tmp_path, capsys):
 
 
 def test_stud_and_mark_layer_options(tmp_path, capsys):
-    path = write_layout_dxf(tmp_path / "l.dxf", STUDS, MARKS, stud_layer="Shear-Studs-M19", mark_layer="Datum")
+    path = write_layout_dxf(tmp_path / "l.dxf", STUDS, MARKS,
+                            LayoutDxfOptions(stud_layer="Shear-Studs-M19", mark_layer="Datum"))
     assert "no studs found" in one_error_line(capsys, main([str(path)]))
     assert main([str(path), "--stud-layers", "shear-*", "--mark-layer", "DATUM"]) == 0
     assert "stud layers:  Shear-Studs-M19 (15)" in capsys.readouterr().out

@@ -29,7 +29,7 @@ from stud_planner.drawing import (
     read_layout,
     units_to_metres,
 )
-from stud_planner.drawing.dxf_writer import write_layout_dxf
+from stud_planner.drawing.dxf_writer import LayoutDxfOptions, write_layout_dxf
 
 REPO = Path(__file__).resolve().parents[2]
 CORPUS = REPO.parent / "shared" / "data" / "dxf"
@@ -65,7 +65,7 @@ def assert_marks(layout: DrawingLayout, marks=MARKS, tol: float = 1e-9) -> None:
 @pytest.mark.parametrize("binary", [False, True], ids=["ascii", "binary"])
 @pytest.mark.parametrize("version", ["R12", "R2000", "R2010", "R2018"])
 def test_round_trip_in_each_dxf_version(tmp_path, version, binary):
-    path = write_layout_dxf(tmp_path / "plate.dxf", STUDS, MARKS, dxfversion=version, binary=binary)
+    path = write_layout_dxf(tmp_path / "plate.dxf", STUDS, MARKS, LayoutDxfOptions(dxfversion=version, binary=binary))
     layout = read_layout(path)
     assert_studs(layout, STUDS)
     assert_marks(layout)
@@ -100,8 +100,8 @@ def test_round_trip_in_each_dxf_version(tmp_path, version, binary):
          "extrusion-minus-z-mirrored-insert", "r12-insert", "binary-insert"],
 )
 def test_block_references_are_expanded_with_their_full_transform(tmp_path, flavour):
-    path = write_layout_dxf(tmp_path / "blocks.dxf", STUDS, MARKS, origin_wcs_m=(2.0, -1.0),
-                            rotation_deg=30.0, **flavour)
+    path = write_layout_dxf(tmp_path / "blocks.dxf", STUDS, MARKS,
+                            LayoutDxfOptions(origin_wcs_m=(2.0, -1.0), rotation_deg=30.0, **flavour))
     layout = read_layout(path)
     assert_studs(layout, STUDS)
     assert_marks(layout)
@@ -148,7 +148,7 @@ def test_minsert_arrays_are_expanded(tmp_path):
 
 @pytest.mark.parametrize("units, insunits", [("mm", 4), ("cm", 5), ("m", 6), ("in", 1), ("ft", 2), ("dm", 14)])
 def test_units_are_converted_to_metres(tmp_path, units, insunits):
-    path = write_layout_dxf(tmp_path / f"u_{units}.dxf", STUDS, MARKS, units=units)
+    path = write_layout_dxf(tmp_path / f"u_{units}.dxf", STUDS, MARKS, LayoutDxfOptions(units=units))
     layout = read_layout(path)
     assert (layout.source_units, layout.insunits, layout.units_assumed) == (units, insunits, False)
     assert_studs(layout, STUDS)
@@ -158,7 +158,8 @@ def test_units_are_converted_to_metres(tmp_path, units, insunits):
 
 @pytest.mark.parametrize("written_as, read_as", [("mm", "mm"), ("cm", "cm"), ("in", "in")])
 def test_unitless_drawing_uses_the_parameter_and_warns(tmp_path, written_as, read_as):
-    path = write_layout_dxf(tmp_path / "unitless.dxf", STUDS, MARKS, units="unitless", unitless_as=written_as)
+    path = write_layout_dxf(tmp_path / "unitless.dxf", STUDS, MARKS,
+                            LayoutDxfOptions(units="unitless", unitless_as=written_as))
     layout = read_layout(path, units_if_unitless=read_as)
     assert layout.units_assumed and layout.insunits == 0 and layout.source_units == read_as
     assert_studs(layout, STUDS)
@@ -190,8 +191,8 @@ def test_frame_is_recovered_for_any_placement_in_the_wcs(tmp_path_factory, rotat
     studs = rng.uniform([0.02, 0.02], [0.58, 0.28], (12, 2))
     studs = studs[np.argsort(studs[:, 0])]
     studs = studs[np.r_[True, np.diff(studs[:, 0]) > 0.002]]  # no accidental duplicates
-    path = write_layout_dxf(tmp_path_factory.mktemp("p") / "p.dxf", studs, MARKS, rotation_deg=rotation,
-                            origin_wcs_m=(ox, oy), labels=labels)
+    path = write_layout_dxf(tmp_path_factory.mktemp("p") / "p.dxf", studs, MARKS,
+                            LayoutDxfOptions(rotation_deg=rotation, origin_wcs_m=(ox, oy), labels=labels))
     layout = read_layout(path, min_spacing_m=0)
     assert layout.marks_rule == ("labels" if labels else "geometry")
     assert_studs(layout, studs, tol=1e-7)
@@ -206,7 +207,7 @@ def test_frame_is_recovered_for_any_placement_in_the_wcs(tmp_path_factory, rotat
 
 def test_unlabelled_marks_use_the_geometry_rule(tmp_path):
     # a right angle at O and B counter-clockwise from A: nothing else to go on
-    path = write_layout_dxf(tmp_path / "g.dxf", STUDS, MARKS, labels=False, rotation_deg=-70.0)
+    path = write_layout_dxf(tmp_path / "g.dxf", STUDS, MARKS, LayoutDxfOptions(labels=False, rotation_deg=-70.0))
     layout = read_layout(path)
     assert layout.marks_rule == "geometry"
     assert_marks(layout)
@@ -215,7 +216,7 @@ def test_unlabelled_marks_use_the_geometry_rule(tmp_path):
 
 def test_geometry_rule_picks_the_right_handed_frame_when_the_drawing_is_mirrored(tmp_path):
     # WCS mirrored: B lies clockwise from A. Without labels, the rule (OA x OB > 0) swaps A and B.
-    path = write_layout_dxf(tmp_path / "m.dxf", STUDS, MARKS, labels=False, mirror_frame=True)
+    path = write_layout_dxf(tmp_path / "m.dxf", STUDS, MARKS, LayoutDxfOptions(labels=False, mirror_frame=True))
     layout = read_layout(path)
     assert layout.marks_rule == "geometry" and not layout.mirrored
     assert_marks(layout, {"O": (0, 0), "A": (0.3, 0), "B": (0, 0.6)})
@@ -223,7 +224,7 @@ def test_geometry_rule_picks_the_right_handed_frame_when_the_drawing_is_mirrored
 
 
 def test_labels_win_over_handedness_and_the_mirrored_frame_is_reported(tmp_path):
-    path = write_layout_dxf(tmp_path / "m.dxf", STUDS, MARKS, mirror_frame=True)
+    path = write_layout_dxf(tmp_path / "m.dxf", STUDS, MARKS, LayoutDxfOptions(mirror_frame=True))
     layout = read_layout(path)
     assert layout.marks_rule == "labels" and layout.mirrored
     assert_marks(layout)
@@ -234,7 +235,7 @@ def test_labels_win_over_handedness_and_the_mirrored_frame_is_reported(tmp_path)
 def test_mtext_labels_identify_the_marks(tmp_path):
     # O/A/B positions chosen so that geometry alone would name them differently (right angle at "A")
     marks = {"O": (0.0, 0.0), "A": (0.5, 0.5), "B": (0.0, 0.6)}
-    path = write_layout_dxf(tmp_path / "mt.dxf", STUDS, marks, label_kind="mtext", dxfversion="R2018")
+    path = write_layout_dxf(tmp_path / "mt.dxf", STUDS, marks, LayoutDxfOptions(label_kind="mtext", dxfversion="R2018"))
     layout = read_layout(path)
     assert layout.marks_rule == "labels"
     assert layout.mark_a.x_m == pytest.approx(math.hypot(0.5, 0.5))
@@ -277,7 +278,7 @@ def test_partial_labels_fall_back_to_geometry_and_say_so(tmp_path):
 
 def test_frame_with_non_perpendicular_marks_keeps_x_along_oa(tmp_path):
     marks = {"O": (0.0, 0.0), "A": (0.6, 0.0), "B": (0.02, 0.3)}  # 86.2 deg
-    layout = read_layout(write_layout_dxf(tmp_path / "np.dxf", STUDS, marks, rotation_deg=10))
+    layout = read_layout(write_layout_dxf(tmp_path / "np.dxf", STUDS, marks, LayoutDxfOptions(rotation_deg=10)))
     assert layout.angle_aob_deg == pytest.approx(math.degrees(math.atan2(0.3, 0.02)))
     assert layout.mark_b.x_m == pytest.approx(0.02) and layout.mark_b.y_m == pytest.approx(0.3)
     assert_studs(layout, STUDS)
@@ -603,7 +604,7 @@ def test_error_not_a_dxf(tmp_path):
 @pytest.mark.parametrize("binary", [False, True], ids=["ascii", "binary"])
 @pytest.mark.parametrize("fraction", [0.3, 0.6, 0.95])
 def test_error_truncated_file(tmp_path, fraction, binary):
-    data = write_layout_dxf(tmp_path / "full.dxf", STUDS, MARKS, binary=binary).read_bytes()
+    data = write_layout_dxf(tmp_path / "full.dxf", STUDS, MARKS, LayoutDxfOptions(binary=binary)).read_bytes()
     cut = tmp_path / "cut.dxf"
     cut.write_bytes(data[: int(len(data) * fraction)])
     assert "truncated or corrupt" in _error(cut)
@@ -659,10 +660,10 @@ def test_error_marks_ambiguous(tmp_path):
 def test_error_collinear_and_coincident_marks(tmp_path):
     for labels in (True, False):
         line = {"O": (0.0, 0.0), "A": (0.6, 0.0), "B": (0.3, 0.001)}
-        path = write_layout_dxf(tmp_path / f"line{labels}.dxf", STUDS, line, labels=labels)
+        path = write_layout_dxf(tmp_path / f"line{labels}.dxf", STUDS, line, LayoutDxfOptions(labels=labels))
         assert "marks collinear" in _error(path)
     close = {"O": (0.0, 0.0), "A": (0.02, 0.0), "B": (0.0, 0.3)}  # 30 mm marks overlap
-    path = write_layout_dxf(tmp_path / "close.dxf", STUDS, close, labels=False)
+    path = write_layout_dxf(tmp_path / "close.dxf", STUDS, close, LayoutDxfOptions(labels=False))
     assert "marks coincident" in _error(path)
     doc = _plain_doc(STUDS * 1e3, marks=None)
     for name, p, label in [("O", (0, 0), (-40, -40)), ("A", (20, 0), (60, 0)), ("B", (0, 300), (20, 320))]:
@@ -722,7 +723,7 @@ def test_close_pairs_matches_brute_force(n, radius, seed):
 
 
 def test_layout_dict_round_trip_is_json(tmp_path):
-    layout = read_layout(write_layout_dxf(tmp_path / "j.dxf", STUDS, MARKS, rotation_deg=12))
+    layout = read_layout(write_layout_dxf(tmp_path / "j.dxf", STUDS, MARKS, LayoutDxfOptions(rotation_deg=12)))
     d = json.loads(json.dumps(layout.to_dict()))
     assert d["frame_id"] == "drawing" and d["studs"][0]["id"] == "S0001"
     again = DrawingLayout.from_dict(d)

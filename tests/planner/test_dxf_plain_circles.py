@@ -11,7 +11,7 @@ import pytest
 
 from stud_planner.drawing import DrawingError, read_circles, read_layout
 from stud_planner.drawing.dxf_file import check_file, load_with_plain_circles
-from stud_planner.drawing.dxf_writer import write_layout_dxf
+from stud_planner.drawing.dxf_writer import LayoutDxfOptions, write_layout_dxf
 from stud_planner.drawing.plain_circles import split_plain_circles
 
 REPO = Path(__file__).resolve().parents[2]
@@ -76,7 +76,7 @@ def test_the_plain_path_serves_a_fair_part_of_the_corpus(require_shared_data):
     {"stud_layer": ["STUDS", "studs", "STUDS_B"] * 5},
 ])
 def test_writer_variants_read_the_same(tmp_path, options):
-    path = write_layout_dxf(tmp_path / "v.dxf", STUDS, MARKS, **options)
+    path = write_layout_dxf(tmp_path / "v.dxf", STUDS, MARKS, LayoutDxfOptions(**options))
     a, b = both(path)
     assert_same(a, b)
     assert read_layout(path).studs == read_layout(path).studs

@@ -12,6 +12,7 @@ import pytest
 from rm65_driver.journal.writer import Journal
 from rm65_driver.protocol.arm_client import ArmClient
 from rm65_driver.weld.weld_job import StudTarget
+from rm65_sim.config import SimulatorConfig
 from rm65_sim.simulator import ArmSimulator
 
 #: A "ready" pose in front of the arm, tool pointing down (0.289, 0, 0.183 m flange).
@@ -22,7 +23,7 @@ FAST = 0.02
 
 @pytest.fixture
 def sim():
-    s = ArmSimulator(host="127.0.0.1", port=0, time_scale=FAST, initial_joints_deg=HOME_DEG)
+    s = ArmSimulator(host="127.0.0.1", port=0, config=SimulatorConfig(time_scale=FAST, initial_joints_deg=HOME_DEG))
     s.start()
     yield s
     s.stop()

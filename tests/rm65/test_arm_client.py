@@ -10,6 +10,7 @@ import pytest
 
 from rm65_driver.protocol import messages as P
 from rm65_driver.protocol.arm_client import ArmClient, ArmCommandError, ArmConnectionError, ArmStopped, ArmTimeout
+from rm65_sim.config import SimulatorConfig
 from rm65_sim.simulator import ArmSimulator
 from rm65_testing import HOME_DEG, wait_for
 
@@ -58,7 +59,8 @@ def test_reconnect_backs_off_until_the_controller_accepts(sim):
 @pytest.mark.parametrize("fmt", ["list", "scalar", "arm_sys"])
 @pytest.mark.parametrize("pretty", [False, True])
 def test_state_in_every_error_format_and_pretty_replies(fmt, pretty):
-    with ArmSimulator(port=0, err_format=fmt, pretty_replies=pretty, initial_joints_deg=HOME_DEG) as s:
+    config = SimulatorConfig(err_format=fmt, pretty_replies=pretty, initial_joints_deg=HOME_DEG)
+    with ArmSimulator(port=0, config=config) as s:
         with ArmClient("127.0.0.1", s.port) as c:
             c.connect()
             st = c.get_state()
@@ -279,7 +281,8 @@ def test_a_motion_sent_to_be_connected_waits_for_the_next_one(sim):
 
 
 def test_a_controller_that_says_all_done_after_the_first_segment_is_not_believed_until_the_arm_is_still():
-    with ArmSimulator(port=0, time_scale=0.3, initial_joints_deg=HOME_DEG, report_connected=False) as s:
+    config = SimulatorConfig(time_scale=0.3, initial_joints_deg=HOME_DEG, report_connected=False)
+    with ArmSimulator(port=0, config=config) as s:
         c = ArmClient("127.0.0.1", s.port, connect_timeout_s=1.0, reply_timeout_s=1.0)
         c.connect()
         c.move_joints_and_wait(np.radians([10, -35, -95, 5, -50, 20]), 50, timeout_s=5)

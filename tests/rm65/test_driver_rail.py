@@ -25,6 +25,7 @@ from stud_welding_msgs.srv import MoveTo, RailMove  # noqa: E402
 from rm65_driver.kinematics.rm65 import RM65Kinematics, matrix_to_quat_xyzw  # noqa: E402
 from rm65_driver.rail.axis import RailAxis  # noqa: E402
 from rm65_driver.weld.weld_job import StudTarget  # noqa: E402
+from rm65_sim.config import SimulatorConfig
 from rm65_sim.simulator import ArmSimulator  # noqa: E402
 from rm65_testing import FAST, HOME_DEG, dome_targets, welds_per_stud  # noqa: E402
 from stud_common.frames import world_T_base  # noqa: E402
@@ -49,8 +50,9 @@ def probe():
 
 @pytest.fixture
 def rail_sim():
-    s = ArmSimulator(port=0, time_scale=FAST, initial_joints_deg=HOME_DEG, rail_axis=RailAxis(6.0),
-                     rail_mount_xyz_m=MOUNT).start()
+    config = SimulatorConfig(time_scale=FAST, initial_joints_deg=HOME_DEG, rail_axis=RailAxis(6.0),
+                             rail_mount_xyz_m=MOUNT)
+    s = ArmSimulator(port=0, config=config).start()
     yield s
     s.stop()
 

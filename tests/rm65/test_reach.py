@@ -16,6 +16,7 @@ from rm65_driver.weld.reach_move import detour, joint_path_problem, plan_move
 from rm65_driver.weld.safety import SafetyChecker, SafetyLimits
 from rm65_driver.weld.weld_job import StudTarget, WeldParams
 from rm65_driver.weld.weld_sequence import WeldSequence
+from rm65_sim.config import SimulatorConfig
 from rm65_sim.simulator import ArmSimulator
 from rm65_testing import FAST, HOME_DEG, welds_per_stud
 
@@ -138,7 +139,7 @@ def test_from_a_folded_arm_the_driver_takes_a_detour_instead_of_refusing_the_stu
 
 
 def test_a_stud_is_welded_from_a_folded_start_through_the_detour_the_controller_is_sent(tmp_path):
-    sim = ArmSimulator(host="127.0.0.1", port=0, time_scale=FAST, initial_joints_deg=FOLDED_DEG)
+    sim = ArmSimulator(host="127.0.0.1", port=0, config=SimulatorConfig(time_scale=FAST, initial_joints_deg=FOLDED_DEG))
     sim.start()
     client = ArmClient("127.0.0.1", sim.port, connect_timeout_s=1.0, reply_timeout_s=1.0, backoff_s=(0.02, 0.2))
     try:

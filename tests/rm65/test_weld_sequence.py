@@ -19,6 +19,7 @@ from rm65_driver.protocol import messages as P
 from rm65_driver.weld.safety import SafetyChecker, SafetyLimits
 from rm65_driver.weld.weld_job import StudTarget, WeldParams
 from rm65_driver.weld.weld_sequence import WeldSequence
+from rm65_sim.config import SimulatorConfig
 from rm65_sim.simulator import ArmSimulator
 from rm65_testing import FAST, dome_targets, wait_for, welds_per_stud
 from stud_common.vocabulary import OnDisconnect, StudOrder
@@ -280,7 +281,8 @@ def test_controller_restart_mid_pulse_sets_the_controller_up_again_and_the_job_g
         assert sim.wait_until(lambda: len(sim.rising_edges(1)) == 2 and sim.do_state(1) == 1, 20)  # S0001 firing
         q = sim.joints
         sim.stop()
-        restarted = ArmSimulator(port=sim.port, time_scale=FAST, initial_joints_deg=np.degrees(q)).start()
+        config = SimulatorConfig(time_scale=FAST, initial_joints_deg=np.degrees(q))
+        restarted = ArmSimulator(port=sim.port, config=config).start()
         sims.append(restarted)
         job.join(30)
         res = out["res"]

@@ -90,10 +90,12 @@ SDK_RAIL_SCRIPT = textwrap.dedent("""
 
 def test_official_sdk_drives_the_expansion_joint_position_state_and_arrival():
     from rm65_driver.rail.axis import RailAxis
+    from rm65_sim.config import SimulatorConfig
     from rm65_sim.simulator import ArmSimulator
     from rm65_testing import HOME_DEG
 
-    sim = ArmSimulator(port=0, time_scale=0.1, initial_joints_deg=HOME_DEG, rail_axis=RailAxis(6.0)).start()
+    config = SimulatorConfig(time_scale=0.1, initial_joints_deg=HOME_DEG, rail_axis=RailAxis(6.0))
+    sim = ArmSimulator(port=0, config=config).start()
     try:
         proc = subprocess.run([sys.executable, "-c", SDK_RAIL_SCRIPT, str(sim.port)], capture_output=True,
                               text=True, timeout=60)

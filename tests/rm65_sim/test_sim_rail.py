@@ -9,6 +9,7 @@ import pytest
 
 from rm65_driver.protocol import messages as P
 from rm65_driver.rail.axis import RailAxis, RailMode
+from rm65_sim.config import SimulatorConfig
 from rm65_sim.simulator import ArmSimulator
 from rm65_testing import HOME_DEG, wait_for
 from stud_common.frames import RailDeviation, carriage_in_world
@@ -66,7 +67,8 @@ class Peer:
 
 def _sim(time_scale=0.02, **kw) -> ArmSimulator:
     kw.setdefault("rail_axis", AXIS)
-    return ArmSimulator(port=0, time_scale=time_scale, initial_joints_deg=HOME_DEG, **kw).start()
+    config = SimulatorConfig(time_scale=time_scale, initial_joints_deg=HOME_DEG, **kw)
+    return ArmSimulator(port=0, config=config).start()
 
 
 @pytest.fixture
@@ -224,7 +226,7 @@ def test_arm_and_rail_arrivals_carry_their_devices_and_interleave(rail_sim, peer
 
 
 def test_a_controller_without_the_axis_refuses_and_reports_it_disabled():
-    sim = ArmSimulator(port=0, time_scale=0.02).start()
+    sim = ArmSimulator(port=0, config=SimulatorConfig(time_scale=0.02)).start()
     peer = Peer(sim.port)
     try:
         assert peer.ask({"command": "expand_set_pos", "pos": 0, "speed": 50},

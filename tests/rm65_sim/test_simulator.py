@@ -11,6 +11,7 @@ import pytest
 
 from rm65_driver.kinematics.rm65 import RM65Kinematics
 from rm65_driver.protocol import messages as P
+from rm65_sim.config import SimulatorConfig
 from rm65_sim.simulator import ArmSimulator, main
 from rm65_testing import wait_for
 
@@ -116,7 +117,7 @@ def _readable(sock) -> bool:
 
 
 def test_motion_takes_scaled_real_time():
-    with ArmSimulator(port=0, time_scale=0.2, initial_joints_deg=(0, 0, 90, 0, 90, 0)) as s:
+    with ArmSimulator(port=0, config=SimulatorConfig(time_scale=0.2, initial_joints_deg=(0, 0, 90, 0, 90, 0))) as s:
         r = Raw(s.port)
         t0 = time.monotonic()
         # J1 90 deg at 50 % of 180 deg/s and of 600 deg/s^2: 1.0 s cruising + 0.3 s to speed up and
@@ -149,7 +150,7 @@ def test_out_of_limit_and_unreachable_targets_are_refused_with_error_codes(raw, 
 
 @pytest.mark.parametrize("fmt, key", [("scalar", "err"), ("arm_sys", "arm_err")])
 def test_older_error_formats_are_configurable(fmt, key):
-    with ArmSimulator(port=0, err_format=fmt) as s:
+    with ArmSimulator(port=0, config=SimulatorConfig(err_format=fmt)) as s:
         r = Raw(s.port)
         s.set_error(0x100D)
         [st] = r.ask(P.get_current_arm_state())
@@ -159,7 +160,7 @@ def test_older_error_formats_are_configurable(fmt, key):
 
 
 def test_pretty_printed_requests_and_replies():
-    with ArmSimulator(port=0, pretty_replies=True) as s:
+    with ArmSimulator(port=0, config=SimulatorConfig(pretty_replies=True)) as s:
         r = Raw(s.port)
         r.send(P.encode(P.get_current_arm_state(), pretty=True)
                + P.encode({"command": "get_joint_degree"}, pretty=True))

@@ -21,7 +21,7 @@ from stud_perception.scene_cameras import view_camera
 from stud_perception.scene_file import load_scene
 from stud_perception.scene_render import render
 from stud_planner.drawing import read_layout
-from stud_planner.drawing.dxf_writer import write_layout_dxf
+from stud_planner.drawing.dxf_writer import LayoutDxfOptions, write_layout_dxf
 from stud_planner.msg_convert import layout_to_msg
 from test_sensor_nodes import DEMO_DXF, DEMO_SCENE
 
@@ -114,7 +114,8 @@ def test_along_a_girder_each_view_registers_on_the_marks_it_sees(ros_node, procs
     the reference marks it sees, and a view past the last mark takes the nearest registration and says
     how far it extrapolated."""
     marks = {"O": (0.0, 0.0), "A": (0.13, 0.0), "B": (0.0, 0.1), **GIRDER.reference_marks_drawing_m}
-    dxf = write_layout_dxf(tmp_path / "girder.dxf", np.asarray(GIRDER.studs_drawing_m), marks, mark_diameter_m=0.02)
+    dxf = write_layout_dxf(tmp_path / "girder.dxf", np.asarray(GIRDER.studs_drawing_m), marks,
+                           LayoutDxfOptions(mark_diameter_m=0.02))
     register = _registration_node(ros_node, procs, tmp_path, layout_to_msg(read_layout(dxf)))
 
     start = register(_girder_view(0.37, -0.2))

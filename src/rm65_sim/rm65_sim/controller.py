@@ -24,6 +24,7 @@ from rm65_driver.kinematics.rm65 import (
     pose6_to_matrix,
 )
 from rm65_driver.protocol import messages as P
+from rm65_sim.config import SimulatorConfig
 
 #: Controller IO (Gen-3: four multiplexed DI/DO) and tool-flange IO (two), §1.8.
 N_IO = 4
@@ -58,9 +59,7 @@ class ControllerCommands:
     """State queries, frames and IO of :class:`~rm65_sim.simulator.ArmSimulator` (state lives there)."""
 
     kin: RM65Kinematics
-    err_format: str
-    strict_io_mode: bool
-    product_version: str
+    config: SimulatorConfig
     do_events: list[DOEvent]
     _lock: threading.RLock
     _changed: threading.Condition
@@ -96,7 +95,7 @@ class ControllerCommands:
     def _cmd_get_current_arm_state(self, msg: dict[str, Any]) -> dict[str, Any]:
         with self._lock:
             pose = matrix_to_pose6(self._tcp_pose_locked())
-            return P.arm_state_message(self._joints, pose, self._errors, self.err_format)
+            return P.arm_state_message(self._joints, pose, self._errors, self.config.err_format)
 
     def _cmd_get_joint_degree(self, msg: dict[str, Any]) -> dict[str, Any]:
         with self._lock:
@@ -126,7 +125,7 @@ class ControllerCommands:
     # -- connect-time queries of the official SDK (§1.11) --------------------------------
     def _cmd_get_arm_software_info(self, msg: dict[str, Any]) -> dict[str, Any]:
         return {
-            "Product_version": self.product_version,
+            "Product_version": self.config.product_version,
             "algorithm_info": {"version": "1.2.3"},
             "command": "arm_software_info",
             "ctrl_info": {"build_time": "2024-10-17 10:00:00", "version": "V1.4.6"},
@@ -262,7 +261,7 @@ class ControllerCommands:
     def _cmd_set_DO_state(self, msg: dict[str, Any]) -> dict[str, Any]:
         io, value = int(msg["IO_Num"]), 1 if int(msg["state"]) else 0
         with self._lock:
-            ok = 1 <= io <= N_IO and (not self.strict_io_mode or self._io_mode[io - 1] == 1)
+            ok = 1 <= io <= N_IO and (not self.config.strict_io_mode or self._io_mode[io - 1] == 1)
             if ok and self._do[io - 1] != value:
                 self._do[io - 1] = value
                 self._record_do(io, False, value)
@@ -294,7 +293,7 @@ class ControllerCommands:
     def _cmd_set_tool_DO_state(self, msg: dict[str, Any]) -> dict[str, Any]:
         io, value = int(msg["IO_Num"]), 1 if int(msg["state"]) else 0
         with self._lock:
-            ok = 1 <= io <= N_TOOL_IO and (not self.strict_io_mode or self._tool_io_mode[io - 1] == 1)
+            ok = 1 <= io <= N_TOOL_IO and (not self.config.strict_io_mode or self._tool_io_mode[io - 1] == 1)
             if ok and self._tool_do[io - 1] != value:
                 self._tool_do[io - 1] = value
                 self._record_do(io, True, value)

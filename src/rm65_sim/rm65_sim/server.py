@@ -15,6 +15,7 @@ import time
 from typing import Any, Callable, Self
 
 from rm65_driver.protocol import messages as P
+from rm65_sim.config import SimulatorConfig
 
 _log = logging.getLogger("rm65_sim.simulator")  # one logger for all parts of the simulator
 
@@ -57,8 +58,7 @@ class TcpServer:
     """Life cycle and networking of :class:`~rm65_sim.simulator.ArmSimulator` (state lives there)."""
 
     host: str
-    pretty_replies: bool
-    keep_moving_on_disconnect: bool
+    config: SimulatorConfig
     connection_count: int
     _requested_port: int
     _bound_port: int | None
@@ -179,15 +179,15 @@ class TcpServer:
             conn.close()
             with self._lock:
                 self._conns.pop(conn.id, None)
-                if not self.keep_moving_on_disconnect:
+                if not self.config.keep_moving_on_disconnect:
                     self._halt_motions_of(conn.id)
                 self._changed.notify_all()
 
     def _reply(self, conn: Connection, msg: dict[str, Any]) -> None:
-        conn.send(msg, self.pretty_replies)
+        conn.send(msg, self.config.pretty_replies)
 
     def _send_to(self, conn_id: int, msg: dict[str, Any]) -> None:
         with self._lock:
             conn = self._conns.get(conn_id)
         if conn is not None:
-            conn.send(msg, self.pretty_replies)
+            conn.send(msg, self.config.pretty_replies)

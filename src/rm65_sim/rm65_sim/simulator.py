@@ -26,7 +26,8 @@ digital-output change with the tool pose at that instant (``do_events``,
 A rail under the arm (``rail_axis``): the controller's expansion joint, device 4 (:mod:`.rail`),
 with its sim-only true deviation (``rail_deviation``); none by default.
 
-Parts, by concern: the motion model (:mod:`.motion`), the controller's state and its
+Its options are one frozen :class:`~rm65_sim.config.SimulatorConfig` (:mod:`.config`). Parts, by concern: the
+motion model (:mod:`.motion`), the controller's state and its
 non-motion commands (:mod:`.controller`), the rail (:mod:`.rail`), the TCP server (:mod:`.server`)
 and the fault injection (:mod:`.faults`); this module holds the state, dispatches the commands, runs the
 motion thread and the command line.
@@ -34,7 +35,7 @@ motion thread and the command line.
 Run stand-alone: ``python -m rm65_sim.simulator --port 8080`` (binds 127.0.0.1 unless told
 otherwise). Usage from pytest::
 
-    sim = ArmSimulator(port=0, time_scale=0.02); sim.start(); ... sim.port ...; sim.stop()
+    sim = ArmSimulator(port=0, config=SimulatorConfig(time_scale=0.02)); sim.start(); ... sim.port ...; sim.stop()
 """
 from __future__ import annotations
 
@@ -54,11 +55,11 @@ import numpy as np
 from rm65_driver.kinematics.rm65 import DHModel, RM65Kinematics, matrix_to_pose6
 from rm65_driver.protocol import messages as P
 from rm65_driver.rail.axis import EXPAND_SET_POS, RailAxis
+from rm65_sim.config import SimulatorConfig
 from rm65_sim.controller import N_IO, N_TOOL_IO, ControllerCommands, DOEvent
 from rm65_sim.faults import Fault, FaultInjection
 from rm65_sim.motion import (
     Motion,
-    MotionLimits,
     SegmentProfile,
     junction_speed,
     line_segment,
@@ -92,64 +93,22 @@ class CommandRecord:
 
 
 class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
-    """Threaded TCP controller simulator (see the module docstring).
-
-    ``err_format``: ``"list"`` (current firmware, what the SDK needs), ``"scalar"`` or
-    ``"arm_sys"`` (older documented formats). ``strict_io_mode``: ``set_DO_state`` is refused
-    unless the IO was switched to output mode first (Gen-3 behaviour, [INFERRED]).
-    ``keep_moving_on_disconnect``: a dropped TCP connection does not stop a planned motion
-    (what a controller executing its own trajectory does; [UNCERTAIN] on hardware).
-    ``min_motion_real_s``: floor on a motion's wall-clock duration, whatever ``time_scale``.
-    ``report_connected``: a motion sent with ``trajectory_connect`` 1 reports its end with 1 (False: with
-    0, as if every queued motion were done).
-    ``rail_axis``: the expansion joint carrying the arm (None: no rail), its base ``rail_mount_xyz_m``
-    (m) above the carriage, the rail's true ``rail_deviation`` (sim-only, :mod:`.rail`).
+    """Threaded TCP controller simulator (see the module docstring), behaving as its
+    :class:`~rm65_sim.config.SimulatorConfig` says: the error format, IO strictness, what a dropped
+    connection or a stop does, the rail under the arm.
     """
 
-    def __init__(
-        self,
-        host: str = "127.0.0.1",
-        port: int = P.DEFAULT_PORT,
-        time_scale: float = 1.0,
-        err_format: str = "list",
-        pretty_replies: bool = False,
-        d6_m: float = 0.144,
-        initial_joints_deg: Sequence[float] = (0.0, 0.0, 90.0, 0.0, 90.0, 0.0),
-        tick_s: float = 0.002,
-        limits: MotionLimits | None = None,
-        stop_reports_trajectory: bool = True,
-        strict_io_mode: bool = True,
-        keep_moving_on_disconnect: bool = True,
-        product_version: str = "RM65-BI",
-        min_motion_real_s: float = 0.01,
-        report_connected: bool = True,
-        rail_axis: RailAxis | None = None,
-        rail_mount_xyz_m: Sequence[float] = (0.0, 0.0, 0.0),
-        rail_deviation: RailDeviation = RailDeviation(),
-    ):
-        if err_format not in ("list", "scalar", "arm_sys"):
-            raise ValueError(f"err_format {err_format!r}: expected list, scalar or arm_sys")
+    def __init__(self, host: str = "127.0.0.1", port: int = P.DEFAULT_PORT, config: SimulatorConfig | None = None):
+        """Serve on ``host``:``port`` (0: a free port, :attr:`port` tells which once started) as ``config``
+        says (:class:`~rm65_sim.config.SimulatorConfig`; None: its defaults)."""
+        self.config = config or SimulatorConfig()
         self.host = host
         self._requested_port = int(port)
-        self.time_scale = float(time_scale)
-        self.err_format = err_format
-        self.pretty_replies = pretty_replies
-        self.kin = RM65Kinematics(dh=DHModel.rm65(d6_m))
-        self.tick_s = tick_s
-        self.limits = limits or MotionLimits()
-        self.stop_reports_trajectory = stop_reports_trajectory
-        self.strict_io_mode = strict_io_mode
-        self.keep_moving_on_disconnect = keep_moving_on_disconnect
-        self.product_version = product_version
-        # No real trajectory ends within milliseconds of its acknowledgement; the official SDK's
-        # single-thread mode misses an arrival message that shares a TCP read with the ack.
-        self.min_motion_real_s = min_motion_real_s
-        # The end of a connected motion's first part: trajectory_connect 1 (DOCS); False sends 0 as
-        # if all were done, the [UNCERTAIN] reading a client must survive.
-        self.report_connected = report_connected
+        self.time_scale = float(self.config.time_scale)  # live: tests change it while the simulator runs
+        self.kin = RM65Kinematics(dh=DHModel.rm65(self.config.d6_m))
 
         self._lock = threading.RLock()
-        self._joints = np.radians(np.asarray(initial_joints_deg, dtype=np.float64))
+        self._joints = np.radians(np.asarray(self.config.initial_joints_deg, dtype=np.float64))
         self._queue: collections.deque[Motion] = collections.deque()
         self._paused = False
         self._errors: list[int] = []
@@ -179,8 +138,9 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
         self._threads: list[threading.Thread] = []
         self._running = threading.Event()
         self._changed = threading.Condition(self._lock)
-        self.rail = SimRail(rail_axis, self._lock, self._changed, tuple(rail_mount_xyz_m), rail_deviation,
-                            min_motion_real_s)
+        cfg = self.config
+        self.rail = SimRail(cfg.rail_axis, self._lock, self._changed, tuple(cfg.rail_mount_xyz_m), cfg.rail_deviation,
+                            cfg.min_motion_real_s)
 
     # ------------------------------------------------------------------------------------
     # inspection (tests)
@@ -285,7 +245,7 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
     # -- motion --------------------------------------------------------------------------
     def _plan(self, name: str, msg: dict[str, Any], q_start: np.ndarray) -> tuple[np.ndarray | None, float, float, int]:
         """Joint path, duration and acceleration time, or (None, 0, 0, error code) (:func:`.motion.plan_motion`)."""
-        return plan_motion(self.kin, name, msg, q_start, self._frames, self.limits)
+        return plan_motion(self.kin, name, msg, q_start, self._frames, self.config.limits)
 
     def _frames(self) -> tuple[np.ndarray, np.ndarray]:
         with self._lock:
@@ -349,7 +309,7 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
     def _motion_loop(self) -> None:
         last = time.monotonic()
         while self._running.is_set():
-            time.sleep(self.tick_s)
+            time.sleep(self.config.tick_s)
             now = time.monotonic()
             dt = (now - last) / max(self.time_scale, 1e-9)
             last = now
@@ -379,9 +339,10 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
                     self._queue.clear()
                     self._errors = [m.fail_code]
                     outbox.append((m.conn_id, trajectory_msg(False)))
-                elif f >= 1.0 and now - (m.released_at or now) >= self.min_motion_real_s:
+                elif f >= 1.0 and now - (m.released_at or now) >= self.config.min_motion_real_s:
                     self._queue.popleft()
-                    outbox.append((m.conn_id, trajectory_msg(True, connected=m.connect_next and self.report_connected)))
+                    connected = m.connect_next and self.config.report_connected
+                    outbox.append((m.conn_id, trajectory_msg(True, connected=connected)))
                 self._changed.notify_all()
             for conn_id in drops:
                 with self._lock:
@@ -398,7 +359,7 @@ class ArmSimulator(TcpServer, FaultInjection, ControllerCommands):
     def _stop_motion(self) -> list[tuple[int, dict[str, Any]]]:
         with self._lock:
             out = []
-            if self._queue and self.stop_reports_trajectory:
+            if self._queue and self.config.stop_reports_trajectory:
                 out = [(self._queue[0].conn_id, trajectory_msg(False))]
             self._queue.clear()
             self._paused = False
@@ -537,9 +498,9 @@ def _serve(args: argparse.Namespace, stop_signals: set[signal.Signals]) -> int:
         rail_axis = (RailAxis(args.rail_length_m, args.rail_pos_unit_m, args.rail_max_speed_m_s, args.rail_accel_m_s2)
                      if args.rail_length_m != 0 else None)
         deviation = RailDeviation(args.true_rail_scale_ppm, args.true_rail_offset_m, args.true_rail_yaw_urad_per_m)
-        sim = ArmSimulator(host=args.host, port=args.port, time_scale=args.time_scale,
-                           err_format=args.err_format, pretty_replies=args.pretty, rail_axis=rail_axis,
-                           rail_mount_xyz_m=args.rail_mount_xyz_m, rail_deviation=deviation)
+        config = SimulatorConfig(time_scale=args.time_scale, err_format=args.err_format, pretty_replies=args.pretty,
+                                 rail_axis=rail_axis, rail_mount_xyz_m=args.rail_mount_xyz_m, rail_deviation=deviation)
+        sim = ArmSimulator(host=args.host, port=args.port, config=config)
         sim.start()
     except (OSError, ValueError) as exc:
         print(f"simulator: cannot start on {args.host}:{args.port}: {exc}", file=sys.stderr)

@@ -4,16 +4,20 @@ Used by the tests and by ``tools/make_demo_drawings.py``. Input is in the ``draw
 (metres, origin at O, x toward A, y toward B); the writer places that frame in the DXF's WCS
 with ``origin_wcs_m`` / ``rotation_deg`` (and ``mirror_frame``), converts to ``units``, and
 draws the studs as circles, optionally as INSERTs of a block (rotated, scaled, mirrored,
-nested) or as circles with extrusion (0, 0, -1), as mirrored drawings contain them.
+nested) or as circles with extrusion (0, 0, -1), as mirrored drawings contain them. How it draws is one
+frozen configuration, :class:`LayoutDxfOptions` (changed with :meth:`LayoutDxfOptions.with_changes`, as
+the reader's :class:`~stud_planner.drawing.LayoutOptions` is).
 
 :func:`stud_planner.drawing.layout.read_layout` on the written file gives back the input
 (to float precision), which is what the round-trip tests check.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import ezdxf
 import numpy as np
@@ -21,7 +25,7 @@ from ezdxf.math import OCS
 
 from stud_planner.drawing.units import units_to_metres
 
-__all__ = ["write_layout_dxf", "write_scene_drawing"]
+__all__ = ["LayoutDxfOptions", "write_layout_dxf", "write_scene_drawing"]
 
 _FLIP = (0.0, 0.0, -1.0)
 
@@ -31,31 +35,82 @@ def _rot(deg: float) -> np.ndarray:
     return np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
 
 
+@dataclass(frozen=True)
+class LayoutDxfOptions:
+    """How :func:`write_layout_dxf` draws a layout, by concern.
+
+    The file:
+        dxfversion: "R12", "R2000", ... "R2018" (R12 files carry no units: coordinates are in ``units`` all the same).
+        units: "mm", "cm", "m", "in", "ft", ... or "unitless" ($INSUNITS 0, coordinates in ``unitless_as``).
+        unitless_as: the unit of the coordinates when ``units`` is "unitless".
+        binary: write binary DXF.
+
+    The drawing frame's place in the WCS:
+        origin_wcs_m: where the drawing frame's origin sits in the WCS (metres).
+        rotation_deg: the drawing frame's rotation in the WCS (degrees, counter-clockwise).
+        mirror_frame: flip the WCS y axis, so B ends up clockwise from A.
+
+    The studs:
+        stud_diameter_m: one diameter for all studs or one per stud (m).
+        stud_layer: one layer for all studs or one per stud.
+
+    The marks and their labels:
+        mark_diameter_m: the diameter of every mark circle (m).
+        mark_layer: the layer of the mark circles.
+        labels: write TEXT (``label_kind="text"``) or MTEXT (``"mtext"``, R2000+) labels O/A/B (M1, ...) by the marks.
+        label_layer: the layer of those labels.
+        label_kind: "text" or "mtext".
+
+    The entities' form (what mirrored and block-based drawings contain):
+        as_blocks: studs as INSERTs of block ``STUD`` (a circle of diameter ``1 / block_scale``
+            on layer 0, off the block origin, with a non-zero base point).
+        block_rotation_deg: the INSERTs' rotation (degrees).
+        block_scale: the INSERTs' scale is ``block_scale x stud diameter``.
+        mirror_blocks: INSERTs with a negative x scale.
+        nested_blocks: wrap ``STUD`` in a block ``STUD_GROUP`` that inserts it rotated by 30 deg at scale 0.5.
+        ocs_flip: plain circles (and INSERTs) written with extrusion (0, 0, -1), OCS coordinates.
+    """
+
+    dxfversion: str = "R2010"
+    units: str = "mm"
+    unitless_as: str = "mm"
+    binary: bool = False
+    origin_wcs_m: Sequence[float] = (0.0, 0.0)
+    rotation_deg: float = 0.0
+    mirror_frame: bool = False
+    stud_diameter_m: float | Sequence[float] = 0.019
+    stud_layer: str | Sequence[str] = "STUDS"
+    mark_diameter_m: float = 0.03
+    mark_layer: str = "MARKS"
+    labels: bool = True
+    label_layer: str = "TEXT"
+    label_kind: str = "text"
+    as_blocks: bool = False
+    block_rotation_deg: float = 0.0
+    block_scale: float = 1.0
+    mirror_blocks: bool = False
+    nested_blocks: bool = False
+    ocs_flip: bool = False
+
+    def __post_init__(self) -> None:
+        # sequences (lists, arrays) are kept as tuples: the options stay immutable (and comparable)
+        object.__setattr__(self, "origin_wcs_m", tuple(float(v) for v in self.origin_wcs_m))
+        if not isinstance(self.stud_diameter_m, (int, float)):
+            object.__setattr__(self, "stud_diameter_m",
+                               tuple(float(v) for v in np.ravel(np.asarray(self.stud_diameter_m, dtype=np.float64))))
+        if not isinstance(self.stud_layer, str):
+            object.__setattr__(self, "stud_layer", tuple(self.stud_layer))
+
+    def with_changes(self, **changes: Any) -> "LayoutDxfOptions":
+        """A copy with ``changes`` (field name -> value; an unknown name is a TypeError)."""
+        return dataclasses.replace(self, **changes)
+
+
 def write_layout_dxf(
     path: str | Path,
     studs_xy_m: np.ndarray | Sequence[Sequence[float]],
     marks_xy_m: Mapping[str, Sequence[float]],
-    *,
-    stud_diameter_m: float | Sequence[float] = 0.019,
-    mark_diameter_m: float = 0.03,
-    dxfversion: str = "R2010",
-    units: str = "mm",
-    unitless_as: str = "mm",
-    stud_layer: str | Sequence[str] = "STUDS",
-    mark_layer: str = "MARKS",
-    labels: bool = True,
-    label_layer: str = "TEXT",
-    label_kind: str = "text",
-    as_blocks: bool = False,
-    block_rotation_deg: float = 0.0,
-    block_scale: float = 1.0,
-    mirror_blocks: bool = False,
-    nested_blocks: bool = False,
-    ocs_flip: bool = False,
-    origin_wcs_m: Sequence[float] = (0.0, 0.0),
-    rotation_deg: float = 0.0,
-    mirror_frame: bool = False,
-    binary: bool = False,
+    options: LayoutDxfOptions | None = None,
 ) -> Path:
     """Write a DXF with stud circles, the three marks O, A, B and any reference marks; return the path.
 
@@ -64,52 +119,35 @@ def write_layout_dxf(
         studs_xy_m: (N, 2) stud centres, drawing frame, metres.
         marks_xy_m: {"O": (x, y), "A": ..., "B": ...}, drawing frame, metres; further entries
             (``"M1": (x, y)``, ...) are reference marks, drawn on the mark layer like O, A, B.
-        stud_diameter_m: one diameter for all studs or one per stud (m).
-        mark_diameter_m: the diameter of every mark circle (m).
-        dxfversion: "R12", "R2000", ... "R2018" (R12 files carry no units: coordinates are in ``units`` all the same).
-        units: "mm", "cm", "m", "in", "ft", ... or "unitless" ($INSUNITS 0, coordinates in ``unitless_as``).
-        unitless_as: the unit of the coordinates when ``units`` is "unitless".
-        stud_layer: one layer for all studs or one per stud.
-        mark_layer: the layer of the mark circles.
-        labels: write TEXT (``label_kind="text"``) or MTEXT (``"mtext"``, R2000+) labels O/A/B (M1, ...) by the marks.
-        label_layer: the layer of those labels.
-        label_kind: "text" or "mtext".
-        as_blocks: studs as INSERTs of block ``STUD`` (a circle of diameter ``1 / block_scale``
-            on layer 0, off the block origin, with a non-zero base point).
-        block_rotation_deg: the INSERTs' rotation (degrees).
-        block_scale: the INSERTs' scale is ``block_scale x stud diameter``.
-        mirror_blocks: INSERTs with a negative x scale.
-        nested_blocks: wrap ``STUD`` in a block ``STUD_GROUP`` that inserts it rotated by 30 deg at scale 0.5.
-        ocs_flip: plain circles (and INSERTs) written with extrusion (0, 0, -1), OCS coordinates.
-        origin_wcs_m: where the drawing frame's origin sits in the WCS (metres).
-        rotation_deg: the drawing frame's rotation in the WCS (degrees, counter-clockwise).
-        mirror_frame: flip the WCS y axis, so B ends up clockwise from A.
-        binary: write binary DXF.
+        options: how to draw them (:class:`LayoutDxfOptions`; None: its defaults, a labelled R2010 mm drawing
+            of 19 mm studs and 30 mm marks).
     """
+    o = options or LayoutDxfOptions()
     path = Path(path)
     studs = np.asarray(studs_xy_m, dtype=np.float64).reshape(-1, 2)
     n = studs.shape[0]
-    insunits, _, scale = (0, "", units_to_metres(unitless_as)[2]) if units == "unitless" else units_to_metres(units)
+    unitless = o.units == "unitless"
+    insunits, _, scale = (0, "", units_to_metres(o.unitless_as)[2]) if unitless else units_to_metres(o.units)
     k = 1.0 / scale  # drawing units per metre
-    diam = np.broadcast_to(np.asarray(stud_diameter_m, dtype=np.float64), (n,))
-    layers = [stud_layer] * n if isinstance(stud_layer, str) else list(stud_layer)
+    diam = np.broadcast_to(np.asarray(o.stud_diameter_m, dtype=np.float64), (n,))
+    layers = [o.stud_layer] * n if isinstance(o.stud_layer, str) else list(o.stud_layer)
     if len(layers) != n:
         raise ValueError(f"stud_layer: {len(layers)} layers for {n} studs")
-    to_wcs = _frame_to_wcs(origin_wcs_m, rotation_deg, mirror_frame, k)
-    doc = _new_document(dxfversion, insunits, layers, mark_layer, label_layer)
+    to_wcs = _frame_to_wcs(o.origin_wcs_m, o.rotation_deg, o.mirror_frame, k)
+    doc = _new_document(o.dxfversion, insunits, layers, o.mark_layer, o.label_layer)
     msp = doc.modelspace()
     stud_wcs = to_wcs(studs)
-    if not as_blocks:
+    if not o.as_blocks:
         for p, r, lay in zip(stud_wcs, diam * k / 2.0, layers):
-            _add_circle(msp, p, r, lay, ocs_flip)
+            _add_circle(msp, p, r, lay, o.ocs_flip)
     else:
-        block = _stud_block(doc, block_scale, nested_blocks)
-        _add_stud_inserts(msp, block, stud_wcs, diam * k, layers, block_rotation_deg, block_scale, mirror_blocks,
-                          ocs_flip)
-    _add_marks(msp, marks_xy_m, to_wcs, mark_diameter_m * k / 2.0, mark_layer, ocs_flip,
-               label_layer if labels else None, label_kind)
+        block = _stud_block(doc, o.block_scale, o.nested_blocks)
+        _add_stud_inserts(msp, block, stud_wcs, diam * k, layers, o.block_rotation_deg, o.block_scale,
+                          o.mirror_blocks, o.ocs_flip)
+    _add_marks(msp, marks_xy_m, to_wcs, o.mark_diameter_m * k / 2.0, o.mark_layer, o.ocs_flip,
+               o.label_layer if o.labels else None, o.label_kind)
     path.parent.mkdir(parents=True, exist_ok=True)
-    doc.saveas(path, fmt="bin" if binary else "asc")
+    doc.saveas(path, fmt="bin" if o.binary else "asc")
     return path
 
 
@@ -205,9 +243,8 @@ def _add_stud_inserts(msp, block: tuple[str, np.ndarray, float], stud_wcs: np.nd
 
 def write_scene_drawing(
     path: str | Path, studs_xy_m: np.ndarray | Sequence[Sequence[float]], marks: Mapping[str, Sequence[float]],
-    *, stud_diameter_m: float = 0.019, mark_diameter_m: float = 0.03, **kwargs,
+    options: LayoutDxfOptions | None = None,
 ) -> Path:
-    """Hook for demo scenes: studs and marks O/A/B (drawing frame, m) as a labelled R2010 mm drawing
-    (19 mm studs, 30 mm marks unless given); ``kwargs`` go to :func:`write_layout_dxf`."""
-    return write_layout_dxf(path, studs_xy_m, marks, stud_diameter_m=stud_diameter_m,
-                            mark_diameter_m=mark_diameter_m, **kwargs)
+    """Hook for demo scenes: studs and marks O/A/B (drawing frame, m) as :func:`write_layout_dxf` draws them
+    with ``options`` (None: a labelled R2010 mm drawing of 19 mm studs and 30 mm marks)."""
+    return write_layout_dxf(path, studs_xy_m, marks, options)
