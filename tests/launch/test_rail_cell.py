@@ -82,22 +82,29 @@ def true_weld_points(journal_file, carriage_of: dict[str, float], mount=(0.0, 0.
     return {sid: v for sid, v in out.items() if sid in welded}
 
 
-def test_a_girder_longer_than_the_arm_is_welded_from_a_rail_that_is_off_within_1_mm_at_both_ends(cell_run, tmp_path):
-    scene = girder_part()
-    dxf, scene_file, ids = part_files(tmp_path, scene)
+def run_rail_job(cell_run, dxf, scene_file, rail_m: float, deviation: RailDeviation, *extra: str):
+    """The simulated cell on a rail ``rail_m`` long that is truly off by ``deviation``, welding the drawing
+    headless to the end: (the cell, its weld report, asserted done)."""
     cell = cell_run("--mode", "sim", "--no-hmi", "--var", f"arm_port={free_port()}", "--var", "arm_time_scale=0.1",
                     "--var", f"drawing={dxf}", "--var", f"scene={scene_file}",
-                    "--var", f"rail_length_m={RAIL_M}", "--var", f"workspace_max_m=[{RAIL_M + 0.7}, 0.7, 1.1]",
-                    "--var", f"true_rail_scale_ppm={DEVIATION.scale_ppm}",
-                    "--var", f"true_rail_offset_m={DEVIATION.offset_m}",
-                    "--var", f"true_rail_yaw_urad_per_m={DEVIATION.yaw_urad_per_m}",
+                    "--var", f"rail_length_m={rail_m}", "--var", f"workspace_max_m=[{rail_m + 0.7}, 0.7, 1.1]",
+                    "--var", f"true_rail_scale_ppm={deviation.scale_ppm}",
+                    "--var", f"true_rail_offset_m={deviation.offset_m}",
+                    "--var", f"true_rail_yaw_urad_per_m={deviation.yaw_urad_per_m}",
                     "--set", "cell_sequencer.auto_start=true", "--set", "cell_sequencer.exit_when_done=true",
-                    "--set", "arm_driver.pulse_s=0.02", "--set", "arm_driver.dwell_s=0.02")
+                    "--set", "arm_driver.pulse_s=0.02", "--set", "arm_driver.dwell_s=0.02", *extra)
     cell.wait(lambda: not cell.running(), 1200, "the job to end the launch")
     out = cell.output()
     assert (cell.out_dir / "weld_report.json").exists(), out[-5000:]
     report = json.loads((cell.out_dir / "weld_report.json").read_text())
     assert report["state"] == "done", out[-5000:]
+    return cell, report
+
+
+def test_a_girder_longer_than_the_arm_is_welded_from_a_rail_that_is_off_within_1_mm_at_both_ends(cell_run, tmp_path):
+    scene = girder_part()
+    dxf, scene_file, ids = part_files(tmp_path, scene)
+    cell, report = run_rail_job(cell_run, dxf, scene_file, RAIL_M, DEVIATION)
     targets = {t["stud_id"]: t for t in report["targets"]}
     assert all(t["welded"] for t in targets.values()), {k: (t["status"], t.get("reason")) for k, t in targets.items()}
     journal = [json.loads(line) for line in (cell.out_dir / "weld_journal.jsonl").read_text().splitlines()]

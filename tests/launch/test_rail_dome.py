@@ -7,15 +7,14 @@ welded (the journal's joints at the contact on the TRUE rail) is within 1 mm of 
 Scenes and drawings are written here; the bundled parts are not touched. Slow: one cell run."""
 from __future__ import annotations
 
-import json
 import math
 
 from stud_bringup.demo import run_params
 from stud_bringup.demo_score import score, welds_from_journal
 from stud_common.frames import RailDeviation
 from stud_perception.scene_solids import Pose2D
-from test_cell_ros import free_port
 from test_curved_cell import BOARD_POSE, part_files
+from test_rail_cell import run_rail_job
 from test_reach_cell import dome_scene, journal_events
 
 RAIL_M = 2.5
@@ -29,20 +28,8 @@ def test_a_dome_2_m_along_the_rail_is_found_without_a_station_or_search_area_and
     scene = dome_scene((0.215 + ALONG_M, 0.0), 0.20, 0.05, [(0.0, 1, 0.0), (0.05, 8, math.pi / 8), (0.10, 16, 0.0)],
                        board)
     dxf, scene_file = part_files(tmp_path, scene)
-    cell = cell_run("--mode", "sim", "--no-hmi", "--var", f"arm_port={free_port()}", "--var", "arm_time_scale=0.1",
-                    "--var", f"drawing={dxf}", "--var", f"scene={scene_file}",
-                    "--var", "registration_station_xyz_m=[]",
-                    "--var", f"rail_length_m={RAIL_M}", "--var", f"workspace_max_m=[{RAIL_M + 0.7}, 0.7, 1.1]",
-                    "--var", f"true_rail_scale_ppm={DEVIATION.scale_ppm}",
-                    "--var", f"true_rail_offset_m={DEVIATION.offset_m}",
-                    "--var", f"true_rail_yaw_urad_per_m={DEVIATION.yaw_urad_per_m}",
-                    "--set", "cell_sequencer.auto_start=true", "--set", "cell_sequencer.exit_when_done=true",
-                    "--set", "arm_driver.pulse_s=0.02", "--set", "arm_driver.dwell_s=0.02")
-    cell.wait(lambda: not cell.running(), 1200, "the job to end the launch")
+    cell, report = run_rail_job(cell_run, dxf, scene_file, RAIL_M, DEVIATION, "--var", "registration_station_xyz_m=[]")
     out = cell.output()
-    assert (cell.out_dir / "weld_report.json").exists(), out[-5000:]
-    report = json.loads((cell.out_dir / "weld_report.json").read_text())
-    assert report["state"] == "done", out[-5000:]
     assert "marking board found from the camera at" in out, out[-5000:]
     targets = {t["stud_id"]: t for t in report["targets"]}
 
