@@ -226,6 +226,9 @@ def test_split_files_whose_times_overlap_are_merged_by_log_time_not_concatenated
         assert [m.message().data for m in reader.messages(["/b"])] == [str(k) for k in range(1, 20, 2)]
         late = [int(m.message().data) for m in reader.messages(start_time_ns=t0 + 15_000_000)]
         assert late == [15, 16, 17, 18, 19]
+        window = [int(m.message().data) for m in reader.messages(start_time_ns=t0 + 5_000_000,
+                                                                 end_time_ns=t0 + 8_000_000)]
+        assert window == [5, 6, 7, 8]   # both bounds inclusive
 
 
 def test_a_recording_that_was_never_closed_is_read_up_to_its_last_message(tmp_path):

@@ -333,9 +333,8 @@ class BagReader:
             if scan.indexed:
                 with open(scan.path, "rb") as f:
                     reader = SeekingReader(f, validate_crcs=True)
-                    end_before = None if end is None else end + 1
                     for _schema, channel, msg in reader.iter_messages(
-                            topics=None if wanted is None else sorted(wanted), start_time=start, end_time=end_before,
+                            topics=None if wanted is None else sorted(wanted), starting_at=start, ending_at=end,
                             log_time_order=True):
                         yield self._bag_message(channel.topic, types.get(channel.id, ""), msg, decompress)
             else:
