@@ -172,6 +172,8 @@ def test_studs_the_arm_cannot_weld_are_named_with_the_reason_before_anything_is_
         welds_then, named = next((w, f) for _m, w, f in cell.fields if sid in f["unreachable"])
         assert welds_then < len(cell.weld_calls)
         assert named["unreachable_reasons"][named["unreachable"].index(sid)] == targets[sid]["reason"]
+        # and the operator's log said so, with the reason
+        assert f"WARN {sid} will not be welded: {targets[sid]['reason']}" in cell.log, cell.log
 
 
 def test_a_station_the_arm_refuses_costs_that_station_and_the_job_goes_on(tmp_path):

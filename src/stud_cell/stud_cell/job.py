@@ -61,7 +61,7 @@ class CellJob:
     def __init__(self, ports: CellPorts, config: JobConfig, reach: CellReach | None = None) -> None:
         self.ports, self.c = ports, config
         self.reach = reach                         # the arm driver's reach test (None: not known)
-        self.named = UnreachableStuds(reach, self._publish_unreachable)
+        self.named = UnreachableStuds(reach, self._publish_unreachable, ports.warn)
         self.stud_report: dict[str, dict] = {}     # stud id -> weld-report entry
         self.qa: dict[str, dict] = {}              # stud id -> QA row (qa_report)
         self.best: dict[str, tuple[BestViewKey, Target, View]] = {}  # best usable target per stud, over all views

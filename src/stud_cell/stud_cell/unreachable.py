@@ -31,9 +31,11 @@ def _usable(position_m, normal) -> bool:
 class UnreachableStuds:
     """The named studs (id -> reason) and the reach verdicts on targets (cached by their values)."""
 
-    def __init__(self, reach: CellReach | None, on_change: Callable[[], None] = lambda: None) -> None:
+    def __init__(self, reach: CellReach | None, on_change: Callable[[], None] = lambda: None,
+                 say: Callable[[str], None] = lambda text: None) -> None:
         self.reach = reach
         self.on_change = on_change
+        self.say = say   # one line for the operator's log each time a stud is named or taken off
         self.reasons: dict[str, str] = {}
         self._verdicts: dict[tuple, str] = {}
 
@@ -45,10 +47,12 @@ class UnreachableStuds:
         reason = why if why.startswith(PREFIX) else PREFIX + why
         if self.reasons.get(stud_id) != reason:
             self.reasons[stud_id] = reason
+            self.say(f"{stud_id} will not be welded: {reason}")
             self.on_change()
 
     def withdraw(self, stud_id: str) -> None:
         if self.reasons.pop(stud_id, None) is not None:
+            self.say(f"{stud_id} is weldable after all (another view's target): taken off the unreachable list")
             self.on_change()
 
     def verdict(self, position_m, normal, reach: CellReach | None = None) -> str:
