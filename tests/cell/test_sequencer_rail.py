@@ -4,18 +4,14 @@ through /arm/rail_move, its arrival confirmed by /arm/state at the new position 
 position), an e-stop or a running weld job stops the job."""
 from __future__ import annotations
 
-import threading
-
 import pytest
-import rclpy
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from stud_welding_msgs.msg import ArmState
 from stud_welding_msgs.srv import RailMove
 
+from sequencer_harness import sequencer_beside
 from stud_cell.job import JobAborted, MoveRefused
-from stud_cell.sequencer_node import CellSequencer
 from stud_common import names, ros_io
 
 
@@ -51,21 +47,8 @@ class FakeRailArm(Node):
 
 @pytest.fixture()
 def cell():
-    rclpy.init()
-    sequencer, arm = CellSequencer(), FakeRailArm()
-    executor = MultiThreadedExecutor(num_threads=4)
-    executor.add_node(sequencer)
-    executor.add_node(arm)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
-    try:
-        yield sequencer, arm
-    finally:
-        executor.shutdown(timeout_sec=2.0)
-        sequencer.destroy_node()
-        arm.destroy_node()
-        rclpy.try_shutdown()
-        spinner.join(timeout=2.0)
+    with sequencer_beside(FakeRailArm) as nodes:
+        yield nodes
 
 
 def test_the_carriage_moves_through_rail_move_and_the_job_waits_for_the_state_showing_it_there(cell):

@@ -2,19 +2,16 @@
 moved (the station's footprint on the registered plane) and why each unreachable stud is."""
 from __future__ import annotations
 
-import threading
 import time
 
 import pytest
-import rclpy
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from stud_welding_msgs.msg import ArmState, CellStatus, Registration
 from stud_welding_msgs.srv import MoveTo
 
+from sequencer_harness import sequencer_beside
 from stud_cell import job as cell_job
-from stud_cell.sequencer_node import CellSequencer
 from stud_common import names, ros_io
 
 PLANE_Z = 0.05  # the registered marks' height: the part lies on a table 50 mm above the arm's base
@@ -48,21 +45,8 @@ class FakeArm(Node):
 
 @pytest.fixture()
 def cell():
-    rclpy.init()
-    sequencer, arm = CellSequencer(), FakeArm()
-    executor = MultiThreadedExecutor(num_threads=4)
-    executor.add_node(sequencer)
-    executor.add_node(arm)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
-    try:
-        yield sequencer, arm
-    finally:
-        executor.shutdown(timeout_sec=2.0)
-        sequencer.destroy_node()
-        arm.destroy_node()
-        rclpy.try_shutdown()
-        spinner.join(timeout=2.0)
+    with sequencer_beside(FakeArm) as nodes:
+        yield nodes
 
 
 def wait(predicate, what: str, timeout_s: float = 10.0):

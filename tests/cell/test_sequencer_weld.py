@@ -7,20 +7,17 @@ must then wait for the first job's result, not abort while the arm goes on weldi
 report would then say are not welded."""
 from __future__ import annotations
 
-import threading
 import time
 
 import pytest
-import rclpy
 from rclpy.action import ActionServer, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from stud_welding_msgs.action import WeldJob
 from stud_welding_msgs.msg import ArmState, WeldTarget
 
+from sequencer_harness import sequencer_beside
 from stud_cell import job as cell_job
-from stud_cell.sequencer_node import CellSequencer
 from stud_common import names, ros_io
 
 IDS = ["S0001", "S0002", "S0003"]
@@ -74,21 +71,8 @@ class StallingDriver(Node):
 
 @pytest.fixture()
 def cell():
-    rclpy.init()
-    sequencer, driver = CellSequencer(), StallingDriver()
-    executor = MultiThreadedExecutor(num_threads=6)
-    executor.add_node(sequencer)
-    executor.add_node(driver)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
-    try:
-        yield sequencer, driver
-    finally:
-        executor.shutdown(timeout_sec=2.0)
-        sequencer.destroy_node()
-        driver.destroy_node()
-        rclpy.try_shutdown()
-        spinner.join(timeout=2.0)
+    with sequencer_beside(StallingDriver, threads=6) as nodes:
+        yield nodes
 
 
 def test_a_resend_rejected_by_a_driver_still_on_the_job_waits_for_that_jobs_result(cell):
